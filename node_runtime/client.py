@@ -1,0 +1,71 @@
+"""The client role: creates tasks and records their response times when results come back.
+
+A client on a worker node hands its tasks to that worker (next tick, no radio). A client on a node
+without a worker owns the node's links and transmits to one of its worker neighbours, picked
+uniformly at random per task.
+"""
+
+from __future__ import annotations
+
+from node_runtime.comm import Radio
+from node_runtime.config import NodeSpec, Scenario
+from node_runtime.messages import Envelope, Kind, Task
+from node_runtime.rng import CLIENT, stream
+from node_runtime.role import Outbox, Role
+from node_runtime.routing import role_id
+from node_runtime.workload import TaskSource
+
+COUNTS, TYPES, TARGETS, LINKS = 0, 1, 2, 3  # purposes of the client's random streams
+
+
+class Client(Role):
+    kind = "client"
+
+    def __init__(self, node: NodeSpec, scenario: Scenario) -> None:
+        super().__init__(node, scenario)
+        self.targets = scenario.targets[node.id]
+        self.local = node.worker  # hands tasks to its own worker
+        self.radio = None if self.local else Radio.for_node(scenario, node.id, self.targets)
+        self.reset(scenario.seed)
+
+    def reset(self, seed: int) -> None:
+        super().reset(seed)
+        self.source = TaskSource(self.scenario, self.node.id, stream(seed, self.index, CLIENT, COUNTS),
+                                 stream(seed, self.index, CLIENT, TYPES))
+        self.target_rng = stream(seed, self.index, CLIENT, TARGETS)
+        self.seq = 0
+        if self.radio is not None:
+            self.radio.reset(stream(seed, self.index, CLIENT, LINKS))
+
+    def task_id(self) -> int:
+        self.seq += 1
+        return (self.index << 32) | self.seq
+
+    def tick(self, t: int, inbox: list[Envelope], out: Outbox) -> None:
+        st = self.stats
+        dt = self.scenario.dt
+        failed = self.scenario.is_failed(self.node.id, t)
+        for env in inbox:
+            if env.kind != Kind.RESULT:
+                raise ValueError(f"{self.id}: unexpected {env.kind.name} from {env.src}")
+            task = env.body.task
+            if failed:
+                st.node_failure += 1
+            elif task.expired(t, dt):
+                st.expired += 1
+            else:
+                st.completed += 1
+                st.response_times.append((t - task.created) * dt)
+        if failed:
+            return
+        me = self.node.id
+        for instructions, in_bytes, out_bytes, cpi, deadline in self.source.draws(t):
+            task = Task(self.task_id(), me, t, instructions, in_bytes, out_bytes, cpi, deadline)
+            st.generated += 1
+            if self.local:
+                out.send(Kind.TASK, role_id("worker", me), task)
+                continue
+            target = self.targets[0]
+            if len(self.targets) > 1:
+                target = self.targets[int(self.target_rng.integers(len(self.targets)))]
+            self.transmit(t, Kind.TASK, target, role_id("worker", target), task, in_bytes * 8.0, out)

@@ -1,0 +1,95 @@
+"""Communication model: Shannon–Hartley rates and the FIFO transmitter of a directed link."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from node_runtime.config import Scenario
+
+
+def dbm_to_watts(dbm: float) -> float:
+    return 10.0 ** ((dbm - 30.0) / 10.0)
+
+
+def shannon_rate(bandwidth_hz: float, tx_power_dbm: float, gain_db: float, noise_dbm: float) -> float:
+    """r = B * log2(1 + 10^((P + G - w0) / 10)) in bit/s (DESIGN §2; the paper's Eq. 4)."""
+    snr = 10.0 ** ((tx_power_dbm + gain_db - noise_dbm) / 10.0)
+    return bandwidth_hz * math.log2(1.0 + snr)
+
+
+def log_distance_gain_db(distance_m: float, ref_loss_db: float, ref_distance_m: float,
+                         exponent: float) -> float:
+    """Channel gain (negative path loss) of the log-distance model.
+
+    PL(d) = PL(d0) + 10 n log10(d / d0) for d >= d0; closer than d0 the loss is PL(d0).
+    """
+    d = max(distance_m, ref_distance_m)
+    return -(ref_loss_db + 10.0 * exponent * math.log10(d / ref_distance_m))
+
+
+def transfer_ticks(bits: float, rate_bps: float, dt: float) -> int:
+    """Ticks an idle link needs to deliver ``bits``: max(1, ceil(b / r / dt))."""
+    return max(1, math.ceil(bits / rate_bps / dt))
+
+
+class LinkTransmitter:
+    """One directed link: transmits one message at a time, first in, first out.
+
+    Time is kept in ticks (floats) so that ``dt`` never introduces rounding drift: a message of b
+    bits sent in tick t starts when the link frees up, occupies it for b / r / dt ticks, and is
+    delivered at the first tick boundary after it finishes — but never before t + 1.
+    """
+
+    __slots__ = ("busy_until", "dt", "rate_bps")
+
+    def __init__(self, rate_bps: float, dt: float) -> None:
+        self.rate_bps = rate_bps
+        self.dt = dt
+        self.busy_until = 0.0
+
+    def reset(self) -> None:
+        self.busy_until = 0.0
+
+    def send(self, tick: int, bits: float) -> tuple[int, float]:
+        """Queue a message; return (arrival tick, seconds on air)."""
+        seconds = bits / self.rate_bps
+        start = max(float(tick), self.busy_until)
+        finish = start + seconds / self.dt
+        self.busy_until = finish
+        return max(tick + 1, math.ceil(finish)), seconds
+
+
+class Radio:
+    """A node's outgoing links: one FIFO transmitter per neighbour, each with its loss probability."""
+
+    def __init__(self, links: dict[str, tuple[float, float]], dt: float) -> None:
+        """``links`` maps a neighbour to (rate in bit/s, loss probability)."""
+        self.links = {j: LinkTransmitter(rate, dt) for j, (rate, _) in links.items()}
+        self.loss = {j: loss for j, (_, loss) in links.items()}
+        self.rng: np.random.Generator | None = None
+
+    @classmethod
+    def for_node(cls, scenario: Scenario, node: str, dsts: tuple[str, ...]) -> Radio:
+        return cls({j: (scenario.link[(node, j)].rate_bps, scenario.link[(node, j)].loss) for j in dsts},
+                   scenario.dt)
+
+    def reset(self, rng: np.random.Generator) -> None:
+        self.rng = rng
+        for link in self.links.values():
+            link.reset()
+
+    def __contains__(self, node: str) -> bool:
+        return node in self.links
+
+    def send(self, tick: int, dst: str, bits: float) -> tuple[int, float] | None:
+        """(arrival tick, seconds on air), or None when the message is lost on the way.
+
+        A lost message still occupied the link, as a real transmission would.
+        """
+        arrive, seconds = self.links[dst].send(tick, bits)
+        loss = self.loss[dst]
+        if loss > 0.0 and self.rng.random() < loss:
+            return None
+        return arrive, seconds

@@ -1,0 +1,240 @@
+"""The resolved scenario: what every node process needs to know, and nothing about files.
+
+The orchestrator parses and validates a YAML scenario into these frozen dataclasses; node
+processes receive them (pickled by the launcher, or as a dict over the bus for remote hosts).
+Everything here is plain data so that it round-trips through ``to_dict``/``from_dict``.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+from dataclasses import asdict, dataclass, field, fields
+from functools import cached_property
+from typing import Any, Literal
+
+Mode = Literal["binary", "batch"]
+
+
+@dataclass(frozen=True, slots=True)
+class NodeSpec:
+    """One network node: a worker, optionally with a client (task source) and a controller."""
+
+    id: str
+    tier: int
+    cores: int
+    frequency: float  # cycles per second, per core
+    buffer: int  # Q_max: queued + undecided tasks
+    position: tuple[float, float]
+    tx_power_dbm: float
+    idle_power_w: float
+    kappa: float  # switched capacitance: compute energy = kappa * cycles * frequency**2
+    worker: bool = True
+    controller: bool = False
+    client: bool = False
+    policy: str = "local"  # node-side decision policy when no agent drives the controller
+    profile: str = ""  # hardware profile name, for display
+
+    @property
+    def capacity(self) -> float:
+        """Cycles per second the worker can spend on its queue."""
+        return self.cores * self.frequency
+
+
+@dataclass(frozen=True, slots=True)
+class LinkSpec:
+    """A directed link src -> dst and the rate its sender transmits at."""
+
+    src: str
+    dst: str
+    rate_bps: float
+    loss: float = 0.0  # probability that a message on this link is lost
+
+
+@dataclass(frozen=True, slots=True)
+class TaskType:
+    name: str
+    weight: float
+    instructions: float  # rho
+    input_bytes: float  # alpha_in
+    output_bytes: float  # alpha_out
+    cpi: float  # xi, cycles per instruction
+    deadline: float  # delta, seconds from creation until the result must be back
+
+
+@dataclass(frozen=True, slots=True)
+class Arrival:
+    """Arrival-rate schedule lambda(t), tasks per second per client.
+
+    kinds: constant(rate); linear(start -> end over the episode); zigzag(low..high, period s);
+    uniform(each client draws a constant rate in [low, high] at every reset).
+    """
+
+    kind: Literal["constant", "linear", "zigzag", "uniform"] = "constant"
+    rate: float = 0.17
+    start: float = 0.0
+    end: float = 0.0
+    low: float = 0.0
+    high: float = 0.0
+    period: float = 100.0
+
+
+@dataclass(frozen=True, slots=True)
+class TraceRow:
+    time: float  # seconds from the episode start
+    client: str
+    instructions: float
+    input_bytes: float
+    output_bytes: float
+    cpi: float
+    deadline: float
+
+
+@dataclass(frozen=True, slots=True)
+class Workload:
+    task_types: tuple[TaskType, ...]
+    arrival: Arrival = Arrival()
+    client_rates: tuple[tuple[str, float], ...] = ()  # per-client constant overrides
+    client_targets: tuple[tuple[str, tuple[str, ...]], ...] = ()  # client node -> worker nodes
+    trace: tuple[TraceRow, ...] | None = None
+
+
+@dataclass(frozen=True, slots=True)
+class Failure:
+    """Node ``node`` is down for ticks [start, end)."""
+
+    node: str
+    start: int
+    end: int
+
+
+@dataclass(frozen=True)
+class Scenario:
+    name: str
+    dt: float
+    episode_ticks: int
+    seed: int
+    mode: Mode
+    decision_interval: int
+    max_hops: int
+    batch_size: int  # decisions per epoch in batch mode (fixed action shape)
+    state_interval: int  # ticks between one-hop state broadcasts
+    nodes: tuple[NodeSpec, ...]
+    links: tuple[LinkSpec, ...]
+    workload: Workload
+    failures: tuple[Failure, ...] = ()
+    source: str = ""  # the file it came from, for messages only
+    extra: dict[str, Any] = field(default_factory=dict)  # free-form metadata (description ...)
+
+    # ----- derived views (cached, never serialised) -----
+
+    @cached_property
+    def node(self) -> dict[str, NodeSpec]:
+        return {n.id: n for n in self.nodes}
+
+    @cached_property
+    def index(self) -> dict[str, int]:
+        """Canonical node index: declaration order."""
+        return {n.id: i for i, n in enumerate(self.nodes)}
+
+    @cached_property
+    def neighbours(self) -> dict[str, tuple[str, ...]]:
+        """One-hop neighbours of every node, in canonical (declaration) order."""
+        adj: dict[str, set[str]] = {n.id: set() for n in self.nodes}
+        for link in self.links:
+            adj[link.src].add(link.dst)
+        return {nid: tuple(sorted(ns, key=self.index.__getitem__)) for nid, ns in adj.items()}
+
+    @cached_property
+    def link(self) -> dict[tuple[str, str], LinkSpec]:
+        return {(lk.src, lk.dst): lk for lk in self.links}
+
+    @cached_property
+    def targets(self) -> dict[str, tuple[str, ...]]:
+        """Worker nodes each client hands its new tasks to."""
+        explicit = dict(self.workload.client_targets)
+        out: dict[str, tuple[str, ...]] = {}
+        for n in self.nodes:
+            if not n.client:
+                continue
+            if n.id in explicit:
+                out[n.id] = explicit[n.id]
+            elif n.worker:
+                out[n.id] = (n.id,)
+            else:
+                out[n.id] = tuple(j for j in self.neighbours[n.id] if self.node[j].worker)
+        return out
+
+    @cached_property
+    def failure_windows(self) -> dict[str, tuple[tuple[int, int], ...]]:
+        windows: dict[str, list[tuple[int, int]]] = {}
+        for f in self.failures:
+            windows.setdefault(f.node, []).append((f.start, f.end))
+        return {k: tuple(sorted(v)) for k, v in windows.items()}
+
+    def is_failed(self, node: str, tick: int) -> bool:
+        return any(a <= tick < b for a, b in self.failure_windows.get(node, ()))
+
+    @property
+    def controllers(self) -> tuple[str, ...]:
+        return tuple(n.id for n in self.nodes if n.controller)
+
+    @property
+    def clients(self) -> tuple[str, ...]:
+        return tuple(n.id for n in self.nodes if n.client)
+
+    @property
+    def undirected_links(self) -> int:
+        return len({frozenset((lk.src, lk.dst)) for lk in self.links})
+
+    # ----- serialisation -----
+
+    def to_dict(self) -> dict[str, Any]:
+        return {f.name: _plain(getattr(self, f.name)) for f in fields(self)}
+
+    @classmethod
+    def from_dict(cls, d: dict[str, Any]) -> Scenario:
+        wl = d["workload"]
+        workload = Workload(
+            task_types=tuple(TaskType(**t) for t in wl["task_types"]),
+            arrival=Arrival(**wl["arrival"]),
+            client_rates=tuple((c, float(r)) for c, r in wl["client_rates"]),
+            client_targets=tuple((c, tuple(ts)) for c, ts in wl["client_targets"]),
+            trace=None if wl["trace"] is None else tuple(TraceRow(**r) for r in wl["trace"]),
+        )
+        return cls(
+            name=d["name"],
+            dt=float(d["dt"]),
+            episode_ticks=int(d["episode_ticks"]),
+            seed=int(d["seed"]),
+            mode=d["mode"],
+            decision_interval=int(d["decision_interval"]),
+            max_hops=int(d["max_hops"]),
+            batch_size=int(d["batch_size"]),
+            state_interval=int(d["state_interval"]),
+            nodes=tuple(NodeSpec(**{**n, "position": tuple(n["position"])}) for n in d["nodes"]),
+            links=tuple(LinkSpec(**lk) for lk in d["links"]),
+            workload=workload,
+            failures=tuple(Failure(**f) for f in d["failures"]),
+            source=d.get("source", ""),
+            extra=dict(d.get("extra", {})),
+        )
+
+    def digest(self) -> str:
+        """Content hash of everything that affects the emulation (not the source path)."""
+        d = self.to_dict()
+        d.pop("source", None)
+        d.pop("extra", None)
+        blob = json.dumps(d, sort_keys=True, separators=(",", ":")).encode()
+        return hashlib.sha256(blob).hexdigest()[:16]
+
+
+def _plain(value: Any) -> Any:
+    """Dataclasses and tuples to dicts and lists, so the result is JSON/msgpack friendly."""
+    if hasattr(value, "__dataclass_fields__"):
+        return {k: _plain(v) for k, v in asdict(value).items()}
+    if isinstance(value, (tuple, list)):
+        return [_plain(v) for v in value]
+    if isinstance(value, dict):
+        return {k: _plain(v) for k, v in value.items()}
+    return value

@@ -1,0 +1,154 @@
+"""The controller role: decides where its worker's undecided tasks go.
+
+Timing, identical whether a node-side policy or an RL agent decides (so that a policy run in the
+node and the same policy run as an agent through the environment give the same emulation):
+
+- at the end of every decision epoch (ticks t with t % decision_interval == 0) the controller
+  builds an ``Observation`` from what it has heard: its worker's undecided list (reported one tick
+  late) and the one-hop state broadcasts (one tick late);
+- the action for that observation is applied in the next tick: the controller turns it into
+  ``Decision`` messages, which reach the worker one tick later.
+
+Binary mode places the oldest undecided task per epoch; batch mode places up to ``batch_size``
+undecided tasks, oldest first.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+from node_runtime.config import NodeSpec, Scenario
+from node_runtime.messages import Decision, Envelope, Kind, NodeState, Pending
+from node_runtime.observation import NodeView, Observation, TaskView
+from node_runtime.policies import Policy, make_policy
+from node_runtime.rng import CONTROLLER, stream
+from node_runtime.role import Outbox, Role
+from node_runtime.routing import role_id
+
+Action = int | Sequence[int]
+
+
+class InvalidAction(ValueError):
+    """An action outside the valid targets of the observation it answers."""
+
+
+class Controller(Role):
+    kind = "controller"
+
+    def __init__(self, node: NodeSpec, scenario: Scenario) -> None:
+        super().__init__(node, scenario)
+        self.neighbours = scenario.neighbours[node.id]
+        self.worker = role_id("worker", node.id)
+        self.per_epoch = 1 if scenario.mode == "binary" else scenario.batch_size
+        self.external = False
+        self.policy: Policy = make_policy(node.policy)
+        self.reset(scenario.seed)
+
+    def reset(self, seed: int, external: bool = False, policy: str | None = None) -> None:
+        """Start an episode. ``external``: an agent sends the actions; else the node-side policy."""
+        super().reset(seed)
+        self.external = external
+        if policy is not None and policy != self.policy.name:
+            self.policy = make_policy(policy)
+        self.policy.reset(stream(seed, self.index, CONTROLLER))
+        sc = self.scenario
+        self.states: dict[str, NodeState] = {
+            n: NodeState(n, 0, 0) for n in (self.node.id, *self.neighbours)
+        }
+        self.undecided: list[Pending] = []
+        self.decided: set[int] = set()
+        self.asked: list[int] = []  # task ids of the last observation, which the next action places
+        self.pending: list[int] | None = None  # the node-side policy's answer to it
+        self.last: Observation | None = None
+        self._static = {n: sc.node[n] for n in self.states}
+
+    # ----- the tick -----
+
+    def tick(self, t: int, inbox: list[Envelope], out: Outbox, action: Action | None = None) -> None:
+        for env in inbox:
+            if env.kind == Kind.STATE:
+                self.states[env.body.node] = env.body
+            elif env.kind == Kind.REPORT:
+                self.undecided = env.body
+                present = {p.id for p in self.undecided}
+                self.decided &= present
+            else:
+                raise ValueError(f"{self.id}: unexpected {env.kind.name} from {env.src}")
+        if self.scenario.is_failed(self.node.id, t):
+            self.asked, self.pending = [], None
+            return
+
+        if self.asked:
+            chosen = self.pending if not self.external else action
+            if chosen is not None:
+                self.place(chosen, out)
+            self.asked, self.pending = [], None
+
+        if t % self.scenario.decision_interval == 0 and (self.external or self.has_candidates()):
+            obs = self.observe(t)
+            self.last = obs
+            self.asked = [task.id for task in obs.tasks]
+            if not self.external and self.asked:
+                self.pending = self.policy.decide(obs)
+
+    def has_candidates(self) -> bool:
+        decided = self.decided
+        return any(p.id not in decided for p in self.undecided)
+
+    def place(self, action: Action, out: Outbox) -> None:
+        actions = [action] if isinstance(action, int) else list(action)
+        if len(actions) < len(self.asked):
+            raise InvalidAction(f"{self.id}: {len(actions)} action(s) for {len(self.asked)} task(s)")
+        valid = self.last.valid_actions()
+        decisions = []
+        for task_id, a in zip(self.asked, actions, strict=False):
+            a = int(a)
+            if not 0 <= a < len(valid) or not valid[a]:
+                raise InvalidAction(f"{self.id}: action {a} is not a valid target "
+                                    f"(0 = local, 1..{len(self.neighbours)} = {', '.join(self.neighbours)})")
+            decisions.append(Decision(task_id, "" if a == 0 else self.neighbours[a - 1]))
+            self.decided.add(task_id)
+        self.stats.decisions += len(decisions)
+        out.send(Kind.DECISION, self.worker, decisions)
+
+    # ----- the view -----
+
+    def heard_at(self, node: str, t: int) -> int:
+        """The tick whose end-state of ``node`` this controller knows at the end of tick ``t``.
+
+        Broadcasts leave at ticks that are multiples of the state interval while the node is up,
+        and arrive one tick later; unchanged states are not re-sent but still count as heard.
+        """
+        interval = self.scenario.state_interval
+        s = t - 1
+        s -= s % interval
+        while s >= 0 and self.scenario.is_failed(node, s):
+            s -= interval
+        return s
+
+    def view(self, node: str, t: int) -> NodeView:
+        spec = self._static[node]
+        state = self.states[node]
+        rate = 0.0 if node == self.node.id else self.scenario.link[(self.node.id, node)].rate_bps
+        return NodeView(node, state.queue, state.occupancy, spec.buffer, spec.capacity, spec.tier, rate,
+                        t - self.heard_at(node, t), spec.worker)
+
+    def observe(self, t: int) -> Observation:
+        dt = self.scenario.dt
+        tasks = []
+        for p in self.undecided:
+            if p.id in self.decided:
+                continue
+            age = (t - p.created) * dt
+            tasks.append(TaskView(p.id, p.instructions, p.input_bytes, p.output_bytes, p.cpi,
+                                  p.deadline, p.deadline - age, t - p.arrived, p.origin))
+            if len(tasks) == self.per_epoch:
+                break
+        return Observation(
+            tick=t,
+            node=self.node.id,
+            own=self.view(self.node.id, t),
+            undecided=len(self.undecided),
+            tasks=tasks,
+            neighbours=[self.view(j, t) for j in self.neighbours],
+        )

@@ -1,0 +1,161 @@
+"""A fork server for node processes: fast starts, no user ``__main__`` re-import, no orphans.
+
+``ForkServer`` (the orchestrator's handle) starts ``python -m node_runtime.forkserver`` once. That
+clean interpreter imports zenoh, numpy, msgpack and the node code, then forks one child per
+``start(spec)`` (DESIGN §6: ~0.75 s for 70 processes, against ~7 s with spawn). Unlike the stdlib
+forkserver it never runs the caller's main module, so a training script needs no
+``if __name__ == "__main__"`` guard.
+
+Hygiene: the server exits, killing its children, when its stdin reaches EOF — which happens however
+the orchestrator ends, even by SIGKILL. Children also get PR_SET_PDEATHSIG from the server.
+
+Wire format on the pipes: 4-byte big-endian length, then a pickle. Requests: ("start", spec);
+replies and notices: ("started", proc, pid) and ("exited", proc, pid, status).
+"""
+
+from __future__ import annotations
+
+import atexit
+import contextlib
+import os
+import pickle
+import selectors
+import signal
+import struct
+import subprocess
+import sys
+import threading
+from typing import Any
+
+HEADER = struct.Struct(">I")
+
+
+def _write(fd: int, obj: Any) -> None:
+    data = pickle.dumps(obj)
+    os.write(fd, HEADER.pack(len(data)) + data)
+
+
+def _read_exact(fd: int, n: int) -> bytes | None:
+    buf = b""
+    while len(buf) < n:
+        chunk = os.read(fd, n - len(buf))
+        if not chunk:
+            return None
+        buf += chunk
+    return buf
+
+
+def _read(fd: int) -> Any | None:
+    head = _read_exact(fd, HEADER.size)
+    if head is None:
+        return None
+    body = _read_exact(fd, HEADER.unpack(head)[0])
+    return None if body is None else pickle.loads(body)
+
+
+# ----- the server process -----
+
+def serve() -> None:
+    from node_runtime import process  # the preload: zenoh, numpy, msgpack and all node code
+
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    requests, replies = sys.stdin.fileno(), os.dup(sys.stdout.fileno())
+    os.dup2(sys.stderr.fileno(), sys.stdout.fileno())  # children's prints go to the orchestrator's stderr
+    children: dict[int, str] = {}
+    sel = selectors.DefaultSelector()
+    sel.register(requests, selectors.EVENT_READ)
+    try:
+        while True:
+            for _ in sel.select(timeout=0.05):
+                msg = _read(requests)
+                if msg is None:  # the orchestrator is gone
+                    return
+                spec = msg[1]
+                pid = os.fork()
+                if pid == 0:
+                    os.close(requests)
+                    os.close(replies)
+                    process.main(spec)  # never returns: it ends with os._exit
+                children[pid] = spec.proc
+                _write(replies, ("started", spec.proc, pid))
+            while children:
+                pid, status = os.waitpid(-1, os.WNOHANG)
+                if pid == 0:
+                    break
+                _write(replies, ("exited", children.pop(pid, "?"), pid, os.waitstatus_to_exitcode(status)))
+    finally:
+        for pid in children:
+            with contextlib.suppress(ProcessLookupError):
+                os.kill(pid, signal.SIGKILL)
+
+
+# ----- the orchestrator's handle -----
+
+class ForkServer:
+    """Starts node processes through one long-lived server process (shared by this interpreter)."""
+
+    _shared: ForkServer | None = None
+    _lock = threading.Lock()
+
+    def __init__(self) -> None:
+        self.server = subprocess.Popen([sys.executable, "-m", "node_runtime.forkserver"],
+                                       stdin=subprocess.PIPE, stdout=subprocess.PIPE, close_fds=True)
+        self.exits: dict[int, int] = {}  # pid -> exit status
+        self._started: dict[str, list[int]] = {}
+        self._cond = threading.Condition()
+        self._reader = threading.Thread(target=self._listen, name="forkserver-listener", daemon=True)
+        self._reader.start()
+
+    @classmethod
+    def shared(cls) -> ForkServer:
+        with cls._lock:
+            if cls._shared is None or cls._shared.server.poll() is not None:
+                cls._shared = cls()
+                atexit.register(cls._shared.close)
+            return cls._shared
+
+    def _listen(self) -> None:
+        fd = self.server.stdout.fileno()
+        while (msg := _read(fd)) is not None:
+            with self._cond:
+                if msg[0] == "started":
+                    self._started.setdefault(msg[1], []).append(msg[2])
+                else:
+                    self.exits[msg[2]] = msg[3]
+                self._cond.notify_all()
+        with self._cond:
+            self._cond.notify_all()
+
+    def start(self, spec: Any, timeout: float = 30.0) -> int:
+        """Fork a node process for ``spec``; returns its pid."""
+        with self._cond:
+            if self.server.poll() is not None:
+                raise RuntimeError(f"the node fork server exited (status {self.server.returncode})")
+            _write(self.server.stdin.fileno(), ("start", spec))
+            if not self._cond.wait_for(lambda: self._started.get(spec.proc), timeout):
+                raise RuntimeError(f"the node fork server did not start {spec.proc} within {timeout:.0f} s")
+            return self._started[spec.proc].pop(0)
+
+    def exit_status(self, pid: int) -> int | None:
+        with self._cond:
+            return self.exits.get(pid)
+
+    def wait(self, pids: list[int], timeout: float) -> list[int]:
+        """Wait until these processes have exited; returns those still running."""
+        with self._cond:
+            self._cond.wait_for(lambda: all(p in self.exits for p in pids), timeout)
+            return [p for p in pids if p not in self.exits]
+
+    def close(self) -> None:
+        if self.server.poll() is None:
+            self.server.stdin.close()
+            try:
+                self.server.wait(5.0)
+            except subprocess.TimeoutExpired:
+                self.server.kill()
+                self.server.wait()
+        self._reader.join(2.0)
+
+
+if __name__ == "__main__":
+    serve()

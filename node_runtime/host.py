@@ -1,0 +1,147 @@
+"""A host runs the roles placed in one process and sorts their mail.
+
+It knows nothing of the transport: ``run`` executes one tick of every role and returns what must
+leave the process (one batch per destination process, one per broadcast topic) together with the
+``Done`` report. Mail between co-located roles never leaves the host, but obeys the same rules:
+delivered at its arrival tick, applied in canonical order (arrive, sender role, seq).
+"""
+
+from __future__ import annotations
+
+from collections import defaultdict
+from dataclasses import dataclass
+
+from node_runtime.client import Client
+from node_runtime.config import Scenario
+from node_runtime.controller import Action, Controller
+from node_runtime.messages import Envelope, Kind
+from node_runtime.observation import Observation
+from node_runtime.protocol import Done
+from node_runtime.role import STAT_FIELDS, Outbox, Role
+from node_runtime.routing import Routing, role_kind, role_node, state_topic
+from node_runtime.worker import Worker
+
+ROLE_TYPES: dict[str, type[Role]] = {"worker": Worker, "client": Client, "controller": Controller}
+CARRIES_TASK = (Kind.TASK, Kind.RESULT)
+
+
+@dataclass(slots=True)
+class Outgoing:
+    batches: dict[str, list[Envelope]]  # destination process -> envelopes
+    topics: dict[str, list[Envelope]]  # broadcast topic -> envelopes
+    done: Done
+
+
+def make_role(role: str, scenario: Scenario) -> Role:
+    return ROLE_TYPES[role_kind(role)](scenario.node[role_node(role)], scenario)
+
+
+class Host:
+    def __init__(self, proc: str, routing: Routing) -> None:
+        self.proc = proc
+        self.routing = routing
+        self.roles: list[Role] = [make_role(r, routing.scenario) for r in routing.roles_of[proc]]
+        self.by_id = {r.id: r for r in self.roles}
+        self.outboxes = {r.id: Outbox(r.id) for r in self.roles}
+        # For each topic: local subscribers, and remote processes that subscribe.
+        self.local_subs: dict[str, list[str]] = {}
+        self.remote_subs: dict[str, list[str]] = {}
+        for topic, subs in routing.subscribers.items():
+            self.local_subs[topic] = [r for r in subs if r in self.by_id]
+            self.remote_subs[topic] = list(dict.fromkeys(
+                routing.proc_of[r] for r in subs if routing.proc_of[r] != proc))
+        self.external: set[str] = set()
+        self.episode = 0
+        self.reset(0, routing.scenario.seed)
+
+    def published_topics(self) -> list[str]:
+        """Broadcast topics of this host's workers that some other process listens to."""
+        topics = [state_topic(r.node.id) for r in self.roles if isinstance(r, Worker)]
+        return [t for t in topics if self.remote_subs.get(t)]
+
+    def reset(self, episode: int, seed: int, external: frozenset[str] = frozenset(),
+              policy: str | None = None) -> None:
+        """Start episode ``episode``: fresh roles' state and empty mailboxes."""
+        self.episode = episode
+        self.external = set(external) & set(self.by_id)
+        for role in self.roles:
+            if isinstance(role, Controller):
+                role.reset(seed, external=role.id in self.external, policy=policy)
+            else:
+                role.reset(seed)
+        self.mail: dict[str, defaultdict[int, list[Envelope]]] = {r.id: defaultdict(list) for r in self.roles}
+        self.in_flight: dict[str, defaultdict[int, int]] = {r.id: defaultdict(int) for r in self.roles}
+        for out in self.outboxes.values():
+            out.reset()
+
+    def deliver(self, envelopes: list[Envelope]) -> None:
+        """Mail that came over the bus, addressed to a role here or to a topic one subscribes to."""
+        mail = self.mail
+        for env in envelopes:
+            if env.kind == Kind.STATE:
+                for r in self.local_subs.get(env.dst, ()):
+                    mail[r][env.arrive].append(env)
+            else:
+                mail[env.dst][env.arrive].append(env)
+
+    def run(self, t: int, actions: dict[str, Action] | None = None) -> Outgoing:
+        """One tick of every role, in canonical order; mail out; the report."""
+        actions = actions or {}
+        mail = self.mail
+        for role in self.roles:
+            inbox = mail[role.id].pop(t, [])
+            if len(inbox) > 1:
+                inbox.sort(key=Envelope.order)
+            out = self.outboxes[role.id]
+            out.tick = t
+            if role.id in self.external:
+                role.tick(t, inbox, out, actions.get(role.id))
+            else:
+                role.tick(t, inbox, out)
+        return self._route(t)
+
+    def _route(self, t: int) -> Outgoing:
+        proc_of = self.routing.proc_of
+        batches: dict[str, list[Envelope]] = {}
+        topics: dict[str, list[Envelope]] = {}
+        sent: dict[str, int] = {}
+        for rid, out in self.outboxes.items():
+            flights = self.in_flight[rid]
+            for env in out.envelopes:
+                if env.kind in CARRIES_TASK:
+                    flights[env.arrive] += 1
+                dst = env.dst
+                if dst in self.mail:
+                    self.mail[dst][env.arrive].append(env)
+                else:
+                    batches.setdefault(proc_of[dst], []).append(env)
+            for env in out.broadcasts:
+                for r in self.local_subs.get(env.dst, ()):
+                    self.mail[r][env.arrive].append(env)
+                if self.remote_subs.get(env.dst):
+                    topics.setdefault(env.dst, []).append(env)
+            out.envelopes.clear()
+            out.broadcasts.clear()
+        for p in batches:
+            sent[p] = 1
+        for topic in topics:
+            for p in self.remote_subs[topic]:
+                sent[p] = sent.get(p, 0) + 1
+        return Outgoing(batches, topics, self.report(t, sent))
+
+    def report(self, t: int, sent: dict[str, int]) -> Done:
+        stats: dict[str, list] = {}
+        rts: dict[str, list[float]] = {}
+        obs: dict[str, Observation] = {}
+        for role in self.roles:
+            st = role.stats
+            flights = self.in_flight[role.id]
+            for a in [a for a in flights if a <= t]:
+                del flights[a]
+            stats[role.id] = [*(getattr(st, f) for f in STAT_FIELDS), sum(flights.values())]
+            if st.response_times:
+                rts[role.id] = st.response_times
+                st.response_times = []
+            if role.id in self.external and role.last is not None and role.last.tick == t:
+                obs[role.id] = role.last
+        return Done(self.proc, self.episode, t, sent, stats, rts, obs)

@@ -1,0 +1,50 @@
+"""Key expressions: everything of one simulation lives under ``{prefix}/{sim_id}/`` (DESIGN §5)."""
+
+from __future__ import annotations
+
+import re
+import secrets
+from dataclasses import dataclass
+
+DEFAULT_PREFIX = "zedge"
+CHUNK = re.compile(r"^[A-Za-z0-9_.\-]+$")  # a key chunk without wildcards or separators
+
+
+def new_sim_id() -> str:
+    return secrets.token_hex(4)
+
+
+@dataclass(frozen=True)
+class Keys:
+    sim_id: str
+    prefix: str = DEFAULT_PREFIX
+
+    @property
+    def root(self) -> str:
+        return f"{self.prefix}/{self.sim_id}"
+
+    def tick(self) -> str:
+        return f"{self.root}/clock/tick"
+
+    def done(self, proc: str = "*") -> str:
+        return f"{self.root}/clock/done/{proc}"
+
+    def inbox(self, proc: str) -> str:
+        return f"{self.root}/proc/{proc}/inbox"
+
+    def topic(self, topic: str) -> str:
+        """A broadcast topic of the model ("state/<node>") on the bus: ``…/node/<node>/state``."""
+        kind, node = topic.split("/", 1)
+        return f"{self.root}/node/{node}/{kind}"
+
+    def alive(self, proc: str = "*") -> str:
+        return f"{self.root}/alive/{proc}"
+
+    def metrics(self) -> str:
+        return f"{self.root}/metrics/tick"
+
+    def events(self, kind: str = "*", node: str = "*") -> str:
+        return f"{self.root}/events/{kind}/{node}"
+
+    def scenario(self) -> str:
+        return f"{self.root}/scenario"

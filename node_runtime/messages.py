@@ -1,0 +1,111 @@
+"""Tasks and the messages roles exchange. Plain data: the codec maps them to msgpack arrays."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from enum import IntEnum
+
+
+@dataclass(slots=True)
+class Task:
+    """tau = <id, rho, alpha_in, alpha_out, xi, delta>, plus where it comes from and where it went.
+
+    ``path`` lists the worker nodes that have held the task, first the one its client handed it to;
+    the result travels back along it. Ownership moves with the message that carries the task.
+    """
+
+    id: int
+    origin: str  # node of the client that created it
+    created: int  # tick
+    instructions: float
+    input_bytes: float
+    output_bytes: float
+    cpi: float
+    deadline: float  # seconds after creation
+    hops: int = 0  # offloads so far
+    path: tuple[str, ...] = ()
+
+    @property
+    def cycles(self) -> float:
+        return self.instructions * self.cpi
+
+    def expired(self, tick: int, dt: float) -> bool:
+        """Older than its deadline: (now - created) > delta."""
+        return (tick - self.created) * dt > self.deadline
+
+
+@dataclass(slots=True)
+class Result:
+    """A finished task's output on its way back to the origin client."""
+
+    task: Task
+    executor: str  # node that ran it
+    finished: int  # tick in which its last cycle ran
+    hop: int  # position on task.path of the worker it is travelling to (or at)
+
+
+@dataclass(slots=True)
+class Decision:
+    """Where one undecided task goes: ``target`` is a neighbour node, or "" to process locally."""
+
+    task_id: int
+    target: str
+
+
+@dataclass(frozen=True, slots=True)
+class Pending:
+    """A snapshot of an undecided task, as the worker reports it to its controller.
+
+    A snapshot rather than the task itself: the worker keeps owning (and may change) the task.
+    """
+
+    id: int
+    origin: str
+    created: int
+    instructions: float
+    input_bytes: float
+    output_bytes: float
+    cpi: float
+    deadline: float
+    arrived: int  # tick it entered the worker's buffer
+
+    @classmethod
+    def of(cls, task: Task, arrived: int) -> Pending:
+        return cls(task.id, task.origin, task.created, task.instructions, task.input_bytes, task.output_bytes,
+                   task.cpi, task.deadline, arrived)
+
+
+@dataclass(slots=True)
+class NodeState:
+    """The one-hop state broadcast of a worker (static facts come from the scenario)."""
+
+    node: str
+    queue: int  # tasks admitted for local processing (including the one in service)
+    occupancy: int  # queue + undecided: what counts against Q_max
+
+
+class Kind(IntEnum):
+    TASK = 1
+    RESULT = 2
+    DECISION = 3
+    REPORT = 4
+    STATE = 5
+
+
+Body = Task | Result | list[Decision] | list[Pending] | NodeState
+
+
+@dataclass(slots=True)
+class Envelope:
+    """A message between roles. Applied at tick ``arrive`` in canonical order (arrive, src, seq)."""
+
+    kind: Kind
+    src: str  # sending role id
+    dst: str  # receiving role id, or a broadcast topic
+    seq: int  # per-sender sequence number
+    sent: int  # tick it was sent in
+    arrive: int  # tick it is delivered at (>= sent + 1)
+    body: Body
+
+    def order(self) -> tuple[int, str, int]:
+        return (self.arrive, self.src, self.seq)

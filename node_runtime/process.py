@@ -1,0 +1,84 @@
+"""Entry point of a node process: wire a host of roles to a Zenoh session and run the protocol.
+
+Started by the orchestrator's launcher (local processes) or by ``zenohedge-node`` on another host.
+A node process never decides to stop on its own: it stops when the orchestrator says so, when the
+orchestrator's liveliness token vanishes (it crashed or was killed), or when its parent dies.
+"""
+
+from __future__ import annotations
+
+import ctypes
+import os
+import signal
+import sys
+from dataclasses import dataclass
+
+from node_runtime.config import Scenario
+from node_runtime.driver import HostDriver
+from node_runtime.host import Host
+from node_runtime.keys import Keys
+from node_runtime.routing import Layout, Routing
+from node_runtime.transport import TransportError
+from node_runtime.zenoh_transport import ZenohTransport
+
+ORCHESTRATOR = "orchestrator"  # liveliness name of the clock's owner
+READY_TIMEOUT = 60.0
+EXIT_OK, EXIT_FAILED, EXIT_ORPHANED = 0, 1, 3
+
+
+@dataclass(frozen=True)
+class ProcSpec:
+    proc: str
+    scenario: Scenario
+    layout: Layout
+    endpoint: str  # the router to connect to
+    keys: Keys
+
+
+def die_with_parent() -> None:
+    """Ask Linux to SIGKILL this process when its parent exits (no orphans after a crash)."""
+    PR_SET_PDEATHSIG = 1
+    try:
+        libc = ctypes.CDLL("libc.so.6", use_errno=True)
+        libc.prctl(PR_SET_PDEATHSIG, signal.SIGKILL)
+    except OSError:
+        pass
+
+
+def run(spec: ProcSpec) -> int:
+    """Run one node process to completion; returns its exit status."""
+    signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C reaches the whole group: the orchestrator handles it
+    transport = ZenohTransport.client(spec.endpoint)
+    try:
+        routing = Routing(spec.scenario, spec.layout)
+        host = Host(spec.proc, routing)
+        driver = HostDriver(host, transport, spec.keys)
+        orchestrator = {"seen": False, "gone": False}
+
+        def on_orchestrator(key: str, alive: bool) -> None:
+            orchestrator["seen" if alive else "gone"] = True
+
+        transport.watch_tokens(spec.keys.alive(ORCHESTRATOR), on_orchestrator)
+        publishes = [spec.keys.inbox(p) for p in routing.destinations(spec.proc)]
+        publishes += [spec.keys.topic(t) for t in host.published_topics()]
+        publishes.append(spec.keys.done(spec.proc))
+        transport.wait_matching(publishes, READY_TIMEOUT)
+        transport.declare_token(spec.keys.alive(spec.proc))
+        transport.dispatch(until=lambda: driver.stopped or driver.failed is not None or orchestrator["gone"])
+        if driver.failed is not None:
+            return EXIT_FAILED
+        return EXIT_ORPHANED if orchestrator["gone"] and not driver.stopped else EXIT_OK
+    finally:
+        try:
+            transport.close()
+        except TransportError:
+            os._exit(EXIT_FAILED)
+
+
+def main(spec: ProcSpec) -> None:
+    """Target of the launcher's child processes."""
+    die_with_parent()
+    code = run(spec)
+    sys.stdout.flush()
+    sys.stderr.flush()
+    os._exit(code)

@@ -1,0 +1,55 @@
+"""Messages of the clock protocol (DESIGN §4), as opposed to the model's messages.
+
+- ``Tick``: the orchestrator opens tick t, telling each process how many publications sent in
+  tick t - 1 it must have received first, and carrying the agents' actions;
+- ``Batch``: one process's mail of one tick for one destination process (or one broadcast topic);
+- ``Done``: a process finished tick t: what it sent to whom, and its roles' accounting.
+
+Every message names its episode, so mail from a previous episode that is still on the wire after
+a reset is recognised and ignored.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any, Literal
+
+from node_runtime.messages import Envelope
+from node_runtime.observation import Observation
+
+SCHEMA_VERSION = 1
+Command = Literal["run", "reset", "stop"]
+
+
+@dataclass(slots=True)
+class Tick:
+    episode: int
+    tick: int
+    command: Command = "run"
+    expect: dict[str, int] = field(default_factory=dict)  # process -> publications sent in tick - 1
+    actions: dict[str, Any] = field(default_factory=dict)  # controller role -> action
+    seed: int = 0  # reset only
+    external: list[str] = field(default_factory=list)  # reset only: controllers an agent drives
+    policy: str | None = None  # reset only: node-side policy override for every controller
+
+
+@dataclass(slots=True)
+class Batch:
+    episode: int
+    tick: int  # sent in
+    src: str  # sending process
+    envelopes: list[Envelope]
+
+
+@dataclass(slots=True)
+class Done:
+    """A process's report at the end of a tick: what it sent, and the state of its roles."""
+
+    proc: str
+    episode: int
+    tick: int
+    sent: dict[str, int]  # publications per destination process
+    stats: dict[str, list]  # role -> values of STAT_FIELDS, then in_flight
+    response_times: dict[str, list[float]] = field(default_factory=dict)  # client role -> this tick's
+    obs: dict[str, Observation] = field(default_factory=dict)  # externally driven controller -> its view
+    error: str | None = None  # set when the process failed; it exits after sending this

@@ -1,0 +1,17 @@
+"""Seeded random streams: one independent generator per node and role (DESIGN §4.6).
+
+Streams are keyed by the node's canonical index and a role number, never by process, so a
+node draws the same numbers whatever process hosts it. Nothing in the emulator may use a global
+or unseeded generator.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+WORKER, CLIENT, CONTROLLER = 0, 1, 2
+
+
+def stream(seed: int, node_index: int, role: int, purpose: int = 0) -> np.random.Generator:
+    seq = np.random.SeedSequence(seed, spawn_key=(node_index, role, purpose))
+    return np.random.Generator(np.random.PCG64(seq))

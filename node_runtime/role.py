@@ -1,0 +1,123 @@
+"""What every role shares: identity, an outbox to send through, and the accounting counters.
+
+A role is a deterministic function of (its state, the tick, its inbox in canonical order). It never
+touches a transport: it hands envelopes to its ``Outbox`` and the host decides how they travel.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field, fields
+from typing import ClassVar
+
+from node_runtime.comm import Radio
+from node_runtime.config import NodeSpec, Scenario
+from node_runtime.energy import transmit_energy
+from node_runtime.messages import Body, Envelope, Kind
+from node_runtime.routing import role_id
+
+DROP_CAUSES = ("queue_full", "expired", "node_failure", "link_loss")
+
+
+@dataclass(slots=True)
+class Counters:
+    """Cumulative per-role accounting since the last reset, plus a few current levels.
+
+    Conservation is checked over the sum of these across all roles: every task a client generated
+    is completed, dropped (by exactly one cause), or held by some role or link.
+    """
+
+    generated: int = 0
+    completed: int = 0
+    queue_full: int = 0
+    expired: int = 0
+    node_failure: int = 0
+    link_loss: int = 0
+    offloaded: int = 0
+    decisions: int = 0
+    stale_decisions: int = 0
+    overloaded_ticks: int = 0
+    busy_cycles: float = 0.0
+    energy_compute: float = 0.0
+    energy_idle: float = 0.0
+    energy_transmit: float = 0.0
+    # levels at the end of the tick
+    queue: int = 0
+    undecided: int = 0
+    overloaded: int = 0  # 1 if the buffer was full at the start of this tick
+    # completions this tick: response times in seconds (drained by the host every tick)
+    response_times: list[float] = field(default_factory=list)
+
+    def drop(self, cause: str, n: int = 1) -> None:
+        setattr(self, cause, getattr(self, cause) + n)
+
+    @property
+    def dropped(self) -> int:
+        return self.queue_full + self.expired + self.node_failure + self.link_loss
+
+
+STAT_FIELDS: tuple[str, ...] = tuple(f.name for f in fields(Counters) if f.name != "response_times")
+
+
+class Outbox:
+    """Collects one role's envelopes during its tick, numbering them with the role's sequence."""
+
+    __slots__ = ("_seq", "broadcasts", "envelopes", "role", "tick")
+
+    def __init__(self, role: str) -> None:
+        self.role = role
+        self.tick = 0
+        self._seq = 0
+        self.envelopes: list[Envelope] = []  # addressed to one role
+        self.broadcasts: list[Envelope] = []  # addressed to a topic
+
+    def reset(self) -> None:
+        self._seq = 0
+        self.envelopes.clear()
+        self.broadcasts.clear()
+
+    def send(self, kind: Kind, dst: str, body: Body, arrive: int | None = None) -> None:
+        """Send to role ``dst``; ``arrive`` defaults to the next tick (the minimum delay)."""
+        t = self.tick
+        if arrive is None:
+            arrive = t + 1
+        elif arrive <= t:
+            raise ValueError(f"{self.role}: a message sent in tick {t} cannot arrive at tick {arrive}")
+        self._seq += 1
+        self.envelopes.append(Envelope(kind, self.role, dst, self._seq, t, arrive, body))
+
+    def broadcast(self, kind: Kind, topic: str, body: Body) -> None:
+        """Publish on a topic; every subscribing role receives it next tick."""
+        self._seq += 1
+        t = self.tick
+        self.broadcasts.append(Envelope(kind, self.role, topic, self._seq, t, t + 1, body))
+
+
+class Role:
+    """Base of worker, client and controller. Subclasses implement ``reset`` and ``tick``."""
+
+    kind: ClassVar[str]
+    radio: Radio | None = None  # set by the role that owns the node's links
+
+    def __init__(self, node: NodeSpec, scenario: Scenario) -> None:
+        self.node = node
+        self.scenario = scenario
+        self.id = role_id(self.kind, node.id)
+        self.index = scenario.index[node.id]
+        self.stats = Counters()
+
+    def reset(self, seed: int) -> None:
+        self.stats = Counters()
+
+    def transmit(self, t: int, kind: Kind, dst_node: str, dst_role: str, body: Body, bits: float,
+                 out: Outbox) -> None:
+        """Queue a message on this node's link to ``dst_node``; it may be lost on the way."""
+        sent = self.radio.send(t, dst_node, bits)
+        if sent is None:
+            self.stats.link_loss += 1
+            return
+        arrive, seconds = sent
+        self.stats.energy_transmit += transmit_energy(self.node.tx_power_dbm, seconds)
+        out.send(kind, dst_role, body, arrive)
+
+    def tick(self, t: int, inbox: list[Envelope], out: Outbox) -> None:
+        raise NotImplementedError

@@ -1,0 +1,121 @@
+"""Who runs where: role ids, process layouts and broadcast subscriptions.
+
+Roles are the unit of behaviour (worker, client, controller of one node); processes are the unit
+of deployment. A layout maps roles to processes. Message order never depends on the layout: it is
+fixed by role ids, so every layout yields the same emulation.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from functools import cached_property
+from typing import Literal
+
+from node_runtime.config import Scenario
+
+Layout = Literal["per-role", "per-node", "single"]
+LAYOUTS: tuple[Layout, ...] = ("per-role", "per-node", "single")
+ROLE_KINDS = ("worker", "client", "controller")
+
+
+def role_id(kind: str, node: str) -> str:
+    return f"{kind}:{node}"
+
+
+def role_kind(role: str) -> str:
+    return role.split(":", 1)[0]
+
+
+def role_node(role: str) -> str:
+    return role.split(":", 1)[1]
+
+
+def state_topic(node: str) -> str:
+    return f"state/{node}"
+
+
+def proc_for(layout: Layout, role: str) -> str:
+    if layout == "per-role":
+        return f"{role_kind(role)}-{role_node(role)}"
+    if layout == "per-node":
+        return f"node-{role_node(role)}"
+    return "all"
+
+
+@dataclass(frozen=True)
+class Routing:
+    """The static routing table every process derives from the scenario and the layout."""
+
+    scenario: Scenario
+    layout: Layout
+
+    @cached_property
+    def roles(self) -> tuple[str, ...]:
+        """All roles in canonical order: by node, then worker, client, controller."""
+        out = []
+        for n in self.scenario.nodes:
+            if n.worker:
+                out.append(role_id("worker", n.id))
+            if n.client:
+                out.append(role_id("client", n.id))
+            if n.controller:
+                out.append(role_id("controller", n.id))
+        return tuple(out)
+
+    @cached_property
+    def proc_of(self) -> dict[str, str]:
+        return {r: proc_for(self.layout, r) for r in self.roles}
+
+    @cached_property
+    def procs(self) -> tuple[str, ...]:
+        return tuple(dict.fromkeys(self.proc_of[r] for r in self.roles))
+
+    @cached_property
+    def roles_of(self) -> dict[str, tuple[str, ...]]:
+        out: dict[str, list[str]] = {p: [] for p in self.procs}
+        for r in self.roles:
+            out[self.proc_of[r]].append(r)
+        return {p: tuple(rs) for p, rs in out.items()}
+
+    @cached_property
+    def subscriptions(self) -> dict[str, tuple[str, ...]]:
+        """Broadcast topics each role listens to: a controller hears its own node and its neighbours."""
+        subs: dict[str, tuple[str, ...]] = {}
+        for r in self.roles:
+            if role_kind(r) == "controller":
+                node = role_node(r)
+                subs[r] = tuple(state_topic(n) for n in (node, *self.scenario.neighbours[node]))
+            else:
+                subs[r] = ()
+        return subs
+
+    @cached_property
+    def subscribers(self) -> dict[str, tuple[str, ...]]:
+        """Roles listening to each topic, in canonical role order."""
+        out: dict[str, list[str]] = {}
+        for r in self.roles:
+            for topic in self.subscriptions[r]:
+                out.setdefault(topic, []).append(r)
+        return {t: tuple(rs) for t, rs in out.items()}
+
+    def topics_of(self, proc: str) -> tuple[str, ...]:
+        """Topics a process must subscribe to on the bus (for the roles it hosts)."""
+        seen: dict[str, None] = {}
+        for r in self.roles_of[proc]:
+            for t in self.subscriptions[r]:
+                seen[t] = None
+        return tuple(seen)
+
+    def destinations(self, proc: str) -> tuple[str, ...]:
+        """Processes this one may send mail to: those hosting roles of its nodes or their neighbours."""
+        nodes: dict[str, None] = {}
+        for n in self.node_of_proc(proc):
+            nodes[n] = None
+            nodes.update(dict.fromkeys(self.scenario.neighbours[n]))
+        procs = dict.fromkeys(self.proc_of[r] for r in self.roles if role_node(r) in nodes)
+        procs.pop(proc, None)
+        return tuple(procs)
+
+    def node_of_proc(self, proc: str) -> tuple[str, ...]:
+        """Nodes whose roles a process hosts (for error messages naming a node)."""
+        return tuple(dict.fromkeys(role_node(r) for r in self.roles_of[proc]))

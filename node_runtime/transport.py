@@ -1,0 +1,46 @@
+"""The transport interface: keyed publish/subscribe, liveliness, and a dispatch loop.
+
+Two implementations share it: ``ZenohTransport`` (a Zenoh session) and ``InprocBus`` endpoints (an
+in-memory bus inside one process). Handlers always run in the thread that calls ``dispatch``, so
+protocol code never needs locks and behaves the same on both.
+"""
+
+from __future__ import annotations
+
+from abc import ABC, abstractmethod
+from collections.abc import Callable
+from typing import Any
+
+Handler = Callable[[str, Any], None]
+TokenHandler = Callable[[str, bool], None]  # (key, alive)
+
+
+class TransportError(RuntimeError):
+    pass
+
+
+class Transport(ABC):
+    @abstractmethod
+    def publish(self, key: str, message: Any) -> None:
+        """Send ``message`` to every subscriber of ``key``; reliable, ordered per publisher."""
+
+    @abstractmethod
+    def subscribe(self, key_expr: str, handler: Handler) -> None:
+        """Call ``handler(key, message)`` (from ``dispatch``) for every message matching ``key_expr``."""
+
+    @abstractmethod
+    def declare_token(self, key: str) -> None:
+        """Announce presence; the token vanishes when this endpoint closes or its process dies."""
+
+    @abstractmethod
+    def watch_tokens(self, key_expr: str, handler: TokenHandler) -> None:
+        """Be told (from ``dispatch``) of tokens appearing and vanishing, current ones included."""
+
+    @abstractmethod
+    def dispatch(self, until: Callable[[], bool], timeout: float | None = None,
+                 idle: Callable[[], None] | None = None) -> None:
+        """Run handlers until ``until()`` holds. ``idle`` runs whenever nothing arrived for a moment,
+        so callers can check process health. Raises ``TimeoutError`` after ``timeout`` seconds."""
+
+    @abstractmethod
+    def close(self) -> None: ...

@@ -1,0 +1,213 @@
+"""The worker role: a FIFO buffer, a work-conserving CPU, and the node's radio links.
+
+One tick, in this order (DESIGN §2):
+
+1. failure: a node that goes down drops everything it holds (``node_failure``);
+2. overload is sampled: the buffer was full at the start of the tick;
+3. the inbox, in canonical order: tasks are set aside for admission, results are forwarded
+   towards their origin, decisions are set aside;
+4. expiry: every held task older than its deadline is dropped (``expired``);
+5. decisions are applied: keep locally, or transmit to a neighbour;
+6. arrivals are admitted while occupancy (queue + undecided) < Q_max, else ``queue_full``;
+7. the CPU spends cores * frequency * dt cycles on the queue head first, and a finished task's
+   result leaves in the same tick;
+8. the state is broadcast to the neighbours, and the undecided list reported to the controller,
+   when they changed.
+
+The worker owns its node's outgoing links, so every inter-node transmission from a worker node
+queues on one FIFO per neighbour, whichever role asked for it.
+"""
+
+from __future__ import annotations
+
+from collections import deque
+
+from node_runtime.comm import Radio
+from node_runtime.config import NodeSpec, Scenario
+from node_runtime.energy import compute_energy, idle_energy
+from node_runtime.messages import Decision, Envelope, Kind, NodeState, Pending, Result, Task
+from node_runtime.rng import WORKER, stream
+from node_runtime.role import Outbox, Role
+from node_runtime.routing import role_id, state_topic
+
+EPS_CYCLES = 1e-6  # a task with fewer cycles left than this is done (float rounding of budgets)
+
+
+class Worker(Role):
+    kind = "worker"
+
+    def __init__(self, node: NodeSpec, scenario: Scenario) -> None:
+        super().__init__(node, scenario)
+        self.dt = scenario.dt
+        self.neighbours = scenario.neighbours[node.id]
+        self.radio = Radio.for_node(scenario, node.id, self.neighbours)
+        self.decides = node.controller and scenario.max_hops > 0
+        self.controller = role_id("controller", node.id) if node.controller else ""
+        self.topic = state_topic(node.id)
+        self.budget = node.capacity * scenario.dt
+        self.reset(scenario.seed)
+
+    def reset(self, seed: int) -> None:
+        super().reset(seed)
+        self.queue: deque[list] = deque()  # [task, remaining cycles], head in service
+        self.undecided: dict[int, tuple[Task, int]] = {}  # id -> (task, arrival tick), in arrival order
+        self.failed = False
+        self.radio.reset(stream(seed, self.index, WORKER))
+        self._last_state: tuple[int, int] | None = None
+        self._last_report: tuple[int, ...] | None = None
+
+    # ----- helpers -----
+
+    @property
+    def occupancy(self) -> int:
+        return len(self.queue) + len(self.undecided)
+
+    def route_result(self, t: int, result: Result, out: Outbox) -> None:
+        """Move a result one step towards its origin client.
+
+        Straight to the origin when it is this node or a neighbour; otherwise to the previous
+        worker on the task's path (``result.hop`` is this node's position on it).
+        """
+        task = result.task
+        if task.expired(t, self.dt):
+            self.stats.expired += 1
+            return
+        origin = task.origin
+        if origin == self.node.id:
+            out.send(Kind.RESULT, role_id("client", origin), result)
+        elif origin in self.radio:
+            self.transmit(t, Kind.RESULT, origin, role_id("client", origin), result,
+                          task.output_bytes * 8.0, out)
+        else:
+            result.hop -= 1
+            prev = task.path[result.hop]
+            self.transmit(t, Kind.RESULT, prev, role_id("worker", prev), result, task.output_bytes * 8.0, out)
+
+    def drop_all(self, cause: str) -> None:
+        self.stats.drop(cause, self.occupancy)
+        self.queue.clear()
+        self.undecided.clear()
+
+    # ----- the tick -----
+
+    def tick(self, t: int, inbox: list[Envelope], out: Outbox) -> None:
+        st = self.stats
+        failed = self.scenario.is_failed(self.node.id, t)
+        if failed and not self.failed:
+            self.drop_all("node_failure")
+            self.radio.reset(self.radio.rng)
+        self.failed = failed
+        st.overloaded = int(self.occupancy >= self.node.buffer)
+        st.overloaded_ticks += st.overloaded
+
+        arrivals: list[Task] = []
+        decisions: list[Decision] = []
+        for env in inbox:
+            kind = env.kind
+            if kind == Kind.TASK:
+                arrivals.append(env.body)
+            elif kind == Kind.RESULT:
+                if failed:
+                    st.node_failure += 1
+                else:
+                    self.route_result(t, env.body, out)
+            elif kind == Kind.DECISION:
+                decisions.extend(env.body)
+        if failed:
+            st.node_failure += len(arrivals)
+            self.publish(t, out)
+            return
+
+        self.expire(t)
+        self.apply(t, decisions, out)
+        self.admit(t, arrivals)
+        self.serve(t, out)
+        st.energy_idle += idle_energy(self.node.idle_power_w, self.dt)
+        self.publish(t, out)
+
+    def expire(self, t: int) -> None:
+        dt = self.dt
+        if self.queue and any(e[0].expired(t, dt) for e in self.queue):
+            kept = deque(e for e in self.queue if not e[0].expired(t, dt))
+            self.stats.expired += len(self.queue) - len(kept)
+            self.queue = kept
+        if self.undecided:
+            gone = [k for k, (task, _) in self.undecided.items() if task.expired(t, dt)]
+            for k in gone:
+                del self.undecided[k]
+            self.stats.expired += len(gone)
+
+    def apply(self, t: int, decisions: list[Decision], out: Outbox) -> None:
+        st = self.stats
+        for d in decisions:
+            held = self.undecided.pop(d.task_id, None)
+            if held is None:  # dropped or expired after the controller saw it
+                st.stale_decisions += 1
+                continue
+            task = held[0]
+            if not d.target or d.target == self.node.id:
+                self.queue.append([task, task.cycles])
+            else:
+                task.hops += 1
+                st.offloaded += 1
+                self.transmit(t, Kind.TASK, d.target, role_id("worker", d.target), task,
+                              task.input_bytes * 8.0, out)
+
+    def admit(self, t: int, arrivals: list[Task]) -> None:
+        st = self.stats
+        buffer = self.node.buffer
+        for task in arrivals:
+            if task.expired(t, self.dt):
+                st.expired += 1
+            elif self.occupancy >= buffer:
+                st.queue_full += 1
+            else:
+                task.path = (*task.path, self.node.id)
+                if self.decides and task.hops < self.scenario.max_hops:
+                    self.undecided[task.id] = (task, t)
+                else:
+                    self.queue.append([task, task.cycles])
+
+    def serve(self, t: int, out: Outbox) -> None:
+        budget = self.budget
+        used = 0.0
+        queue = self.queue
+        while queue and budget > 0.0:
+            entry = queue[0]
+            remaining = entry[1]
+            if remaining <= budget + EPS_CYCLES:
+                budget -= remaining
+                used += remaining
+                queue.popleft()
+                task = entry[0]
+                self.route_result(t, Result(task, self.node.id, t, len(task.path) - 1), out)
+            else:
+                entry[1] = remaining - budget
+                used += budget
+                budget = 0.0
+        if used:
+            st = self.stats
+            st.busy_cycles += used
+            st.energy_compute += compute_energy(self.node.kappa, used, self.node.frequency)
+
+    def publish(self, t: int, out: Outbox) -> None:
+        """Broadcast the state and report the undecided list, each only when it changed.
+
+        Skipping an unchanged broadcast is invisible to receivers: they keep the last state they
+        heard, which is exactly what a repeated broadcast would have told them.
+        """
+        st = self.stats
+        st.queue = len(self.queue)
+        st.undecided = len(self.undecided)
+        if self.failed:
+            return
+        state = (st.queue, self.occupancy)
+        interval = self.scenario.state_interval
+        if state != self._last_state and t % interval == 0:
+            self._last_state = state
+            out.broadcast(Kind.STATE, self.topic, NodeState(self.node.id, st.queue, self.occupancy))
+        if self.controller:
+            ids = tuple(self.undecided)
+            if ids != self._last_report:
+                self._last_report = ids
+                out.send(Kind.REPORT, self.controller, [Pending.of(task, at) for task, at in self.undecided.values()])

@@ -1,0 +1,168 @@
+"""The Zenoh transport: one session per process, star-shaped around a router (DESIGN §6).
+
+Node processes open ``client`` sessions to the router the orchestrator runs; multicast scouting is
+off and endpoints are explicit. Publications are reliable with blocking congestion control (the
+emulation must never lose a message to back-pressure) and ``express`` (no batching delay).
+Zenoh callbacks only enqueue raw bytes; decoding and handlers run in the ``dispatch`` thread.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import json
+import queue
+import socket
+import threading
+import time
+from collections.abc import Callable
+from typing import Any, Literal
+
+import zenoh
+
+from node_runtime import codec
+from node_runtime.transport import Handler, TokenHandler, Transport, TransportError
+
+Mode = Literal["router", "client", "peer"]
+IDLE_SLICE = 0.1  # seconds between idle checks while dispatching
+
+
+def free_port(host: str = "127.0.0.1") -> int:
+    with socket.socket() as s:
+        s.bind((host, 0))
+        return s.getsockname()[1]
+
+
+def zenoh_config(mode: Mode, listen: list[str] | None = None, connect: list[str] | None = None) -> zenoh.Config:
+    cfg = zenoh.Config()
+    cfg.insert_json5("mode", json.dumps(mode))
+    cfg.insert_json5("scouting/multicast/enabled", "false")
+    if listen:
+        cfg.insert_json5("listen/endpoints", json.dumps(listen))
+    if connect:
+        cfg.insert_json5("connect/endpoints", json.dumps(connect))
+    return cfg
+
+
+def close_session(session: zenoh.Session, grace: float = 5.0) -> None:
+    """Close a session, but never let a stuck close hang the process."""
+    done = threading.Event()
+
+    def closer() -> None:
+        try:
+            session.close()
+        finally:
+            done.set()
+
+    threading.Thread(target=closer, daemon=True).start()
+    if not done.wait(grace):
+        raise TransportError(f"zenoh session did not close within {grace:.0f} s")
+
+
+class ZenohTransport(Transport):
+    def __init__(self, config: zenoh.Config) -> None:
+        self.session = zenoh.open(config)
+        self._queue: queue.SimpleQueue[tuple[Callable[..., None], str, Any]] = queue.SimpleQueue()
+        self._pubs: dict[str, zenoh.Publisher] = {}
+        self._entities: list[Any] = []
+        self._closed = False
+
+    @classmethod
+    def router(cls, endpoint: str) -> ZenohTransport:
+        return cls(zenoh_config("router", listen=[endpoint]))
+
+    @classmethod
+    def client(cls, endpoint: str) -> ZenohTransport:
+        return cls(zenoh_config("client", connect=[endpoint]))
+
+    def publish(self, key: str, message: Any) -> None:
+        self.put(key, codec.encode(message))
+
+    def put(self, key: str, payload: bytes) -> None:
+        pub = self._pubs.get(key) or self.put_publisher(key)
+        pub.put(payload)
+
+    def put_publisher(self, key: str) -> zenoh.Publisher:
+        pub = self._pubs.get(key)
+        if pub is None:
+            pub = self._pubs[key] = self.session.declare_publisher(
+                key, congestion_control=zenoh.CongestionControl.BLOCK, express=True,
+                reliability=zenoh.Reliability.RELIABLE)
+        return pub
+
+    def wait_matching(self, keys: list[str], timeout: float) -> None:
+        """Block until a subscriber is known for each key, so no first publication is filtered out."""
+        matched: queue.SimpleQueue[str] = queue.SimpleQueue()
+        listeners = []
+        missing = set()
+        for key in keys:
+            self.put_publisher(key)
+            pub = self._pubs[key]
+            if pub.matching_status.matching:
+                continue
+            missing.add(key)
+            listeners.append(pub.declare_matching_listener(
+                lambda status, key=key: status.matching and matched.put(key)))
+            if pub.matching_status.matching:
+                matched.put(key)
+        deadline = time.monotonic() + timeout
+        try:
+            while missing:
+                try:
+                    missing.discard(matched.get(timeout=max(0.0, deadline - time.monotonic())))
+                except queue.Empty:
+                    raise TransportError(f"no subscriber appeared within {timeout:.0f} s for: "
+                                         f"{', '.join(sorted(missing))}") from None
+        finally:
+            for listener in listeners:
+                listener.undeclare()
+
+    def subscribe(self, key_expr: str, handler: Handler) -> None:
+        q = self._queue
+
+        def on_sample(sample: zenoh.Sample) -> None:
+            q.put((handler, str(sample.key_expr), sample.payload.to_bytes()))
+
+        self._entities.append(self.session.declare_subscriber(key_expr, on_sample))
+
+    def declare_token(self, key: str) -> None:
+        self._entities.append(self.session.liveliness().declare_token(key))
+
+    def watch_tokens(self, key_expr: str, handler: TokenHandler) -> None:
+        q = self._queue
+
+        def on_token(sample: zenoh.Sample) -> None:
+            q.put((handler, str(sample.key_expr), sample.kind == zenoh.SampleKind.PUT))
+
+        self._entities.append(self.session.liveliness().declare_subscriber(key_expr, on_token, history=True))
+
+    def dispatch(self, until: Callable[[], bool], timeout: float | None = None,
+                 idle: Callable[[], None] | None = None) -> None:
+        deadline = None if timeout is None else time.monotonic() + timeout
+        get = self._queue.get
+        while not until():
+            wait = IDLE_SLICE
+            if deadline is not None:
+                left = deadline - time.monotonic()
+                if left <= 0:
+                    raise TimeoutError(f"nothing satisfied the wait within {timeout:.1f} s")
+                wait = min(wait, left)
+            try:
+                handler, key, data = get(timeout=wait)
+            except queue.Empty:
+                if idle is not None:
+                    idle()
+                continue
+            if isinstance(data, bytes):
+                data = codec.decode(data)
+            handler(key, data)
+
+    def close(self) -> None:
+        if self._closed:
+            return
+        self._closed = True
+        for entity in reversed(self._entities):
+            with contextlib.suppress(zenoh.ZError):
+                entity.undeclare()
+        self._entities.clear()
+        self._pubs.clear()
+        close_session(self.session)

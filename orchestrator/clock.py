@@ -1,0 +1,87 @@
+"""The simulated clock: the orchestrator's side of the barrier protocol (DESIGN §4).
+
+``step`` opens tick t with ``Tick(t, expect)``, where ``expect[p]`` is the number of publications
+the processes reported sending to ``p`` in tick t - 1, and returns once every process has reported
+``Done(t)``. A process that reports an error, dies, or stays silent past the timeout ends the run
+with an error that names it and the nodes it hosted.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from typing import Any
+
+from node_runtime.keys import Keys
+from node_runtime.protocol import Done, Tick
+from node_runtime.routing import Routing
+from node_runtime.transport import Transport
+
+
+class ClockError(RuntimeError):
+    pass
+
+
+class ProcessFailed(ClockError):
+    def __init__(self, proc: str, nodes: tuple[str, ...], why: str) -> None:
+        what = f"node {nodes[0]}" if len(nodes) == 1 else f"nodes {', '.join(nodes)}"
+        super().__init__(f"process {proc} ({what}) {why}")
+        self.proc = proc
+        self.nodes = nodes
+
+
+class Clock:
+    def __init__(self, transport: Transport, keys: Keys, routing: Routing, timeout: float = 30.0,
+                 health: Callable[[], None] | None = None) -> None:
+        self.transport = transport
+        self.keys = keys
+        self.routing = routing
+        self.procs = routing.procs
+        self.timeout = timeout
+        self.health = health
+        self.episode = -1
+        self.tick = -1
+        self.expect: dict[str, int] = {}
+        self.dones: dict[str, Done] = {}
+        transport.subscribe(keys.done(), self.on_done)
+
+    def on_done(self, key: str, done: Done) -> None:
+        if done.error is not None:
+            first = done.error.strip().splitlines()[0]
+            raise ProcessFailed(done.proc, self.routing.node_of_proc(done.proc), f"failed in tick {done.tick}: {first}"
+                                ) from RuntimeError(done.error)
+        if done.episode == self.episode and done.tick == self.tick:
+            self.dones[done.proc] = done
+
+    def reset(self, seed: int, external: list[str] | None = None, policy: str | None = None) -> list[Done]:
+        """Start a new episode: every process resets its roles, then runs tick 0."""
+        self.episode += 1
+        self.tick = 0
+        return self._run(Tick(self.episode, 0, "reset", seed=seed, external=list(external or ()), policy=policy))
+
+    def step(self, actions: dict[str, Any] | None = None) -> list[Done]:
+        """Run the next tick; ``actions`` go to externally driven controllers."""
+        self.tick += 1
+        return self._run(Tick(self.episode, self.tick, "run", expect=self.expect, actions=actions or {}))
+
+    def stop(self) -> None:
+        self.transport.publish(self.keys.tick(), Tick(self.episode, self.tick + 1, "stop"))
+
+    def _run(self, cmd: Tick) -> list[Done]:
+        self.dones = {}
+        self.transport.publish(self.keys.tick(), cmd)
+        n = len(self.procs)
+        try:
+            self.transport.dispatch(until=lambda: len(self.dones) == n, timeout=self.timeout, idle=self.health)
+        except TimeoutError:
+            silent = [p for p in self.procs if p not in self.dones]
+            nodes = sorted({nd for p in silent for nd in self.routing.node_of_proc(p)})
+            raise ClockError(f"tick {cmd.tick}: no report within {self.timeout:.0f} s from "
+                             f"{', '.join(silent[:8])}{' ...' if len(silent) > 8 else ''} "
+                             f"(nodes {', '.join(nodes[:8])})") from None
+        dones = [self.dones[p] for p in self.procs]
+        expect: dict[str, int] = {}
+        for d in dones:
+            for p, count in d.sent.items():
+                expect[p] = expect.get(p, 0) + count
+        self.expect = expect
+        return dones

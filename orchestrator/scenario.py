@@ -1,0 +1,618 @@
+"""Scenario files: YAML in, a validated ``node_runtime.config.Scenario`` out (format: docs/scenario.md).
+
+Validation happens in two passes, and every problem becomes one line naming the file, the key path
+and what was expected:
+
+1. structure (pydantic): types, ranges, required and unknown keys;
+2. meaning: references between nodes, links, failures and traces; connectivity; roles.
+
+Defaults follow the paper's parameter table (λ = 0.17, α = 150 MiB, ρ = 8e7, ξ = 1, δ = 100 s,
+B = 2 MHz, P = 20 dBm, 1000 steps).
+"""
+
+from __future__ import annotations
+
+import csv
+import difflib
+import inspect
+import math
+from pathlib import Path
+from typing import Annotated, Any, Literal
+
+import networkx as nx
+import yaml
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator, validate_call
+
+from node_runtime.comm import log_distance_gain_db, shannon_rate
+from node_runtime.config import Arrival, Failure, LinkSpec, NodeSpec, Scenario, TaskType, TraceRow, Workload
+from node_runtime.keys import CHUNK
+from node_runtime.policies import POLICIES
+from topologies import scenario_path
+from topologies.draft import Draft, DraftLink, DraftNode
+from topologies.ether import EtherError, load_ether
+from topologies.generators import GENERATORS, GeneratorError
+
+MIB = 1024 * 1024
+Pos = Annotated[float, Field(gt=0)]
+NonNeg = Annotated[float, Field(ge=0)]
+Prob = Annotated[float, Field(ge=0, le=1)]
+Count = Annotated[int, Field(ge=1)]
+
+
+class ScenarioError(ValueError):
+    """A scenario the user must fix; ``errors`` holds one line per problem."""
+
+    def __init__(self, errors: list[str]) -> None:
+        super().__init__("\n".join(errors))
+        self.errors = errors
+
+
+class Strict(BaseModel):
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+
+# ----- the file format -----
+
+class SimulationCfg(Strict):
+    dt: Pos = 1.0
+    steps: Count = 1000
+    seed: int = 0
+    mode: Literal["binary", "batch"] = "binary"
+    decision_interval: Count = 1
+    max_hops: Annotated[int, Field(ge=0)] = 1
+    batch_size: Count = 4
+    state_interval: Count = 1
+    policy: str = "local"
+
+    @field_validator("policy")
+    @classmethod
+    def known_policy(cls, v: str) -> str:
+        if v not in POLICIES:
+            raise ValueError(f"expected one of {', '.join(POLICIES)}")
+        return v
+
+
+class PathLossCfg(Strict):
+    ref_loss_db: float = 40.0
+    ref_distance_m: Pos = 1.0
+    exponent: Pos = 3.0
+
+
+class NetworkCfg(Strict):
+    bandwidth_hz: Pos = 2.0e6
+    tx_power_dbm: float = 20.0
+    noise_dbm: float = -174.0 + 10 * math.log10(2.0e6)  # thermal noise over 2 MHz
+    path_loss: PathLossCfg = PathLossCfg()
+    loss: Prob = 0.0
+
+
+class ArrivalCfg(Strict):
+    kind: Literal["constant", "linear", "zigzag", "uniform"] = "constant"
+    rate: NonNeg = 0.17
+    start: NonNeg = 0.0
+    end: NonNeg = 0.0
+    low: NonNeg = 0.0
+    high: NonNeg = 0.0
+    period: Pos = 100.0
+
+    @model_validator(mode="after")
+    def ordered(self) -> ArrivalCfg:
+        if self.kind in ("zigzag", "uniform") and self.high < self.low:
+            raise ValueError("high must be >= low")
+        return self
+
+
+class TaskCfg(Strict):
+    name: str = "task"
+    weight: Pos = 1.0
+    instructions: Pos = 8.0e7
+    input_bytes: Pos = 150 * MIB
+    output_bytes: Pos = 150 * MIB
+    cpi: Pos = 1.0
+    deadline: Pos = 100.0
+
+
+class WorkloadCfg(Strict):
+    arrival: ArrivalCfg = ArrivalCfg()
+    rates: dict[str, NonNeg] = {}
+    targets: dict[str, list[str]] = {}
+    tasks: Annotated[list[TaskCfg], Field(min_length=1)] = [TaskCfg()]
+    trace: str | None = None
+
+
+class EnergyCfg(Strict):
+    kappa: NonNeg = 1.0e-27
+    idle_power_w: NonNeg = 0.0
+
+
+class ProfileCfg(Strict):
+    cores: Count | None = None
+    frequency: Pos | None = None
+    buffer: Count | None = None
+    tier: Annotated[int, Field(ge=0)] | None = None
+    worker: bool | None = None
+    controller: bool | None = None
+    client: bool | None = None
+    policy: str | None = None
+    tx_power_dbm: float | None = None
+    idle_power_w: NonNeg | None = None
+    kappa: NonNeg | None = None
+
+    @field_validator("policy")
+    @classmethod
+    def known_policy(cls, v: str | None) -> str | None:
+        if v is not None and v not in POLICIES:
+            raise ValueError(f"expected one of {', '.join(POLICIES)}")
+        return v
+
+
+class NodeCfg(ProfileCfg):
+    id: str
+    profile: str | None = None
+    position: tuple[float, float] = (0.0, 0.0)
+
+    @field_validator("id")
+    @classmethod
+    def chunk(cls, v: str) -> str:
+        if not CHUNK.match(v):
+            raise ValueError("expected a name of letters, digits, '_', '.' or '-'")
+        return v
+
+
+class LinkCfg(Strict):
+    between: tuple[str, str]
+    rate_bps: Pos | None = None
+    gain_db: float | None = None
+    loss: Prob | None = None
+
+    @model_validator(mode="before")
+    @classmethod
+    def pair(cls, v: Any) -> Any:
+        return {"between": v} if isinstance(v, (list, tuple)) else v
+
+
+class GeneratorCfg(BaseModel):
+    model_config = ConfigDict(extra="allow", frozen=True)
+    kind: str
+
+    @field_validator("kind")
+    @classmethod
+    def known(cls, v: str) -> str:
+        if v not in GENERATORS:
+            raise ValueError(f"expected one of {', '.join(GENERATORS)}")
+        return v
+
+
+class TopologyCfg(Strict):
+    ether: str | None = None
+    link_rates: Literal["wireless", "ether"] = "wireless"
+    generator: GeneratorCfg | None = None
+    nodes: list[NodeCfg] = []
+    links: list[LinkCfg] = []
+
+    @model_validator(mode="after")
+    def one_source(self) -> TopologyCfg:
+        sources = [s for s in ("ether", "generator") if getattr(self, s) is not None]
+        if len(sources) > 1:
+            raise ValueError("give either 'ether' or 'generator', not both")
+        if not sources and not self.nodes:
+            raise ValueError("expected one of 'ether', 'generator' or 'nodes'")
+        return self
+
+
+class FailureCfg(Strict):
+    node: str
+    at: Annotated[int, Field(ge=0)]
+    duration: Count
+
+
+class ScenarioFile(Strict):
+    name: str | None = None
+    description: str = ""
+    simulation: SimulationCfg = SimulationCfg()
+    network: NetworkCfg = NetworkCfg()
+    workload: WorkloadCfg = WorkloadCfg()
+    energy: EnergyCfg = EnergyCfg()
+    profiles: dict[str, ProfileCfg] = {}
+    topology: TopologyCfg
+    failures: list[FailureCfg] = []
+
+
+# Built-in hardware profiles: the AoT devices (Ether data, reference mapping) and the paper's tiers.
+BUILTIN_PROFILES: dict[str, dict[str, Any]] = {
+    "rpi3": {"cores": 1, "frequency": 4.0e6, "buffer": 3, "tier": 0, "controller": True, "client": True},
+    "tx2": {"cores": 1, "frequency": 4.0e6, "buffer": 26, "tier": 1},
+    "nuc": {"cores": 1, "frequency": 3.2e7, "buffer": 54, "tier": 1, "controller": True},
+    "server": {"cores": 1, "frequency": 8.8e7, "buffer": 597, "tier": 2, "controller": True},
+    "tier0": {"cores": 1, "frequency": 4.0e7, "buffer": 20, "tier": 0, "controller": True, "client": True},
+    "tier1": {"cores": 1, "frequency": 2.0e7, "buffer": 10, "tier": 1, "controller": True},
+    "tier2": {"cores": 2, "frequency": 8.0e7, "buffer": 100, "tier": 2, "controller": True},
+}
+NODE_DEFAULTS: dict[str, Any] = {"cores": 1, "frequency": 4.0e7, "buffer": 20, "tier": 0, "worker": True,
+                                 "controller": False, "client": False}
+
+
+# ----- error formatting -----
+
+def key_path(loc: tuple[Any, ...]) -> str:
+    out = ""
+    for part in loc:
+        if isinstance(part, int):
+            out += f"[{part}]"
+        else:
+            out += ("." if out else "") + str(part)
+    return out or "(top level)"
+
+
+_EXPECT = {
+    "missing": "required key is missing",
+    "int_type": "expected an integer",
+    "int_parsing": "expected an integer",
+    "int_from_float": "expected an integer",
+    "float_type": "expected a number",
+    "float_parsing": "expected a number",
+    "bool_type": "expected true or false",
+    "bool_parsing": "expected true or false",
+    "string_type": "expected a string",
+    "dict_type": "expected a mapping",
+    "model_type": "expected a mapping",
+    "model_attributes_type": "expected a mapping",
+    "list_type": "expected a list",
+    "tuple_type": "expected a list",
+}
+
+
+def _describe(err: dict[str, Any], model: type[BaseModel]) -> str:
+    kind = err["type"]
+    ctx = err.get("ctx", {})
+    got = err.get("input")
+    if kind == "extra_forbidden":
+        field = str(err["loc"][-1])
+        known = _fields_at(model, err["loc"][:-1])
+        hint = difflib.get_close_matches(field, known, n=1)
+        return "unknown key" + (f" (did you mean '{hint[0]}'?)" if hint else
+                                f"; expected one of: {', '.join(sorted(known))}" if known else "")
+    if kind in ("greater_than", "greater_than_equal", "less_than_equal", "less_than"):
+        op = {"greater_than": ">", "greater_than_equal": ">=", "less_than_equal": "<=", "less_than": "<"}[kind]
+        bound = next(iter(ctx.values()))
+        return f"expected a number {op} {bound} (got {got!r})"
+    if kind == "literal_error":
+        return f"expected {ctx.get('expected')} (got {got!r})"
+    if kind == "too_short":
+        return f"expected at least {ctx.get('min_length')} item(s)"
+    if kind in ("too_long", "tuple_length"):
+        return f"expected {ctx.get('max_length', 2)} items (got {got!r})"
+    if kind == "value_error":
+        return str(ctx.get("error", err["msg"]))
+    if kind in _EXPECT:
+        return _EXPECT[kind] + ("" if kind == "missing" else f" (got {got!r})")
+    return err["msg"][0].lower() + err["msg"][1:]
+
+
+def _fields_at(model: type[BaseModel], loc: tuple[Any, ...]) -> list[str]:
+    """Field names of the model found at ``loc`` (for 'did you mean' hints). Parts that are not
+    fields are mapping keys (a profile's name) and keep the current model."""
+    current: Any = model
+    for part in loc:
+        fields = getattr(current, "model_fields", {})
+        if isinstance(part, str) and part in fields:
+            current = _inner_model(fields[part].annotation)
+    return list(getattr(current, "model_fields", {}))
+
+
+def _inner_model(annotation: Any) -> Any:
+    if isinstance(annotation, type) and issubclass(annotation, BaseModel):
+        return annotation
+    for arg in getattr(annotation, "__args__", ()):
+        found = _inner_model(arg)
+        if found is not None:
+            return found
+    return None
+
+
+# ----- loading -----
+
+def load_scenario(source: str | Path | dict[str, Any], *, name_hint: str = "") -> Scenario:
+    """A scenario from a bundled name ("aot2"), a YAML path, or a dict. Raises ``ScenarioError``."""
+    if isinstance(source, dict):
+        return resolve(source, Path.cwd(), name_hint or "scenario", "<dict>")
+    path = Path(source)
+    if not path.exists() and not path.suffix and scenario_path(str(source)).exists():
+        path = scenario_path(str(source))
+    label = str(source)
+    try:
+        text = path.read_text()
+    except FileNotFoundError:
+        raise ScenarioError([f"{label}: file not found"]) from None
+    except (IsADirectoryError, PermissionError, UnicodeDecodeError) as exc:
+        raise ScenarioError([f"{label}: cannot read: {exc}"]) from None
+    try:
+        data = yaml.safe_load(text)
+    except yaml.YAMLError as exc:
+        mark = getattr(exc, "problem_mark", None)
+        where = f":{mark.line + 1}:{mark.column + 1}" if mark else ""
+        problem = getattr(exc, "problem", None) or str(exc).splitlines()[0]
+        raise ScenarioError([f"{label}{where}: invalid YAML: {problem}"]) from None
+    if data is None:
+        raise ScenarioError([f"{label}: the file is empty; expected a scenario mapping with at least 'topology'"])
+    if not isinstance(data, dict):
+        raise ScenarioError([f"{label}: expected a mapping at the top level, got {type(data).__name__}"])
+    return resolve(data, path.parent, path.stem, label)
+
+
+def resolve(data: dict[str, Any], base: Path, default_name: str, label: str) -> Scenario:
+    try:
+        cfg = ScenarioFile.model_validate(data)
+    except ValidationError as exc:
+        raise ScenarioError([f"{label}: {key_path(e['loc'])}: {_describe(e, ScenarioFile)}"
+                             for e in exc.errors()]) from None
+    return _Resolver(cfg, base, label).scenario(cfg.name or default_name)
+
+
+class _Resolver:
+    """The second pass: meaning, references and derived values."""
+
+    def __init__(self, cfg: ScenarioFile, base: Path, label: str) -> None:
+        self.cfg = cfg
+        self.base = base
+        self.label = label
+        self.errors: list[str] = []
+
+    def error(self, path: str, message: str) -> None:
+        self.errors.append(f"{self.label}: {path}: {message}")
+
+    def fail_if_errors(self) -> None:
+        if self.errors:
+            raise ScenarioError(self.errors)
+
+    def file(self, ref: str) -> Path:
+        p = Path(ref)
+        return p if p.is_absolute() else self.base / p
+
+    def scenario(self, name: str) -> Scenario:
+        cfg = self.cfg
+        tasks = tuple(TaskType(t.name, t.weight, t.instructions, t.input_bytes, t.output_bytes, t.cpi, t.deadline)
+                      for t in cfg.workload.tasks)
+        draft = self.draft(tasks)
+        self.fail_if_errors()
+        nodes = self.nodes(draft)
+        self.fail_if_errors()
+        links = self.links(draft, nodes)
+        self.fail_if_errors()
+        ids = {n.id for n in nodes}
+        self.check_graph(nodes, links)
+        failures = self.failures(ids)
+        workload = self.workload(tasks, nodes, links)
+        self.fail_if_errors()
+        sim = cfg.simulation
+        return Scenario(
+            name=name,
+            dt=sim.dt,
+            episode_ticks=sim.steps * sim.decision_interval,
+            seed=sim.seed,
+            mode=sim.mode,
+            decision_interval=sim.decision_interval,
+            max_hops=sim.max_hops,
+            batch_size=sim.batch_size,
+            state_interval=sim.state_interval,
+            nodes=tuple(nodes),
+            links=tuple(links),
+            workload=workload,
+            failures=failures,
+            source=self.label,
+            extra={"description": cfg.description},
+        )
+
+    # --- topology ---
+
+    def draft(self, tasks: tuple[TaskType, ...]) -> Draft:
+        topo = self.cfg.topology
+        if topo.ether is not None:
+            total_w = sum(t.weight for t in tasks)
+            task_bytes = sum(t.weight * (t.input_bytes + t.output_bytes) for t in tasks) / total_w
+            try:
+                draft = load_ether(self.file(topo.ether), task_bytes, wired_rates=topo.link_rates == "ether")
+            except EtherError as exc:
+                self.error("topology.ether", str(exc))
+                return Draft([], [])
+        elif topo.generator is not None:
+            params = dict(topo.generator.model_extra or {})
+            try:
+                draft = validate_call(GENERATORS[topo.generator.kind])(**params)
+            except ValidationError as exc:
+                for e in exc.errors():
+                    arg = e["loc"][-1] if e["loc"] else ""
+                    if e["type"] == "unexpected_keyword_argument":
+                        names = [p for p in inspect.signature(GENERATORS[topo.generator.kind]).parameters]
+                        self.error(f"topology.generator.{arg}", f"unknown parameter of {topo.generator.kind}; "
+                                   f"expected one of: {', '.join(names)}")
+                    elif e["type"] == "missing_argument":
+                        self.error(f"topology.generator.{arg}", f"{topo.generator.kind} needs this parameter")
+                    else:
+                        self.error(f"topology.generator.{key_path(e['loc'])}", _describe(e, ScenarioFile))
+                return Draft([], [])
+            except GeneratorError as exc:
+                self.error("topology.generator", str(exc))
+                return Draft([], [])
+        else:
+            draft = Draft([], [])
+        known = {n.id: i for i, n in enumerate(draft.nodes)}
+        for i, node in enumerate(topo.nodes):  # explicit nodes: new ones, or overrides of imported ones
+            if node.id in known:
+                continue
+            if draft.nodes and node.profile is None and topo.ether is not None:
+                self.error(f"topology.nodes[{i}].id", f"no node {node.id!r} in the Ether file")
+                continue
+            known[node.id] = len(draft.nodes)
+            draft.nodes.append(DraftNode(node.id, node.profile or "", node.position))
+        for i, link in enumerate(topo.links):
+            draft.links.append(DraftLink(link.between[0], link.between[1], link.rate_bps))
+            for end in link.between:
+                if end not in known:
+                    self.error(f"topology.links[{i}].between", f"unknown node {end!r}")
+        return draft
+
+    def nodes(self, draft: Draft) -> list[NodeSpec]:
+        cfg = self.cfg
+        explicit = {n.id: (i, n) for i, n in enumerate(cfg.topology.nodes)}
+        seen: set[str] = set()
+        out = []
+        for node in draft.nodes:
+            where = f"topology.nodes[{explicit[node.id][0]}]" if node.id in explicit else f"node {node.id!r}"
+            if node.id in seen:
+                self.error(f"{where}.id", f"duplicate node id {node.id!r}")
+                continue
+            seen.add(node.id)
+            override = explicit.get(node.id, (0, None))[1]
+            profile_name = (override.profile if override and override.profile else None) or node.profile
+            # Precedence, lowest first: defaults, built-in profile, what the topology source knows
+            # about the device, the scenario's profile, the node's own entry.
+            values: dict[str, Any] = dict(NODE_DEFAULTS)
+            values.update(tx_power_dbm=cfg.network.tx_power_dbm, idle_power_w=cfg.energy.idle_power_w,
+                          kappa=cfg.energy.kappa, policy=cfg.simulation.policy)
+            if profile_name and profile_name not in BUILTIN_PROFILES and profile_name not in cfg.profiles:
+                self.error(f"{where}.profile", f"unknown profile {profile_name!r}; define it under 'profiles' "
+                           f"or use one of {', '.join(BUILTIN_PROFILES)}")
+                continue
+            values.update(BUILTIN_PROFILES.get(profile_name, {}))
+            values.update(node.hints)
+            if profile_name in cfg.profiles:
+                values.update(cfg.profiles[profile_name].model_dump(exclude_none=True))
+            position = node.position
+            if override is not None:
+                values.update(override.model_dump(exclude_none=True, exclude={"id", "profile", "position"}))
+                if "position" in override.model_fields_set:
+                    position = override.position
+            if values["controller"] and not values["worker"]:
+                self.error(f"{where}.controller", "a controller needs a worker on its node (worker: true)")
+            out.append(NodeSpec(
+                id=node.id, tier=values["tier"], cores=values["cores"], frequency=float(values["frequency"]),
+                buffer=values["buffer"], position=(float(position[0]), float(position[1])),
+                tx_power_dbm=float(values["tx_power_dbm"]), idle_power_w=float(values["idle_power_w"]),
+                kappa=float(values["kappa"]), worker=values["worker"], controller=values["controller"],
+                client=values["client"], policy=values["policy"], profile=profile_name or ""))
+        for name in cfg.profiles:
+            if not any(n.profile == name for n in out) and name not in BUILTIN_PROFILES:
+                self.error(f"profiles.{name}", "profile is not used by any node")
+        if not out:
+            self.error("topology", "the topology has no nodes")
+        return out
+
+    def links(self, draft: Draft, nodes: list[NodeSpec]) -> list[LinkSpec]:
+        net = self.cfg.network
+        by_id = {n.id: n for n in nodes}
+        explicit = {frozenset(lk.between): (i, lk) for i, lk in enumerate(self.cfg.topology.links)}
+        seen: set[frozenset[str]] = set()
+        out = []
+        for link in draft.links:
+            key = frozenset((link.a, link.b))
+            where = f"topology.links[{explicit[key][0]}]" if key in explicit else f"link {link.a}-{link.b}"
+            if link.a == link.b:
+                self.error(f"{where}.between", f"a node cannot link to itself ({link.a!r})")
+                continue
+            if key in seen:
+                if key in explicit:
+                    continue  # an explicit link overriding an imported one
+                self.error(f"{where}.between", "duplicate link")
+                continue
+            seen.add(key)
+            override = explicit.get(key, (0, None))[1]
+            rate = link.rate_bps if override is None or override.rate_bps is None else override.rate_bps
+            loss = net.loss if override is None or override.loss is None else override.loss
+            for src, dst in ((link.a, link.b), (link.b, link.a)):
+                r = rate
+                if r is None:
+                    a, b = by_id[src], by_id[dst]
+                    gain = override.gain_db if override is not None and override.gain_db is not None else \
+                        log_distance_gain_db(math.dist(a.position, b.position), net.path_loss.ref_loss_db,
+                                             net.path_loss.ref_distance_m, net.path_loss.exponent)
+                    r = shannon_rate(net.bandwidth_hz, a.tx_power_dbm, gain, net.noise_dbm)
+                if r <= 0:
+                    self.error(f"{where}", f"link {src}->{dst} has no capacity (rate {r:g} bit/s)")
+                out.append(LinkSpec(src, dst, r, loss))
+        return out
+
+    def check_graph(self, nodes: list[NodeSpec], links: list[LinkSpec]) -> None:
+        g = nx.Graph()
+        g.add_nodes_from(n.id for n in nodes)
+        g.add_edges_from((lk.src, lk.dst) for lk in links)
+        if len(nodes) > 1 and not nx.is_connected(g):
+            parts = sorted((sorted(c) for c in nx.connected_components(g)), key=len)
+            isolated = ", ".join(parts[0][:5]) + (" ..." if len(parts[0]) > 5 else "")
+            self.error("topology", f"the network is disconnected ({len(parts)} parts; e.g. {{{isolated}}} "
+                       "cannot reach the rest): add links")
+        if not any(n.client for n in nodes):
+            self.error("topology", "no node is a task source: set 'client: true' on a node or profile")
+
+    def failures(self, ids: set[str]) -> tuple[Failure, ...]:
+        out = []
+        for i, f in enumerate(self.cfg.failures):
+            if f.node not in ids:
+                self.error(f"failures[{i}].node", f"unknown node {f.node!r}")
+            out.append(Failure(f.node, f.at, f.at + f.duration))
+        return tuple(out)
+
+    def workload(self, tasks: tuple[TaskType, ...], nodes: list[NodeSpec], links: list[LinkSpec]) -> Workload:
+        wl = self.cfg.workload
+        by_id = {n.id: n for n in nodes}
+        nbrs: dict[str, set[str]] = {n.id: set() for n in nodes}
+        for lk in links:
+            nbrs[lk.src].add(lk.dst)
+        for c in wl.rates:
+            if c not in by_id:
+                self.error(f"workload.rates.{c}", f"unknown node {c!r}")
+            elif not by_id[c].client:
+                self.error(f"workload.rates.{c}", f"node {c!r} is not a task source (client: false)")
+        for c, ts in wl.targets.items():
+            if c not in by_id or not by_id[c].client:
+                self.error(f"workload.targets.{c}", f"{c!r} is not a task source node")
+                continue
+            if by_id[c].worker and ts != [c]:
+                self.error(f"workload.targets.{c}", "a client on a worker node hands its tasks to that worker; "
+                           f"expected [{c}]")
+            for j, t in enumerate(ts):
+                if t not in by_id or not by_id[t].worker or (t != c and t not in nbrs[c]):
+                    self.error(f"workload.targets.{c}[{j}]", f"{t!r} is not a worker neighbour of {c!r}")
+        for n in nodes:
+            if n.client and not n.worker and n.id not in wl.targets and not any(by_id[j].worker for j in nbrs[n.id]):
+                self.error(f"node {n.id!r}", "a task source without a worker needs a worker neighbour")
+        trace = None
+        if wl.trace is not None:
+            trace = self.trace(self.file(wl.trace), by_id)
+        a = wl.arrival
+        return Workload(
+            task_types=tasks,
+            arrival=Arrival(a.kind, a.rate, a.start, a.end, a.low, a.high, a.period),
+            client_rates=tuple(sorted(wl.rates.items())),
+            client_targets=tuple((c, tuple(ts)) for c, ts in sorted(wl.targets.items())),
+            trace=trace,
+        )
+
+    def trace(self, path: Path, by_id: dict[str, NodeSpec]) -> tuple[TraceRow, ...] | None:
+        columns = ["time", "client", "instructions", "input_bytes", "output_bytes", "cpi", "deadline"]
+        where = "workload.trace"
+        try:
+            with path.open(newline="") as fh:
+                reader = csv.DictReader(fh)
+                if reader.fieldnames is None or [c.strip() for c in reader.fieldnames] != columns:
+                    self.error(where, f"{path}: expected the header {','.join(columns)}")
+                    return None
+                rows = []
+                for line, rec in enumerate(reader, start=2):
+                    try:
+                        row = TraceRow(float(rec["time"]), rec["client"].strip(), float(rec["instructions"]),
+                                       float(rec["input_bytes"]), float(rec["output_bytes"]), float(rec["cpi"]),
+                                       float(rec["deadline"]))
+                    except (TypeError, ValueError, AttributeError):
+                        self.error(where, f"{path}:{line}: expected numbers in every column but 'client'")
+                        continue
+                    if row.client not in by_id or not by_id[row.client].client:
+                        self.error(where, f"{path}:{line}: {row.client!r} is not a task source node")
+                    bad = [c for c in columns[2:] if getattr(row, c) <= 0] + (["time"] if row.time < 0 else [])
+                    if bad:
+                        self.error(where, f"{path}:{line}: expected positive {', '.join(bad)}")
+                    rows.append(row)
+        except FileNotFoundError:
+            self.error(where, f"file not found: {path}")
+            return None
+        return tuple(sorted(rows, key=lambda r: (r.time, r.client)))

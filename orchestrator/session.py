@@ -1,0 +1,172 @@
+"""A running simulation: scenario + layout + transport + processes + clock + metrics.
+
+This is what ``orchestrator launch`` drives and what ``ZenohEdgeEnv`` holds:
+
+    with Simulation(load_scenario("aot2"), transport="zenoh") as sim:
+        sim.reset(seed=1)
+        for _ in range(999):
+            report = sim.step()
+
+``transport="inproc"`` runs the same node code in this process over an in-memory bus (layout
+``single`` by default: one host holding every role); ``"zenoh"`` starts one OS process per role
+(``per-role``, the default) or per node (``per-node``) around a Zenoh router owned by this object.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import datetime as dt
+import time
+from typing import Any, Literal
+
+from node_runtime.config import Scenario
+from node_runtime.controller import Action
+from node_runtime.driver import HostDriver
+from node_runtime.host import Host
+from node_runtime.inproc import InprocBus
+from node_runtime.keys import DEFAULT_PREFIX, Keys, new_sim_id
+from node_runtime.observation import Observation
+from node_runtime.protocol import Done
+from node_runtime.routing import Layout, Routing
+from node_runtime.transport import Transport
+from node_runtime.zenoh_transport import ZenohTransport, free_port
+from orchestrator.clock import Clock
+from orchestrator.metrics import Metrics, TickReport
+from orchestrator.supervisor import Supervisor
+
+TransportName = Literal["zenoh", "inproc"]
+ROUTER_ATTEMPTS = 5
+
+
+def open_router(host: str = "127.0.0.1", port: int | None = None) -> tuple[ZenohTransport, str]:
+    """A router session listening on a free port (retrying if another process takes it first)."""
+    last: Exception | None = None
+    for _ in range(1 if port else ROUTER_ATTEMPTS):
+        endpoint = f"tcp/{host}:{port or free_port(host)}"
+        try:
+            return ZenohTransport.router(endpoint), endpoint
+        except Exception as exc:  # zenoh raises ZError when the port is taken
+            last = exc
+    raise RuntimeError(f"could not open a Zenoh router on {host}: {last}")
+
+
+class Simulation:
+    def __init__(self, scenario: Scenario, *, transport: TransportName = "inproc", layout: Layout | None = None,
+                 sim_id: str | None = None, prefix: str = DEFAULT_PREFIX, timeout: float = 30.0,
+                 listen_host: str = "127.0.0.1", port: int | None = None) -> None:
+        if transport not in ("zenoh", "inproc"):
+            raise ValueError(f"transport must be 'zenoh' or 'inproc', not {transport!r}")
+        self.scenario = scenario
+        self.transport_name = transport
+        self.layout: Layout = layout or ("single" if transport == "inproc" else "per-role")
+        self.routing = Routing(scenario, self.layout)
+        self.keys = Keys(sim_id or new_sim_id(), prefix)
+        self.metrics = Metrics(self.routing)
+        self.supervisor: Supervisor | None = None
+        self.endpoint: str | None = None
+        self.startup_s = 0.0
+        self.seed = scenario.seed
+        self.policy: str | None = None
+        self.last: list[Done] = []
+        self._closed = False
+        self._t0 = time.perf_counter()
+        self._run_started = 0.0
+        self._ticks_run = 0
+        if transport == "inproc":
+            bus = InprocBus()
+            self.drivers = [HostDriver(Host(p, self.routing), bus.endpoint(), self.keys) for p in self.routing.procs]
+            self.transport: Transport = bus.endpoint()
+            self.clock = Clock(self.transport, self.keys, self.routing, timeout)
+        else:
+            self.drivers = []
+            router, self.endpoint = open_router(listen_host, port)
+            self.transport = router
+            try:
+                self.supervisor = Supervisor(router, self.keys, self.routing)
+                self.clock = Clock(router, self.keys, self.routing, timeout, health=self.supervisor.check)
+                self.startup_s = self.supervisor.start(scenario, self.layout, self.endpoint)
+            except BaseException:
+                self.close()
+                raise
+
+    # ----- episode control -----
+
+    def reset(self, seed: int | None = None, external: list[str] | None = None,
+              policy: str | None = None) -> TickReport:
+        """Start an episode (processes stay up) and run its tick 0.
+
+        ``external``: controller roles whose actions the caller supplies to ``step``.
+        ``policy``: override every controller's node-side policy for this episode.
+        """
+        self.seed = self.scenario.seed if seed is None else int(seed)
+        self.policy = policy
+        self.metrics.reset()
+        self.last = self.clock.reset(self.seed, external, policy)
+        self._run_started = time.perf_counter()
+        self._ticks_run = 1
+        return self.metrics.add(0, self.last)
+
+    def step(self, actions: dict[str, Action] | None = None) -> TickReport:
+        self.last = self.clock.step(actions)
+        self._ticks_run += 1
+        return self.metrics.add(self.clock.tick, self.last)
+
+    @property
+    def tick(self) -> int:
+        return self.clock.tick
+
+    def observations(self) -> dict[str, Observation]:
+        """Observations the externally driven controllers produced in the last tick."""
+        out: dict[str, Observation] = {}
+        for d in self.last:
+            out.update(d.obs)
+        return out
+
+    def run(self, ticks: int | None = None, seed: int | None = None, policy: str | None = None,
+            on_tick: Any = None) -> dict[str, Any]:
+        """A whole episode with node-side policies; returns the summary."""
+        ticks = self.scenario.episode_ticks if ticks is None else ticks
+        report = self.reset(seed, policy=policy)
+        if on_tick:
+            on_tick(report)
+        for _ in range(ticks - 1):
+            report = self.step()
+            if on_tick:
+                on_tick(report)
+        return self.summary()
+
+    def summary(self) -> dict[str, Any]:
+        s = self.metrics.summary()
+        s["seed"] = self.seed
+        s["policy"] = self.policy or sorted({n.policy for n in self.scenario.nodes if n.controller})
+        wall = time.perf_counter() - self._run_started
+        s["run"] = {
+            "transport": self.transport_name,
+            "layout": self.layout,
+            "processes": len(self.routing.procs) if self.transport_name == "zenoh" else 1,
+            "sim_id": self.keys.sim_id,
+            "startup_s": round(self.startup_s, 3),
+            "wall_time_s": round(wall, 3),
+            "ticks_per_s": round(self._ticks_run / wall, 1) if wall > 0 else None,
+            "finished_at": dt.datetime.now(dt.UTC).isoformat(timespec="seconds"),
+        }
+        return s
+
+    # ----- lifetime -----
+
+    def close(self) -> None:
+        """Stop every process and close the bus; safe to call twice and after any error."""
+        if self._closed:
+            return
+        self._closed = True
+        if self.supervisor is not None:
+            with contextlib.suppress(Exception):
+                self.clock.stop()
+            self.supervisor.shutdown()
+        self.transport.close()
+
+    def __enter__(self) -> Simulation:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()

@@ -1,0 +1,99 @@
+"""Node processes: start them, wait until all are ready, notice a death at once, leave none behind.
+
+Processes come from the node fork server, which has already imported zenoh, numpy and msgpack
+(DESIGN §6: 70 processes start in under a second that way). Readiness is each process's liveliness
+token; death is the token vanishing (any host) or the process's exit (local ones, checked when
+idle). Every child also dies with the fork server and when the orchestrator's token goes.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import os
+import signal
+import time
+
+from node_runtime.config import Scenario
+from node_runtime.forkserver import ForkServer
+from node_runtime.keys import Keys
+from node_runtime.process import ORCHESTRATOR, ProcSpec
+from node_runtime.routing import Layout, Routing
+from node_runtime.transport import Transport
+from orchestrator.clock import ProcessFailed
+
+
+class Supervisor:
+    def __init__(self, transport: Transport, keys: Keys, routing: Routing) -> None:
+        self.transport = transport
+        self.keys = keys
+        self.routing = routing
+        self.children: dict[str, int] = {}  # process name -> pid
+        self.forks = ForkServer.shared()
+        self.ready: set[str] = set()
+        self.stopping = False
+        transport.declare_token(keys.alive(ORCHESTRATOR))
+        transport.watch_tokens(keys.alive(), self.on_token)
+
+    def nodes(self, proc: str) -> tuple[str, ...]:
+        return self.routing.node_of_proc(proc)
+
+    def on_token(self, key: str, alive: bool) -> None:
+        proc = key.rsplit("/", 1)[-1]
+        if proc == ORCHESTRATOR or proc not in self.routing.roles_of:
+            return
+        if alive:
+            self.ready.add(proc)
+        elif proc in self.ready and not self.stopping:
+            self.ready.discard(proc)
+            raise ProcessFailed(proc, self.nodes(proc), "died: its liveliness token vanished")
+
+    def check(self) -> None:
+        """Raise if a local child has exited while it should be running."""
+        if self.stopping:
+            return
+        for proc, pid in self.children.items():
+            status = self.forks.exit_status(pid)
+            if status is not None:
+                raise ProcessFailed(proc, self.nodes(proc), f"exited unexpectedly (status {status})")
+
+    def start(self, scenario: Scenario, layout: Layout, endpoint: str, procs: tuple[str, ...] | None = None,
+              timeout: float = 60.0) -> float:
+        """Start the local processes and wait for every process of the layout to be ready.
+
+        ``procs``: the ones to start here (default all); others are expected to join from other hosts.
+        Returns the seconds it took.
+        """
+        t0 = time.perf_counter()
+        for proc in procs if procs is not None else self.routing.procs:
+            self.children[proc] = self.forks.start(ProcSpec(proc, scenario, layout, endpoint, self.keys))
+        want = set(self.routing.procs)
+        try:
+            self.transport.dispatch(until=lambda: want <= self.ready, timeout=timeout, idle=self.check)
+        except TimeoutError:
+            missing = sorted(want - self.ready)
+            raise ProcessFailed(missing[0], self.nodes(missing[0]),
+                                f"was not ready within {timeout:.0f} s ({len(missing)} process(es) missing: "
+                                f"{', '.join(missing[:6])}{' ...' if len(missing) > 6 else ''})") from None
+        return time.perf_counter() - t0
+
+    def shutdown(self, grace: float = 5.0) -> list[str]:
+        """Wait for the children to exit after a stop; terminate, then kill, what remains.
+
+        Returns the names of processes that had to be forced.
+        """
+        self.stopping = True
+        pids = list(self.children.values())
+        left = self.forks.wait(pids, grace)
+        forced = [p for p, pid in self.children.items() if pid in left]
+        for sig, wait in ((signal.SIGTERM, 2.0), (signal.SIGKILL, 5.0)):
+            if not left:
+                break
+            for pid in left:
+                with contextlib.suppress(ProcessLookupError):
+                    os.kill(pid, sig)
+            left = self.forks.wait(left, wait)
+        return forced
+
+    @property
+    def pids(self) -> list[int]:
+        return list(self.children.values())
