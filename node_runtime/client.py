@@ -44,7 +44,7 @@ class Client(Role):
     def tick(self, t: int, inbox: list[Envelope], out: Outbox) -> None:
         st = self.stats
         dt = self.scenario.dt
-        failed = self.scenario.is_failed(self.node.id, t)
+        failed = self.down(t)
         for env in inbox:
             if env.kind != Kind.RESULT:
                 raise ValueError(f"{self.id}: unexpected {env.kind.name} from {env.src}")

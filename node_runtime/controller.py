@@ -74,7 +74,7 @@ class Controller(Role):
                 self.decided &= present
             else:
                 raise ValueError(f"{self.id}: unexpected {env.kind.name} from {env.src}")
-        if self.scenario.is_failed(self.node.id, t):
+        if self.down(t):
             self.asked, self.pending = [], None
             return
 

@@ -9,8 +9,10 @@ forkserver it never runs the caller's main module, so a training script needs no
 Hygiene: the server exits, killing its children, when its stdin reaches EOF — which happens however
 the orchestrator ends, even by SIGKILL. Children also get PR_SET_PDEATHSIG from the server.
 
-Wire format on the pipes: 4-byte big-endian length, then a pickle. Requests: ("start", spec);
-replies and notices: ("started", proc, pid) and ("exited", proc, pid, status).
+Wire format on the pipes: 4-byte big-endian length, then a pickle. Requests: ("start", name, job)
+where ``job`` pickles (target, args) and ``target`` is an importable module-level function that ends
+the child with os._exit; replies and notices: ("started", name, pid), ("failed", name, why) and
+("exited", name, pid, status).
 """
 
 from __future__ import annotations
@@ -25,6 +27,7 @@ import struct
 import subprocess
 import sys
 import threading
+from collections.abc import Callable
 from typing import Any
 
 HEADER = struct.Struct(">I")
@@ -56,7 +59,7 @@ def _read(fd: int) -> Any | None:
 # ----- the server process -----
 
 def serve() -> None:
-    from node_runtime import process  # the preload: zenoh, numpy, msgpack and all node code
+    from node_runtime import process  # noqa: F401  the preload: zenoh, numpy, msgpack and all node code
 
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     requests, replies = sys.stdin.fileno(), os.dup(sys.stdout.fileno())
@@ -70,14 +73,22 @@ def serve() -> None:
                 msg = _read(requests)
                 if msg is None:  # the orchestrator is gone
                     return
-                spec = msg[1]
+                _, name, job = msg
+                try:
+                    target, args = pickle.loads(job)
+                except Exception as exc:  # e.g. a target defined in the caller's __main__
+                    _write(replies, ("failed", name, f"{type(exc).__name__}: {exc}"))
+                    continue
                 pid = os.fork()
                 if pid == 0:
                     os.close(requests)
                     os.close(replies)
-                    process.main(spec)  # never returns: it ends with os._exit
-                children[pid] = spec.proc
-                _write(replies, ("started", spec.proc, pid))
+                    try:
+                        target(*args)
+                    finally:
+                        os._exit(1)  # a target that returns or raises instead of exiting
+                children[pid] = name
+                _write(replies, ("started", name, pid))
             while children:
                 pid, status = os.waitpid(-1, os.WNOHANG)
                 if pid == 0:
@@ -102,6 +113,7 @@ class ForkServer:
                                        stdin=subprocess.PIPE, stdout=subprocess.PIPE, close_fds=True)
         self.exits: dict[int, int] = {}  # pid -> exit status
         self._started: dict[str, list[int]] = {}
+        self._failed: dict[str, str] = {}
         self._cond = threading.Condition()
         self._reader = threading.Thread(target=self._listen, name="forkserver-listener", daemon=True)
         self._reader.start()
@@ -120,21 +132,29 @@ class ForkServer:
             with self._cond:
                 if msg[0] == "started":
                     self._started.setdefault(msg[1], []).append(msg[2])
+                elif msg[0] == "failed":
+                    self._failed[msg[1]] = msg[2]
                 else:
                     self.exits[msg[2]] = msg[3]
                 self._cond.notify_all()
         with self._cond:
             self._cond.notify_all()
 
-    def start(self, spec: Any, timeout: float = 30.0) -> int:
-        """Fork a node process for ``spec``; returns its pid."""
+    def start(self, name: str, target: Callable[..., None], *args: Any, timeout: float = 30.0) -> int:
+        """Fork a child running ``target(*args)``; returns its pid."""
         with self._cond:
             if self.server.poll() is not None:
                 raise RuntimeError(f"the node fork server exited (status {self.server.returncode})")
-            _write(self.server.stdin.fileno(), ("start", spec))
-            if not self._cond.wait_for(lambda: self._started.get(spec.proc), timeout):
-                raise RuntimeError(f"the node fork server did not start {spec.proc} within {timeout:.0f} s")
-            return self._started[spec.proc].pop(0)
+            _write(self.server.stdin.fileno(), ("start", name, pickle.dumps((target, args))))
+            self._cond.wait_for(lambda: self._started.get(name) or name in self._failed
+                                or self.server.poll() is not None, timeout)
+            if self._started.get(name):
+                return self._started[name].pop(0)
+            if name in self._failed:
+                raise RuntimeError(f"the node fork server cannot start {name}: {self._failed.pop(name)}")
+            if self.server.poll() is not None:
+                raise RuntimeError(f"the node fork server exited (status {self.server.returncode})")
+            raise RuntimeError(f"the node fork server did not start {name} within {timeout:.0f} s")
 
     def exit_status(self, pid: int) -> int | None:
         with self._cond:

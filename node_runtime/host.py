@@ -17,7 +17,7 @@ from node_runtime.controller import Action, Controller
 from node_runtime.messages import Envelope, Kind
 from node_runtime.observation import Observation
 from node_runtime.protocol import Done
-from node_runtime.role import STAT_FIELDS, Outbox, Role
+from node_runtime.role import Outbox, Role, read_stats
 from node_runtime.routing import Routing, role_kind, role_node, state_topic
 from node_runtime.worker import Worker
 
@@ -70,7 +70,10 @@ class Host:
             else:
                 role.reset(seed)
         self.mail: dict[str, defaultdict[int, list[Envelope]]] = {r.id: defaultdict(list) for r in self.roles}
-        self.in_flight: dict[str, defaultdict[int, int]] = {r.id: defaultdict(int) for r in self.roles}
+        # tasks and results each role has on the way: by arrival tick, and in total
+        self.arrivals: dict[str, defaultdict[int, int]] = {r.id: defaultdict(int) for r in self.roles}
+        self.flying: dict[str, int] = dict.fromkeys(self.by_id, 0)
+        self.reported: dict[str, tuple] = {}  # what each role's stats were at the last report
         for out in self.outboxes.values():
             out.reset()
 
@@ -106,10 +109,13 @@ class Host:
         topics: dict[str, list[Envelope]] = {}
         sent: dict[str, int] = {}
         for rid, out in self.outboxes.items():
-            flights = self.in_flight[rid]
+            if not out.envelopes and not out.broadcasts:
+                continue
+            arrivals = self.arrivals[rid]
             for env in out.envelopes:
                 if env.kind in CARRIES_TASK:
-                    flights[env.arrive] += 1
+                    arrivals[env.arrive] += 1
+                    self.flying[rid] += 1
                 dst = env.dst
                 if dst in self.mail:
                     self.mail[dst][env.arrive].append(env)
@@ -130,15 +136,21 @@ class Host:
         return Outgoing(batches, topics, self.report(t, sent))
 
     def report(self, t: int, sent: dict[str, int]) -> Done:
-        stats: dict[str, list] = {}
+        """The Done of tick t. Its stats hold only the roles whose counters changed since the last
+        report (all of them after a reset): the orchestrator keeps the others' last values."""
+        stats: dict[str, tuple] = {}
         rts: dict[str, list[float]] = {}
         obs: dict[str, Observation] = {}
+        reported = self.reported
         for role in self.roles:
+            rid = role.id
+            arrivals = self.arrivals[rid]
+            if t in arrivals:  # arrivals happen in order: at most this tick's are due
+                self.flying[rid] -= arrivals.pop(t)
             st = role.stats
-            flights = self.in_flight[role.id]
-            for a in [a for a in flights if a <= t]:
-                del flights[a]
-            stats[role.id] = [*(getattr(st, f) for f in STAT_FIELDS), sum(flights.values())]
+            values = (*read_stats(st), self.flying[rid])
+            if reported.get(rid) != values:
+                reported[rid] = stats[rid] = values
             if st.response_times:
                 rts[role.id] = st.response_times
                 st.response_times = []

@@ -7,6 +7,7 @@ orchestrator's liveliness token vanishes (it crashed or was killed), or when its
 
 from __future__ import annotations
 
+import contextlib
 import ctypes
 import os
 import signal
@@ -19,7 +20,7 @@ from node_runtime.host import Host
 from node_runtime.keys import Keys
 from node_runtime.routing import Layout, Routing
 from node_runtime.transport import TransportError
-from node_runtime.zenoh_transport import ZenohTransport
+from node_runtime.zenoh_transport import ZenohTransport, use_lean_runtime
 
 ORCHESTRATOR = "orchestrator"  # liveliness name of the clock's owner
 READY_TIMEOUT = 60.0
@@ -35,19 +36,30 @@ class ProcSpec:
     keys: Keys
 
 
+PR_SET_PDEATHSIG, PR_SET_NAME = 1, 15
+SHORT = {"worker": "zw", "client": "zc", "controller": "zk", "node": "zn", "all": "za"}
+
+
+def short_name(proc: str) -> str:
+    """What ``ps``/``top`` show for a node process (15 bytes at most): zw-<node> for a worker, etc."""
+    kind, _, node = proc.partition("-")
+    return f"{SHORT.get(kind, 'z')}-{node}"[:15]
+
+
+def _prctl(option: int, arg: object) -> None:
+    with contextlib.suppress(OSError, AttributeError):
+        ctypes.CDLL("libc.so.6", use_errno=True).prctl(option, arg)
+
+
 def die_with_parent() -> None:
     """Ask Linux to SIGKILL this process when its parent exits (no orphans after a crash)."""
-    PR_SET_PDEATHSIG = 1
-    try:
-        libc = ctypes.CDLL("libc.so.6", use_errno=True)
-        libc.prctl(PR_SET_PDEATHSIG, signal.SIGKILL)
-    except OSError:
-        pass
+    _prctl(PR_SET_PDEATHSIG, signal.SIGKILL)
 
 
 def run(spec: ProcSpec) -> int:
     """Run one node process to completion; returns its exit status."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C reaches the whole group: the orchestrator handles it
+    use_lean_runtime()
     transport = ZenohTransport.client(spec.endpoint)
     try:
         routing = Routing(spec.scenario, spec.layout)
@@ -76,8 +88,9 @@ def run(spec: ProcSpec) -> int:
 
 
 def main(spec: ProcSpec) -> None:
-    """Target of the launcher's child processes."""
+    """Body of a forked node process."""
     die_with_parent()
+    _prctl(PR_SET_NAME, short_name(spec.proc).encode())
     code = run(spec)
     sys.stdout.flush()
     sys.stderr.flush()

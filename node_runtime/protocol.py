@@ -49,7 +49,7 @@ class Done:
     episode: int
     tick: int
     sent: dict[str, int]  # publications per destination process
-    stats: dict[str, list]  # role -> values of STAT_FIELDS, then in_flight
+    stats: dict[str, tuple]  # role -> values of STAT_FIELDS, then in_flight (changed roles only)
     response_times: dict[str, list[float]] = field(default_factory=dict)  # client role -> this tick's
     obs: dict[str, Observation] = field(default_factory=dict)  # externally driven controller -> its view
     error: str | None = None  # set when the process failed; it exits after sending this

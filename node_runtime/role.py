@@ -7,6 +7,7 @@ touches a transport: it hands envelopes to its ``Outbox`` and the host decides h
 from __future__ import annotations
 
 from dataclasses import dataclass, field, fields
+from operator import attrgetter
 from typing import ClassVar
 
 from node_runtime.comm import Radio
@@ -56,6 +57,7 @@ class Counters:
 
 
 STAT_FIELDS: tuple[str, ...] = tuple(f.name for f in fields(Counters) if f.name != "response_times")
+read_stats = attrgetter(*STAT_FIELDS)  # Counters -> tuple of STAT_FIELDS, in one C call
 
 
 class Outbox:
@@ -104,6 +106,11 @@ class Role:
         self.id = role_id(self.kind, node.id)
         self.index = scenario.index[node.id]
         self.stats = Counters()
+        self.outages = scenario.failure_windows.get(node.id, ())  # [start, end) tick windows
+
+    def down(self, t: int) -> bool:
+        """Whether this role's node has failed at tick ``t`` (scheduled in the scenario)."""
+        return bool(self.outages) and any(a <= t < b for a, b in self.outages)
 
     def reset(self, seed: int) -> None:
         self.stats = Counters()

@@ -54,7 +54,8 @@ class Worker(Role):
         self.failed = False
         self.radio.reset(stream(seed, self.index, WORKER))
         self._last_state: tuple[int, int] | None = None
-        self._last_report: tuple[int, ...] | None = None
+        self._undecided_version = 0  # bumped whenever the undecided set changes
+        self._reported_version = -1
 
     # ----- helpers -----
 
@@ -87,12 +88,13 @@ class Worker(Role):
         self.stats.drop(cause, self.occupancy)
         self.queue.clear()
         self.undecided.clear()
+        self._undecided_version += 1
 
     # ----- the tick -----
 
     def tick(self, t: int, inbox: list[Envelope], out: Outbox) -> None:
         st = self.stats
-        failed = self.scenario.is_failed(self.node.id, t)
+        failed = self.down(t)
         if failed and not self.failed:
             self.drop_all("node_failure")
             self.radio.reset(self.radio.rng)
@@ -136,9 +138,11 @@ class Worker(Role):
             for k in gone:
                 del self.undecided[k]
             self.stats.expired += len(gone)
+            self._undecided_version += bool(gone)
 
     def apply(self, t: int, decisions: list[Decision], out: Outbox) -> None:
         st = self.stats
+        self._undecided_version += bool(decisions)
         for d in decisions:
             held = self.undecided.pop(d.task_id, None)
             if held is None:  # dropped or expired after the controller saw it
@@ -165,6 +169,7 @@ class Worker(Role):
                 task.path = (*task.path, self.node.id)
                 if self.decides and task.hops < self.scenario.max_hops:
                     self.undecided[task.id] = (task, t)
+                    self._undecided_version += 1
                 else:
                     self.queue.append([task, task.cycles])
 
@@ -206,8 +211,6 @@ class Worker(Role):
         if state != self._last_state and t % interval == 0:
             self._last_state = state
             out.broadcast(Kind.STATE, self.topic, NodeState(self.node.id, st.queue, self.occupancy))
-        if self.controller:
-            ids = tuple(self.undecided)
-            if ids != self._last_report:
-                self._last_report = ids
-                out.send(Kind.REPORT, self.controller, [Pending.of(task, at) for task, at in self.undecided.values()])
+        if self.controller and self._undecided_version != self._reported_version:
+            self._reported_version = self._undecided_version
+            out.send(Kind.REPORT, self.controller, [Pending.of(task, at) for task, at in self.undecided.values()])

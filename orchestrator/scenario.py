@@ -275,7 +275,7 @@ def _describe(err: dict[str, Any], model: type[BaseModel]) -> str:
     if kind in ("greater_than", "greater_than_equal", "less_than_equal", "less_than"):
         op = {"greater_than": ">", "greater_than_equal": ">=", "less_than_equal": "<=", "less_than": "<"}[kind]
         bound = next(iter(ctx.values()))
-        return f"expected a number {op} {bound} (got {got!r})"
+        return f"expected a number {op} {bound:g} (got {got!r})"
     if kind == "literal_error":
         return f"expected {ctx.get('expected')} (got {got!r})"
     if kind == "too_short":
@@ -437,7 +437,12 @@ class _Resolver:
         else:
             draft = Draft([], [])
         known = {n.id: i for i, n in enumerate(draft.nodes)}
+        listed: set[str] = set()
         for i, node in enumerate(topo.nodes):  # explicit nodes: new ones, or overrides of imported ones
+            if node.id in listed:
+                self.error(f"topology.nodes[{i}].id", f"duplicate node id {node.id!r}")
+                continue
+            listed.add(node.id)
             if node.id in known:
                 continue
             if draft.nodes and node.profile is None and topo.ether is not None:
@@ -455,14 +460,9 @@ class _Resolver:
     def nodes(self, draft: Draft) -> list[NodeSpec]:
         cfg = self.cfg
         explicit = {n.id: (i, n) for i, n in enumerate(cfg.topology.nodes)}
-        seen: set[str] = set()
         out = []
-        for node in draft.nodes:
+        for node in draft.nodes:  # ids are unique here: the draft step rejected duplicates
             where = f"topology.nodes[{explicit[node.id][0]}]" if node.id in explicit else f"node {node.id!r}"
-            if node.id in seen:
-                self.error(f"{where}.id", f"duplicate node id {node.id!r}")
-                continue
-            seen.add(node.id)
             override = explicit.get(node.id, (0, None))[1]
             profile_name = (override.profile if override and override.profile else None) or node.profile
             # Precedence, lowest first: defaults, built-in profile, what the topology source knows

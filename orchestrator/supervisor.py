@@ -13,6 +13,7 @@ import os
 import signal
 import time
 
+from node_runtime import process as node_process
 from node_runtime.config import Scenario
 from node_runtime.forkserver import ForkServer
 from node_runtime.keys import Keys
@@ -65,7 +66,8 @@ class Supervisor:
         """
         t0 = time.perf_counter()
         for proc in procs if procs is not None else self.routing.procs:
-            self.children[proc] = self.forks.start(ProcSpec(proc, scenario, layout, endpoint, self.keys))
+            spec = ProcSpec(proc, scenario, layout, endpoint, self.keys)
+            self.children[proc] = self.forks.start(proc, node_process.main, spec)
         want = set(self.routing.procs)
         try:
             self.transport.dispatch(until=lambda: want <= self.ready, timeout=timeout, idle=self.check)

@@ -1,0 +1,228 @@
+"""``orchestrator``: the command line of ZenohEdge.
+
+    orchestrator launch topologies/aot2.yaml            # run a scenario over Zenoh processes
+    orchestrator validate my_scenario.yaml              # check a scenario file
+    orchestrator bench                                  # ticks/s against a bare Zenoh barrier
+
+Exit status: 0 success, 1 the run failed (a node died, conservation broke, ...), 2 a bad scenario
+or bad arguments, 130 interrupted.
+"""
+
+from __future__ import annotations
+
+import argparse
+import datetime as dt
+import signal
+import sys
+import time
+from pathlib import Path
+from typing import Any
+
+from rich.console import Console
+from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
+from rich.table import Table
+
+from node_runtime.policies import POLICIES
+from node_runtime.routing import LAYOUTS
+from orchestrator.clock import ClockError
+from orchestrator.metrics import ConservationError, TickReport
+from orchestrator.scenario import ScenarioError, load_scenario
+from orchestrator.session import Simulation
+
+EXIT_OK, EXIT_FAILED, EXIT_USAGE, EXIT_INTERRUPTED = 0, 1, 2, 130
+
+
+
+def fail(message: str) -> None:
+    """One plain line on stderr: never wrapped or styled, so scripts and users can grep it."""
+    print(message, file=sys.stderr, flush=True)
+
+
+class Terminated(Exception):
+    """SIGTERM, turned into an exception so that cleanup runs exactly as for Ctrl-C."""
+
+
+def _on_sigterm(signum: int, frame: Any) -> None:
+    raise Terminated()
+
+
+# ----- launch -----
+
+def cmd_launch(args: argparse.Namespace) -> int:
+    scenario = load_scenario(args.scenario)
+    ticks = (args.steps or scenario.episode_ticks // scenario.decision_interval) * scenario.decision_interval
+    out = Path(args.out) if args.out else Path("runs") / f"{scenario.name}-{dt.datetime.now():%Y%m%d-%H%M%S}"
+    layout = args.layout or ("single" if args.transport == "inproc" else "per-role")
+    console = Console(stderr=True, highlight=False, quiet=args.quiet)
+    seed = args.seed if args.seed is not None else scenario.seed
+    console.print(f"[bold]{scenario.name}[/]: {len(scenario.nodes)} nodes, {len(scenario.controllers)} controllers, "
+                  f"{len(scenario.clients)} task sources; {ticks} ticks of {scenario.dt:g} s; "
+                  f"transport {args.transport} ({layout}); seed {seed}")
+    t0 = time.perf_counter()
+    with Simulation(scenario, transport=args.transport, layout=layout, timeout=args.timeout) as sim:
+        if args.transport == "zenoh":
+            console.print(f"router {sim.endpoint}, simulation id [bold]{sim.keys.sim_id}[/], "
+                          f"{len(sim.routing.procs)} processes ready in {sim.startup_s:.2f} s")
+        progress = Progress(TextColumn("[progress.description]{task.description}"), BarColumn(),
+                            MofNCompleteColumn(), TextColumn("{task.fields[stats]}"), TimeRemainingColumn(),
+                            console=console, transient=True, disable=args.quiet)
+        with progress:
+            task = progress.add_task("ticks", total=ticks, stats="")
+            every = max(1, ticks // 200)
+
+            def on_tick(r: TickReport) -> None:
+                if r.tick % every == 0 or r.tick == ticks - 1:
+                    progress.update(task, completed=r.tick + 1, stats=(
+                        f"gen {int(r['generated'])}  done {int(r['completed'])}  drop {r.dropped}  "
+                        f"in-system {r.in_system}"))
+
+            summary = sim.run(ticks, seed=args.seed, policy=args.policy, on_tick=on_tick)
+    summary["run"]["total_wall_s"] = round(time.perf_counter() - t0, 3)
+    sim.metrics.write(out, summary)
+    if args.json:
+        import json
+
+        print(json.dumps(summary, indent=2))
+    else:
+        Console(highlight=False).print(summary_table(summary))
+    console.print(f"results: {out}/summary.json, ticks.csv, nodes.csv")
+    return EXIT_OK
+
+
+def summary_table(s: dict[str, Any]) -> Table:
+    t = s["totals"]
+    rt = s["response_time"]
+    run = s["run"]
+
+    def sec(v: float | None) -> str:
+        return "-" if v is None else f"{v:.2f} s"
+
+    table = Table(title=f"{s['scenario']} — {s['ticks']} ticks, seed {s['seed']}", show_header=False,
+                  title_justify="left")
+    table.add_column(style="bold")
+    table.add_column(justify="right")
+    gen = max(t["generated"], 1)
+    rows = [
+        ("tasks generated", f"{t['generated']}"),
+        ("completed", f"{t['completed']}  ({100 * t['completed'] / gen:.1f} %)"),
+        ("dropped", f"{t['dropped']['total']}  ({100 * t['dropped']['total'] / gen:.1f} %)"),
+        ("  queue full / expired", f"{t['dropped']['queue_full']} / {t['dropped']['expired']}"),
+        ("  node failure / link loss", f"{t['dropped']['node_failure']} / {t['dropped']['link_loss']}"),
+        ("still in the system", f"{t['in_system']}"),
+        ("offloaded", f"{t['offloaded']}"),
+        ("response time mean / p50 / p95", f"{sec(rt['mean'])} / {sec(rt['p50'])} / {sec(rt['p95'])}"),
+        ("overloaded node-ticks", f"{s['overloaded']['node_ticks']}  (mean {s['overloaded']['mean_nodes']:.2f} nodes)"),
+        ("utilisation", f"{100 * s['utilisation']:.1f} %"),
+        ("energy", f"{s['energy_j']['total']:.4g} J"),
+        ("speed", f"{run['ticks_per_s']} ticks/s  ({run['transport']}, {run['layout']}, "
+                  f"{run['processes']} process{'es' if run['processes'] != 1 else ''})"),
+    ]
+    for k, v in rows:
+        table.add_row(k, v)
+    return table
+
+
+# ----- bench -----
+
+def cmd_bench(args: argparse.Namespace) -> int:
+    from orchestrator import bench
+
+    console = Console(stderr=True, highlight=False)
+    configs = [c for c in bench.CONFIGS if c[0] in args.transports]
+    with console.status("") as status:
+        rows = bench.run(args.scenarios, args.ticks, configs, progress=lambda what: status.update(f"measuring {what}"))
+    table = Table(title=f"ticks/s over {args.ticks} ticks (random policy); barrier = bare Zenoh barrier, "
+                        "same process count", title_justify="left")
+    for col in ("scenario", "transport", "layout", "processes", "ticks/s", "barrier ticks/s", "ratio"):
+        table.add_column(col, justify="left" if col in ("scenario", "transport", "layout") else "right")
+    for r in rows:
+        table.add_row(r.scenario, r.transport, r.layout, str(r.processes), f"{r.ticks_per_s:,.0f}",
+                      "-" if r.barrier_ticks_per_s is None else f"{r.barrier_ticks_per_s:,.0f}",
+                      "-" if r.ratio is None else f"{r.ratio:.2f}")
+    Console(highlight=False).print(table)
+    if args.out:
+        bench.save(rows, Path(args.out))
+        console.print(f"saved {args.out}")
+    return EXIT_OK
+
+
+# ----- validate -----
+
+def cmd_validate(args: argparse.Namespace) -> int:
+    sc = load_scenario(args.scenario)
+    print(f"{len(sc.nodes)} nodes, {sc.undirected_links} links, {len(sc.controllers)} controllers, "
+          f"{len(sc.clients)} task sources")
+    return EXIT_OK
+
+
+# ----- parser -----
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="orchestrator",
+        description="ZenohEdge: a distributed task-offloading emulator. Every worker, client and controller "
+                    "runs as its own process and talks over Eclipse Zenoh under a simulated clock.",
+        epilog="Scenarios: topologies/aot1.yaml … aot4.yaml (the paper's Array-of-Things networks); "
+               "format in docs/scenario.md.")
+    sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
+
+    p = sub.add_parser("launch", help="run a scenario and save its metrics",
+                       description="Run one episode of a scenario with node-side policies, show progress, print a "
+                                   "summary and write summary.json, ticks.csv and nodes.csv.")
+    p.add_argument("scenario", help="scenario YAML file, or a bundled name such as aot2")
+    p.add_argument("--steps", type=int, help="decision steps to run (default: the scenario's simulation.steps)")
+    p.add_argument("--seed", type=int, help="random seed (default: the scenario's simulation.seed)")
+    p.add_argument("--transport", choices=("zenoh", "inproc"), default="zenoh",
+                   help="zenoh: one OS process per role over a Zenoh router (default); inproc: all roles in this "
+                        "process over an in-memory bus (fast, same results)")
+    p.add_argument("--layout", choices=LAYOUTS, help="process layout: per-role (zenoh default), per-node, "
+                                                     "single (inproc default)")
+    p.add_argument("--policy", choices=sorted(POLICIES),
+                   help="node-side decision policy for every controller (default: the scenario's)")
+    p.add_argument("--out", metavar="DIR", help="output directory (default: runs/<scenario>-<time>)")
+    p.add_argument("--timeout", type=float, default=30.0, metavar="S",
+                   help="seconds to wait for a tick before declaring a process hung (default 30)")
+    p.add_argument("--json", action="store_true", help="print the summary as JSON instead of a table")
+    p.add_argument("-q", "--quiet", action="store_true", help="no progress bar or status lines")
+    p.set_defaults(func=cmd_launch)
+
+    p = sub.add_parser("bench", help="measure ticks/s against a bare Zenoh barrier",
+                       description="Measure emulator ticks/s for each scenario, transport and layout, next to a bare "
+                                   "Zenoh barrier (one publication to N processes, N replies, no work) with the same "
+                                   "process count, all in one run. Ratio = emulator / barrier.")
+    p.add_argument("scenarios", nargs="*", default=["aot1", "aot2", "aot3", "aot4"],
+                   help="scenario files or bundled names (default: aot1 aot2 aot3 aot4)")
+    p.add_argument("--ticks", type=int, default=500, help="ticks measured per configuration (default 500)")
+    p.add_argument("--transports", nargs="+", choices=("inproc", "zenoh"), default=["inproc", "zenoh"])
+    p.add_argument("--out", metavar="FILE", help="also write the rows as JSON")
+    p.set_defaults(func=cmd_bench)
+
+    p = sub.add_parser("validate", help="check a scenario file",
+                       description="Load and validate a scenario. Prints 'N nodes, E links, C controllers, S task "
+                                   "sources' and exits 0, or one line per problem and exits 2.")
+    p.add_argument("scenario")
+    p.set_defaults(func=cmd_validate)
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    previous = signal.signal(signal.SIGTERM, _on_sigterm)
+    try:
+        return args.func(args)
+    except ScenarioError as exc:
+        for line in exc.errors:
+            fail(line)
+        return EXIT_USAGE
+    except (ClockError, ConservationError) as exc:
+        fail(f"error: {exc}")
+        return EXIT_FAILED
+    except (KeyboardInterrupt, Terminated):
+        fail("interrupted: every node process has been stopped")
+        return EXIT_INTERRUPTED
+    finally:
+        signal.signal(signal.SIGTERM, previous)
+
+
+if __name__ == "__main__":
+    sys.exit(main())

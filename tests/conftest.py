@@ -1,0 +1,49 @@
+"""Shared helpers: small scenarios written on the fly, and runs over both transports."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Any
+
+import pytest
+import yaml
+
+from orchestrator.scenario import load_scenario
+from orchestrator.session import Simulation
+
+ROOT = Path(__file__).resolve().parent.parent
+
+
+def write_scenario(tmp_path: Path, data: dict[str, Any], name: str = "scenario.yaml") -> Path:
+    path = tmp_path / name
+    path.write_text(yaml.safe_dump(data, sort_keys=False))
+    return path
+
+
+def run_summary(scenario, ticks: int | None = None, transport: str = "inproc", layout: str | None = None,
+                seed: int | None = None, policy: str | None = None, out: Path | None = None) -> dict[str, Any]:
+    with Simulation(scenario, transport=transport, layout=layout) as sim:
+        summary = sim.run(ticks, seed=seed, policy=policy)
+        if out is not None:
+            sim.metrics.write(out, summary)
+    return summary
+
+
+def model_part(summary: dict[str, Any]) -> dict[str, Any]:
+    """Everything the emulation decides; not how fast or where it ran."""
+    return {k: v for k, v in summary.items() if k != "run"}
+
+
+@pytest.fixture
+def aot1():
+    return load_scenario(ROOT / "topologies" / "aot1.yaml")
+
+
+@pytest.fixture
+def aot2():
+    return load_scenario(ROOT / "topologies" / "aot2.yaml")
+
+
+def dump(obj: Any) -> str:
+    return json.dumps(obj, indent=1, sort_keys=True)

@@ -1,0 +1,43 @@
+"""Everything that crosses the bus decodes to what was encoded."""
+
+from __future__ import annotations
+
+from node_runtime import codec
+from node_runtime.messages import Decision, Envelope, Kind, NodeState, Pending, Result, Task
+from node_runtime.observation import NodeView, Observation, TaskView
+from node_runtime.protocol import Batch, Done, Tick
+
+
+def task(**kw):
+    base = dict(id=(3 << 32) | 9, origin="rpi3_0", created=12, instructions=8e7, input_bytes=157286400.0,
+                output_bytes=1.5e8, cpi=1.0, deadline=100.0, hops=1, path=("rpi3_0", "nuc_0"))
+    base.update(kw)
+    return Task(**base)
+
+
+def test_batch_roundtrip():
+    envs = [
+        Envelope(Kind.TASK, "worker:a", "worker:b", 1, 4, 7, task()),
+        Envelope(Kind.RESULT, "worker:b", "client:a", 2, 5, 6, Result(task(), "b", 5, 1)),
+        Envelope(Kind.DECISION, "controller:a", "worker:a", 3, 5, 6, [Decision(1, ""), Decision(2, "b")]),
+        Envelope(Kind.REPORT, "worker:a", "controller:a", 4, 5, 6, [Pending(1, "a", 2, 1e6, 1.0, 2.0, 1.0, 9.0, 3)]),
+        Envelope(Kind.STATE, "worker:a", "state/a", 5, 5, 6, NodeState("a", 2, 3)),
+    ]
+    msg = Batch(0, 5, "node-a", envs)
+    assert codec.decode(codec.encode(msg)) == msg
+
+
+def test_tick_and_done_roundtrip():
+    tick = Tick(2, 17, "run", {"node-a": 2}, {"controller:a": 1, "controller:b": [0, 2]}, 0, [], None)
+    assert codec.decode(codec.encode(tick)) == tick
+    obs = Observation(5, "a", NodeView("a", 1, 2, 3, 4e6, 0, 0.0, 1, True), 2,
+                      [TaskView(7, 8e7, 1.0, 2.0, 1.0, 100.0, 95.0, 2, "a")],
+                      [NodeView("b", 0, 0, 26, 4e6, 1, 3e7, 1, True)])
+    done = Done("node-a", 2, 17, {"node-b": 1}, {"worker:a": [1, 2.5, 0]}, {"client:a": [7.0]},
+                {"controller:a": obs})
+    assert codec.decode(codec.encode(done)) == done
+
+
+def test_decoded_task_path_is_a_tuple():
+    env = codec.decode(codec.encode(Batch(0, 1, "p", [Envelope(Kind.TASK, "x", "y", 1, 1, 2, task())])))
+    assert isinstance(env.envelopes[0].body.path, tuple)

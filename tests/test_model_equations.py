@@ -1,0 +1,83 @@
+"""The model's equations against values computed by hand."""
+
+from __future__ import annotations
+
+import math
+
+import pytest
+
+from node_runtime.comm import LinkTransmitter, dbm_to_watts, log_distance_gain_db, shannon_rate, transfer_ticks
+from node_runtime.energy import compute_energy, idle_energy, transmit_energy
+from node_runtime.messages import Task
+
+
+def test_shannon_rate_hand_computed():
+    # P = 20 dBm, G = -80 dB, w0 = -90 dBm -> SNR = 10^(30/10) = 1000; B = 2 MHz.
+    # r = 2e6 * log2(1001) = 2e6 * 9.967226258835993 bit/s
+    assert shannon_rate(2e6, 20.0, -80.0, -90.0) == pytest.approx(19_934_452.517671986, rel=1e-12)
+
+
+def test_zero_db_snr_gives_bandwidth():
+    # SNR 0 dB = 1 -> log2(2) = 1 -> r = B
+    assert shannon_rate(1e6, 10.0, -50.0, -40.0) == pytest.approx(1e6)
+
+
+def test_log_distance_path_loss():
+    # PL(100 m) = 40 + 10 * 3 * log10(100 / 1) = 40 + 60 = 100 dB -> gain -100 dB
+    assert log_distance_gain_db(100.0, 40.0, 1.0, 3.0) == pytest.approx(-100.0)
+    # closer than the reference distance: the reference loss
+    assert log_distance_gain_db(0.2, 40.0, 1.0, 3.0) == pytest.approx(-40.0)
+
+
+def test_dbm_to_watts():
+    assert dbm_to_watts(20.0) == pytest.approx(0.1)
+    assert dbm_to_watts(30.0) == pytest.approx(1.0)
+
+
+def test_transfer_ticks():
+    # 150 MiB = 1,258,291,200 bits at 30 Mbit/s = 41.94 s -> 42 ticks of 1 s, 84 ticks of 0.5 s
+    bits = 150 * 1024 * 1024 * 8
+    assert transfer_ticks(bits, 30e6, 1.0) == 42
+    assert transfer_ticks(bits, 30e6, 0.5) == 84
+    # a tiny message still takes one tick: nothing arrives in the tick it was sent
+    assert transfer_ticks(8, 1e9, 1.0) == 1
+
+
+def test_link_fifo_queues_messages():
+    link = LinkTransmitter(rate_bps=8e6, dt=1.0)  # 1 MB/s
+    # 2 MB at tick 5: on air 5.0 -> 7.0, delivered at tick 7
+    assert link.send(5, 16e6) == (7, 2.0)
+    # 1 MB sent in the same tick waits for the first: 7.0 -> 8.0, delivered at 8
+    assert link.send(5, 8e6) == (8, 1.0)
+    # 0.5 MB at tick 10 (link idle since 8.0): 10.0 -> 10.5, delivered at 11
+    assert link.send(10, 4e6) == (11, 0.5)
+
+
+def test_link_fifo_with_sub_second_ticks():
+    link = LinkTransmitter(rate_bps=1e6, dt=0.25)
+    # 0.6 s of airtime = 2.4 ticks: 4.0 -> 6.4, delivered at tick 7
+    assert link.send(4, 0.6e6) == (7, 0.6)
+
+
+def test_energy_models():
+    # kappa * cycles * f^2 = 1e-27 * 8e7 * (4e6)^2 = 1.28e-6 J
+    assert compute_energy(1e-27, 8e7, 4e6) == pytest.approx(1.28e-6)
+    assert idle_energy(2.5, 0.5) == pytest.approx(1.25)
+    # 20 dBm = 0.1 W for 42 s = 4.2 J
+    assert transmit_energy(20.0, 42.0) == pytest.approx(4.2)
+
+
+def test_task_expiry_is_strictly_after_the_deadline():
+    task = Task(1, "a", created=10, instructions=1, input_bytes=1, output_bytes=1, cpi=1, deadline=4.0)
+    assert not task.expired(14, 1.0)  # age 4 s == deadline: still valid
+    assert task.expired(15, 1.0)
+    assert not task.expired(18, 0.5)  # age 4 s
+    assert task.expired(19, 0.5)
+    assert task.cycles == 1
+
+
+def test_execution_time_is_cycles_over_capacity():
+    # rho * xi / (N * phi): 8e7 instructions * 1.5 cpi on 2 cores of 3e7 -> 2 s
+    task = Task(1, "a", 0, 8e7, 1, 1, 1.5, 100)
+    assert task.cycles / (2 * 3e7) == pytest.approx(2.0)
+    assert math.isclose(task.cycles, 1.2e8)

@@ -1,0 +1,122 @@
+"""Malformed scenarios: exit status 2 and one line per problem naming the file, key path and expectation."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+
+import pytest
+import yaml
+
+from orchestrator.cli import main
+
+NODES = [{"id": "a", "client": True, "controller": True}, {"id": "b"}]
+LINKS = [["a", "b"]]
+HEADER = "time,client,instructions,input_bytes,output_bytes,cpi,deadline\n"
+
+
+def good(**top):
+    data = {"topology": {"nodes": [dict(n) for n in NODES], "links": [list(lk) for lk in LINKS]}}
+    data.update(top)
+    return data
+
+
+def with_nodes(*nodes, links=LINKS):
+    return {"topology": {"nodes": list(nodes), "links": links}}
+
+
+# (name, file content (dict or raw text), extra files, expected fragment of the error line)
+CASES = [
+    ("empty_file", "", {}, "the file is empty"),
+    ("invalid_yaml", "topology: {nodes: [a, b\n", {}, ":2:1: invalid YAML"),
+    ("top_level_list", "- a\n- b\n", {}, "expected a mapping at the top level"),
+    ("missing_topology", {"simulation": {"steps": 5}}, {}, "topology: required key is missing"),
+    ("unknown_key_typo", {**good(), "simulaton": {"steps": 3}}, {},
+     "simulaton: unknown key (did you mean 'simulation'?)"),
+    ("unknown_nested_key", good(simulation={"step": 3}), {}, "simulation.step: unknown key (did you mean 'steps'?)"),
+    ("wrong_type_cores", with_nodes({"id": "a", "client": True, "cores": "four"}, {"id": "b"}), {},
+     "topology.nodes[0].cores: expected an integer (got 'four')"),
+    ("float_cores", with_nodes({"id": "a", "client": True}, {"id": "b", "cores": 1.5}), {},
+     "topology.nodes[1].cores: expected an integer"),
+    ("negative_rate", good(workload={"arrival": {"rate": -0.1}}), {},
+     "workload.arrival.rate: expected a number >= 0"),
+    ("zero_frequency", with_nodes({"id": "a", "client": True, "frequency": 0}, {"id": "b"}), {},
+     "topology.nodes[0].frequency: expected a number > 0"),
+    ("bad_mode", good(simulation={"mode": "greedy"}), {}, "simulation.mode: expected 'binary' or 'batch'"),
+    ("unknown_policy", good(simulation={"policy": "best"}), {}, "simulation.policy: expected one of local"),
+    ("link_to_unknown_node", with_nodes(*NODES, links=[["a", "zz"]]), {},
+     "topology.links[0].between: unknown node 'zz'"),
+    ("link_to_itself", with_nodes(*NODES, links=[["a", "b"], ["a", "a"]]), {}, "cannot link to itself"),
+    ("duplicate_node", with_nodes(*NODES, {"id": "a"}), {}, "duplicate node id 'a'"),
+    ("disconnected", with_nodes(*NODES, {"id": "c"}), {}, "topology: the network is disconnected"),
+    ("failure_unknown_node", good(failures=[{"node": "x", "at": 3, "duration": 2}]), {},
+     "failures[0].node: unknown node 'x'"),
+    ("negative_failure_tick", good(failures=[{"node": "a", "at": -3, "duration": 2}]), {},
+     "failures[0].at: expected a number >= 0"),
+    ("unknown_profile", with_nodes({"id": "a", "profile": "raspberry", "client": True}, {"id": "b"}), {},
+     "topology.nodes[0].profile: unknown profile 'raspberry'"),
+    ("unknown_generator", {"topology": {"generator": {"kind": "star", "n": 4}}}, {},
+     "topology.generator.kind: expected one of ring"),
+    ("generator_missing_param", {"topology": {"generator": {"kind": "ring", "profile": "tier0"}}}, {},
+     "topology.generator.n: ring needs this parameter"),
+    ("generator_bad_param_type", {"topology": {"generator": {"kind": "ring", "n": "six", "profile": "tier0"}}}, {},
+     "topology.generator.n: expected an integer"),
+    ("ether_file_missing", {"topology": {"ether": "nowhere.json"}}, {}, "topology.ether: file not found"),
+    ("trace_bad_header", good(workload={"trace": "t.csv"}), {"t.csv": "when,who\n1,a\n"},
+     "workload.trace: "),
+    ("trace_unknown_client", good(workload={"trace": "t.csv"}), {"t.csv": HEADER + "0,b,1e6,1,1,1,10\n"},
+     "t.csv:2: 'b' is not a task source node"),
+    ("controller_without_worker", with_nodes({"id": "a", "client": True, "controller": True, "worker": False},
+                                             {"id": "b"}), {}, "a controller needs a worker"),
+    ("no_task_source", with_nodes({"id": "a"}, {"id": "b"}), {}, "topology: no node is a task source"),
+    ("loss_above_one", good(network={"loss": 1.5}), {}, "network.loss: expected a number <= 1"),
+    ("zero_steps", good(simulation={"steps": 0}), {}, "simulation.steps: expected a number >= 1"),
+    ("bad_node_id", with_nodes({"id": "a/b", "client": True}, {"id": "b"}, links=[["a/b", "b"]]), {},
+     "topology.nodes[0].id: expected a name of letters"),
+    ("both_sources", {"topology": {"ether": "x.json", "generator": {"kind": "ring", "n": 3}}}, {},
+     "topology: give either 'ether' or 'generator'"),
+]
+
+
+def write_case(tmp_path, name, content, files):
+    path = tmp_path / f"{name}.yaml"
+    path.write_text(content if isinstance(content, str) else yaml.safe_dump(content, sort_keys=False))
+    for fname, text in files.items():
+        (tmp_path / fname).write_text(text)
+    return path
+
+
+def test_there_are_at_least_fifteen_cases():
+    assert len(CASES) >= 15
+
+
+@pytest.mark.parametrize(("name", "content", "files", "expected"), CASES, ids=[c[0] for c in CASES])
+def test_bad_scenario_is_rejected_with_a_key_path(tmp_path, capsys, name, content, files, expected):
+    path = write_case(tmp_path, name, content, files)
+    assert main(["validate", str(path)]) == 2
+    captured = capsys.readouterr()
+    lines = [ln for ln in captured.err.splitlines() if ln.strip()]
+    assert captured.out == ""
+    assert lines, "no error printed"
+    assert all(ln.startswith(str(path)) for ln in lines), lines
+    assert any(expected in ln for ln in lines), f"expected {expected!r} in {lines}"
+    assert "Traceback" not in captured.err
+
+
+def test_missing_file(tmp_path, capsys):
+    assert main(["validate", str(tmp_path / "nope.yaml")]) == 2
+    assert capsys.readouterr().err.strip() == f"{tmp_path / 'nope.yaml'}: file not found"
+
+
+def test_cli_process_exit_status_and_no_traceback(tmp_path):
+    path = write_case(tmp_path, "bad", with_nodes({"id": "a", "client": True, "cores": -2}, {"id": "b"}), {})
+    for command in ("validate", "launch"):
+        proc = subprocess.run([sys.executable, "-m", "orchestrator.cli", command, str(path)],
+                              capture_output=True, text=True, timeout=60)
+        assert proc.returncode == 2
+        assert proc.stderr.strip() == f"{path}: topology.nodes[0].cores: expected a number >= 1 (got -2)"
+
+
+def test_validate_prints_the_counts(capsys):
+    assert main(["validate", "topologies/aot2.yaml"]) == 0
+    assert capsys.readouterr().out.strip() == "19 nodes, 34 links, 15 controllers, 12 task sources"
