@@ -60,7 +60,12 @@ class Controller(Role):
         self.asked: list[int] = []  # task ids of the last observation, which the next action places
         self.pending: list[int] | None = None  # the node-side policy's answer to it
         self.last: Observation | None = None
-        self._static = {n: sc.node[n] for n in self.states}
+        me = self.node.id
+        # static facts of every node in view: (buffer, capacity, tier, rate from here, can take tasks)
+        self._static = {n: (sc.node[n].buffer, sc.node[n].capacity, sc.node[n].tier,
+                            0.0 if n == me else sc.link[(me, n)].rate_bps, sc.node[n].worker) for n in self.states}
+        # with no failures in view and a broadcast every tick, every state is exactly one tick old
+        self._always_fresh = sc.state_interval == 1 and not any(sc.failure_windows.get(n) for n in self.states)
 
     # ----- the tick -----
 
@@ -127,11 +132,10 @@ class Controller(Role):
         return s
 
     def view(self, node: str, t: int) -> NodeView:
-        spec = self._static[node]
+        buffer, capacity, tier, rate, worker = self._static[node]
         state = self.states[node]
-        rate = 0.0 if node == self.node.id else self.scenario.link[(self.node.id, node)].rate_bps
-        return NodeView(node, state.queue, state.occupancy, spec.buffer, spec.capacity, spec.tier, rate,
-                        t - self.heard_at(node, t), spec.worker)
+        age = 1 if self._always_fresh else t - self.heard_at(node, t)
+        return NodeView(node, state.queue, state.occupancy, buffer, capacity, tier, rate, age, worker)
 
     def observe(self, t: int) -> Observation:
         dt = self.scenario.dt

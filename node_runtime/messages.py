@@ -33,6 +33,16 @@ class Task:
         """Older than its deadline: (now - created) > delta."""
         return (tick - self.created) * dt > self.deadline
 
+    def expires_at(self, dt: float) -> int:
+        """The first tick at which ``expired`` holds (computed with ``expired`` itself, so that both
+        always agree whatever the float rounding)."""
+        t = self.created + int(self.deadline // dt)
+        while not self.expired(t, dt):
+            t += 1
+        while t > self.created and self.expired(t - 1, dt):
+            t -= 1
+        return t
+
 
 @dataclass(slots=True)
 class Result:

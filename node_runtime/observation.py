@@ -6,7 +6,8 @@ policies read it directly; the RL environment turns it into fixed-shape arrays.
 
 from __future__ import annotations
 
-from dataclasses import asdict, dataclass
+from dataclasses import dataclass, fields
+from operator import attrgetter
 from typing import Any
 
 
@@ -55,16 +56,15 @@ class Observation:
         """Action 0 keeps a task locally; action i sends it to neighbour i - 1 if that one is a worker."""
         return [True, *(n.worker for n in self.neighbours)]
 
-    def to_wire(self) -> dict[str, Any]:
-        return asdict(self)
+    def to_wire(self) -> list[Any]:
+        """Compact arrays (field order of the dataclasses), documented in docs/bus.md."""
+        return [self.tick, self.node, _node_fields(self.own), self.undecided, [_task_fields(t) for t in self.tasks],
+                [_node_fields(n) for n in self.neighbours]]
 
     @classmethod
-    def from_wire(cls, d: dict[str, Any]) -> Observation:
-        return cls(
-            tick=d["tick"],
-            node=d["node"],
-            own=NodeView(**d["own"]),
-            undecided=d["undecided"],
-            tasks=[TaskView(**t) for t in d["tasks"]],
-            neighbours=[NodeView(**n) for n in d["neighbours"]],
-        )
+    def from_wire(cls, a: list[Any]) -> Observation:
+        return cls(a[0], a[1], NodeView(*a[2]), a[3], [TaskView(*t) for t in a[4]], [NodeView(*n) for n in a[5]])
+
+
+_node_fields = attrgetter(*(f.name for f in fields(NodeView)))
+_task_fields = attrgetter(*(f.name for f in fields(TaskView)))

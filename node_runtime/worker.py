@@ -20,6 +20,7 @@ queues on one FIFO per neighbour, whichever role asked for it.
 
 from __future__ import annotations
 
+import math
 from collections import deque
 
 from node_runtime.comm import Radio
@@ -51,6 +52,7 @@ class Worker(Role):
         super().reset(seed)
         self.queue: deque[list] = deque()  # [task, remaining cycles], head in service
         self.undecided: dict[int, tuple[Task, int]] = {}  # id -> (task, arrival tick), in arrival order
+        self.next_expiry = math.inf  # no held task expires before this tick (it may be early, never late)
         self.failed = False
         self.radio.reset(stream(seed, self.index, WORKER))
         self._last_state: tuple[int, int] | None = None
@@ -88,6 +90,7 @@ class Worker(Role):
         self.stats.drop(cause, self.occupancy)
         self.queue.clear()
         self.undecided.clear()
+        self.next_expiry = math.inf
         self._undecided_version += 1
 
     # ----- the tick -----
@@ -120,14 +123,19 @@ class Worker(Role):
             self.publish(t, out)
             return
 
-        self.expire(t)
-        self.apply(t, decisions, out)
-        self.admit(t, arrivals)
-        self.serve(t, out)
+        if t >= self.next_expiry:
+            self.expire(t)
+        if decisions:
+            self.apply(t, decisions, out)
+        if arrivals:
+            self.admit(t, arrivals)
+        if self.queue:
+            self.serve(t, out)
         st.energy_idle += idle_energy(self.node.idle_power_w, self.dt)
         self.publish(t, out)
 
     def expire(self, t: int) -> None:
+        """Drop every held task past its deadline; then find when the next one expires."""
         dt = self.dt
         if self.queue and any(e[0].expired(t, dt) for e in self.queue):
             kept = deque(e for e in self.queue if not e[0].expired(t, dt))
@@ -139,6 +147,8 @@ class Worker(Role):
                 del self.undecided[k]
             self.stats.expired += len(gone)
             self._undecided_version += bool(gone)
+        held = [e[0] for e in self.queue] + [task for task, _ in self.undecided.values()]
+        self.next_expiry = min((task.expires_at(dt) for task in held), default=math.inf)
 
     def apply(self, t: int, decisions: list[Decision], out: Outbox) -> None:
         st = self.stats
@@ -167,6 +177,7 @@ class Worker(Role):
                 st.queue_full += 1
             else:
                 task.path = (*task.path, self.node.id)
+                self.next_expiry = min(self.next_expiry, task.expires_at(self.dt))
                 if self.decides and task.hops < self.scenario.max_hops:
                     self.undecided[task.id] = (task, t)
                     self._undecided_version += 1

@@ -1,0 +1,325 @@
+"""``ZenohEdgeEnv``: a PettingZoo ParallelEnv whose agents are the controllers of an emulated network.
+
+    from env import ZenohEdgeEnv
+    env = ZenohEdgeEnv()                      # aot1 over Zenoh, one process per role
+    obs, infos = env.reset(seed=42)
+    while env.agents:
+        actions = {a: env.action_space(a).sample(obs[a]["action_mask"]) for a in env.agents}
+        obs, rewards, terminations, truncations, infos = env.step(actions)
+    env.close()
+
+One ``step`` is one decision epoch (``decision_interval`` ticks of the emulation). The actions reach
+the controllers with the first of those ticks (counted in the clock protocol like any message); the
+observations come back with the controllers' reports at the end of the last one. Observations are
+partial and one tick stale, by design (DESIGN §2).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Callable, Sequence
+from pathlib import Path
+from typing import Any, ClassVar
+
+import numpy as np
+from gymnasium import spaces
+from pettingzoo import ParallelEnv
+
+from env.observations import Encoder, ObservationLayout
+from env.reward import PaperWeights, RewardContext, RewardFn, RewardTerms, paper_terms, resolve_reward, shaped
+from node_runtime.config import Scenario
+from node_runtime.observation import Observation
+from node_runtime.routing import Layout, role_id
+from orchestrator.metrics import DROP_CAUSES, ENERGY, F
+from orchestrator.scenario import load_scenario
+from orchestrator.session import Simulation
+
+AGENT_PREFIX = "ctrl_"
+NODE_INFO = ("queue", "undecided", "overloaded", "generated", "completed", "offloaded", "decisions")
+INFO_COLUMNS = [F[k] for k in (*NODE_INFO, *DROP_CAUSES, *ENERGY)]
+DELTA_COLUMNS = [F[k] for k in ("completed", *DROP_CAUSES, "generated", "offloaded")]
+
+
+class InvalidActionError(ValueError):
+    """An agent chose an action its ``action_mask`` forbids."""
+
+
+def agent_name(node: str) -> str:
+    return f"{AGENT_PREFIX}{node}"
+
+
+class ZenohEdgeEnv(ParallelEnv):
+    """Multi-agent task offloading over a Zenoh-emulated edge network.
+
+    Args:
+        scenario: a bundled name ("aot1" … "aot4"), a YAML path, a dict in the scenario format, or a
+            ``Scenario``.
+        seed: seed of the first episode (later resets without a seed draw from a stream it seeds).
+        transport: "zenoh" (node processes over a Zenoh router) or "inproc" (same code, one process).
+        layout: "per-role" (default for zenoh), "per-node", or "single" (default for inproc).
+        reward: "paper" (Eq. 1–5, see docs/reward.md), "sparse", or a callable ``f(RewardContext)``.
+        reward_weights: ``PaperWeights`` overriding the paper's r_u and chi weights.
+        shaping: a potential ``Xi(observation) -> float``; adds gamma * Xi(s') - Xi(s) to the reward.
+        mode, decision_interval, batch_size: override the scenario's decision settings.
+        max_steps: episode length in steps (default: the scenario's ``simulation.steps``, 1000).
+        agents: controllers the agents drive (node ids); the others keep their node-side policy.
+        uniform_spaces: pad every agent to the largest degree, so one network fits all agents.
+        invalid_action: "raise" (default) or "penalty" (a masked action becomes 0 = local and
+            ``invalid_penalty`` is added to the reward).
+        render_mode: None, "ansi", "rgb_array" or "human".
+        connect, sim_id: attach to a simulation served by ``orchestrator launch --serve`` instead of
+            starting one (give the endpoint it printed, e.g. "tcp/10.0.0.5:7447", and its id).
+    """
+
+    metadata: ClassVar[dict[str, Any]] = {
+        "name": "zenohedge_v0", "render_modes": ["ansi", "rgb_array", "human"], "render_fps": 4,
+        "is_parallelizable": True,
+    }
+
+    def __init__(self, scenario: str | Path | dict | Scenario = "aot1", *, seed: int | None = None,
+                 transport: str = "zenoh", layout: Layout | None = None, reward: str | RewardFn = "paper",
+                 reward_weights: PaperWeights | None = None, shaping: Callable[[dict], float] | None = None,
+                 gamma: float = 0.99, mode: str | None = None, decision_interval: int | None = None,
+                 batch_size: int | None = None, max_steps: int | None = None,
+                 agents: Sequence[str] | None = None, uniform_spaces: bool = False,
+                 invalid_action: str = "raise", invalid_penalty: float = -10.0, render_mode: str | None = None,
+                 connect: str | None = None, sim_id: str | None = None, timeout: float = 30.0) -> None:
+        sc = scenario if isinstance(scenario, Scenario) else load_scenario(scenario)
+        changes = {k: v for k, v in (("mode", mode), ("decision_interval", decision_interval),
+                                     ("batch_size", batch_size)) if v is not None}
+        if changes:
+            steps = sc.episode_ticks // sc.decision_interval
+            sc = dataclasses.replace(sc, **changes)
+            sc = dataclasses.replace(sc, episode_ticks=steps * sc.decision_interval)
+        if invalid_action not in ("raise", "penalty"):
+            raise ValueError(f"invalid_action must be 'raise' or 'penalty', not {invalid_action!r}")
+        if render_mode is not None and render_mode not in self.metadata["render_modes"]:
+            raise ValueError(f"render_mode must be one of {self.metadata['render_modes']} or None")
+        self.scenario = sc
+        self.transport = transport
+        self.layout = layout
+        self.reward_fn = resolve_reward(reward)
+        self.weights = reward_weights or PaperWeights()
+        self.shaping = shaping
+        self.gamma = gamma
+        self.max_steps = max_steps or sc.episode_ticks // sc.decision_interval
+        self.invalid_action = invalid_action
+        self.invalid_penalty = invalid_penalty
+        self.render_mode = render_mode
+        self.connect = connect
+        self.sim_id = sim_id
+        self.timeout = timeout
+
+        nodes = list(agents) if agents is not None else list(sc.controllers)
+        unknown = [n for n in nodes if n not in sc.controllers]
+        if unknown:
+            raise ValueError(f"not controllers of {sc.name}: {', '.join(unknown)} "
+                             f"(controllers: {', '.join(sc.controllers)})")
+        self.node_of = {agent_name(n): n for n in sorted(nodes, key=sc.index.__getitem__)}
+        self.possible_agents = list(self.node_of)
+        self._role = {a: role_id("controller", n) for a, n in self.node_of.items()}
+        self._row = {a: sc.index[n] for a, n in self.node_of.items()}
+        self.agents: list[str] = []
+        degrees = {a: len(sc.neighbours[n]) for a, n in self.node_of.items()}
+        slots = max(degrees.values(), default=0)
+        batch = None if sc.mode == "binary" else sc.batch_size
+        self.layouts = {a: ObservationLayout(d, slots if uniform_spaces else d, batch) for a, d in degrees.items()}
+        self.observation_spaces = {a: lay.space() for a, lay in self.layouts.items()}
+        self.action_spaces = {a: lay.action_space() for a, lay in self.layouts.items()}
+
+        self.sim: Simulation | None = None
+        self._seeds = np.random.default_rng(seed)
+        self._next_seed = seed
+        self._raw: dict[str, Observation | None] = {}
+        self._obs: dict[str, dict[str, np.ndarray]] = {}
+        self._potential: dict[str, float] = {}
+        self._steps = 0
+        self._last_actions: dict[str, Any] = {}
+        self._renderer = None
+        self._encoders: dict[str, Encoder] = {}
+
+    # ----- PettingZoo API -----
+
+    def observation_space(self, agent: str) -> spaces.Space:
+        return self.observation_spaces[agent]
+
+    def action_space(self, agent: str) -> spaces.Space:
+        return self.action_spaces[agent]
+
+    def reset(self, seed: int | None = None, options: dict | None = None):
+        """Start an episode; the node processes stay up. ``options``: {"policy": name} for the
+        controllers the agents do not drive."""
+        if seed is not None:
+            self._seeds = np.random.default_rng(seed)
+            episode_seed = int(seed)
+        elif self._next_seed is not None:
+            episode_seed = int(self._next_seed)
+        else:
+            episode_seed = int(self._seeds.integers(2**31))
+        self._next_seed = None
+        if self.sim is None:
+            self.sim = self._open()
+        external = [role_id("controller", n) for n in self.node_of.values()]
+        report = self.sim.reset(episode_seed, external=external, policy=(options or {}).get("policy"))
+        self.agents = list(self.possible_agents)
+        self._steps = 0
+        self._last_actions = {}
+        self._observe()
+        self._potential = {a: self.shaping(self._obs[a]) for a in self.agents} if self.shaping else {}
+        infos = {a: self._info(a, report.nodes, ()) for a in self.agents}
+        return dict(self._obs), infos
+
+    def step(self, actions: dict[str, Any]):
+        if not self.agents:
+            raise RuntimeError("step() called on a finished episode: call reset() first")
+        missing = [a for a in self.agents if a not in actions]
+        if missing:
+            raise ValueError(f"no action for {', '.join(missing)}")
+        dt = self.scenario.dt
+        controller_actions: dict[str, Any] = {}
+        penalised: set[str] = set()
+        terms: dict[str, tuple[RewardTerms, ...]] = {}
+        for agent in self.agents:
+            action, bad = self._check(agent, actions[agent])
+            if bad:
+                penalised.add(agent)
+            raw = self._raw[agent]
+            if raw is not None and raw.tasks:
+                controller_actions[self._role[agent]] = action
+                if isinstance(action, int):
+                    terms[agent] = (paper_terms(raw, raw.tasks[0], action, dt, self.weights),)
+                else:
+                    terms[agent] = tuple(paper_terms(raw, t, a, dt, self.weights)
+                                         for t, a in zip(raw.tasks, action, strict=False))
+        reports = [self.sim.step(controller_actions)]
+        for _ in range(self.scenario.decision_interval - 1):
+            reports.append(self.sim.step())
+        before = dict(self._raw)
+        self._observe()
+        self._steps += 1
+
+        node_delta = reports[0].node_delta if len(reports) == 1 else sum(r.node_delta for r in reports)
+        deltas = node_delta[:, DELTA_COLUMNS].tolist()
+        nodes = reports[-1].nodes[:, INFO_COLUMNS].tolist()
+        tick = self.sim.tick
+        rewards, infos = {}, {}
+        for agent in self.agents:
+            row = self._row[agent]
+            d = deltas[row]
+            delta = {"completed": d[0], "dropped": d[1] + d[2] + d[3] + d[4], "generated": d[5], "offloaded": d[6]}
+            agent_terms = terms.get(agent, ())
+            ctx = RewardContext(agent, self.node_of[agent], before[agent], actions[agent], self._raw[agent],
+                                agent_terms, delta, dt)
+            r = float(self.reward_fn(ctx))
+            if agent in penalised:
+                r += self.invalid_penalty
+            if self.shaping:
+                after = self.shaping(self._obs[agent])
+                r = shaped(r, self._potential[agent], after, self.gamma)
+                self._potential[agent] = after
+            rewards[agent] = r
+            infos[agent] = {"tick": tick, "node": _node_info(nodes[row]),
+                            "reward_terms": [t.as_dict() for t in agent_terms], "invalid_action": agent in penalised}
+        truncated = self._steps >= self.max_steps
+        terminations = dict.fromkeys(self.agents, False)
+        truncations = dict.fromkeys(self.agents, truncated)
+        observations = dict(self._obs)
+        if truncated:  # the episode's metrics, as in summary.json, without the wall-clock "run" block
+            episode = {k: v for k, v in self.sim.summary().items() if k != "run"}
+            for agent in self.agents:
+                infos[agent]["episode"] = episode
+            self.agents = []
+        if self.render_mode == "human":
+            self.render()
+        return observations, rewards, terminations, truncations, infos
+
+    def render(self):
+        if self.render_mode is None:
+            return None
+        from env.render import Renderer
+
+        if self._renderer is None:
+            self._renderer = Renderer(self)
+        return self._renderer.render(self.render_mode)
+
+    def close(self) -> None:
+        if self._renderer is not None:
+            self._renderer.close()
+            self._renderer = None
+        if self.sim is not None:
+            self.sim.close()
+            self.sim = None
+        self.agents = []
+
+    # ----- results -----
+
+    def summary(self) -> dict[str, Any]:
+        """The episode's metrics so far, as in ``summary.json`` of ``orchestrator launch``."""
+        if self.sim is None:
+            raise RuntimeError("no episode has run yet")
+        return self.sim.summary()
+
+    # ----- internals -----
+
+    def _open(self) -> Simulation:
+        if self.connect is not None:
+            from orchestrator.attach import attach
+
+            return attach(self.connect, self.sim_id, scenario=self.scenario, timeout=self.timeout)
+        return Simulation(self.scenario, transport=self.transport, layout=self.layout, timeout=self.timeout)
+
+    def _observe(self) -> None:
+        by_role = self.sim.observations()
+        for agent, node in self.node_of.items():
+            raw = by_role.get(role_id("controller", node))
+            self._raw[agent] = raw
+            if raw is None:
+                self._obs[agent] = self.layouts[agent].empty()
+                continue
+            encoder = self._encoders.get(agent)
+            if encoder is None:
+                encoder = self._encoders[agent] = Encoder(self.layouts[agent], raw)
+            self._obs[agent] = encoder.encode(raw)
+
+    def _check(self, agent: str, action: Any) -> tuple[Any, bool]:
+        """The action to send, and whether it broke the mask (raises in "raise" mode)."""
+        mask = self._obs[agent]["action_mask"]
+        layout = self.layouts[agent]
+        if layout.batch is None:
+            a = int(action)
+            if 0 <= a < mask.shape[0] and mask[a]:
+                return a, False
+            return self._invalid(agent, a, mask), True
+        acts = [int(x) for x in np.asarray(action).reshape(-1)]
+        if len(acts) != layout.batch:
+            raise ValueError(f"{agent}: expected {layout.batch} actions (batch mode), got {len(acts)}")
+        bad = False
+        for k, a in enumerate(acts):
+            if not (0 <= a < layout.n_actions and mask[k][a]):
+                acts[k] = self._invalid(agent, a, mask[k])
+                bad = True
+        return acts, bad
+
+    def _invalid(self, agent: str, action: int, mask: np.ndarray) -> int:
+        allowed = [int(i) for i in np.flatnonzero(mask)]
+        if self.invalid_action == "raise":
+            node = self.node_of[agent]
+            names = ["local", *self.scenario.neighbours[node]]
+            raise InvalidActionError(
+                f"{agent}: action {action} is masked; allowed now: "
+                + ", ".join(f"{i} ({names[i]})" for i in allowed if i < len(names))
+                + " — pass invalid_action='penalty' to ZenohEdgeEnv to penalise instead of raising")
+        return 0
+
+    def _info(self, agent: str, nodes: np.ndarray, terms: tuple[RewardTerms, ...]) -> dict[str, Any]:
+        row = nodes[self._row[agent], INFO_COLUMNS].tolist()
+        return {"tick": self.sim.tick, "node": _node_info(row), "reward_terms": [t.as_dict() for t in terms]}
+
+
+def _node_info(row: list[float]) -> dict[str, Any]:
+    """The node part of an agent's info, from a row of INFO_COLUMNS."""
+    n = len(NODE_INFO)
+    info = {k: int(v) for k, v in zip(NODE_INFO, row[:n], strict=True)}
+    info["dropped"] = int(sum(row[n:n + len(DROP_CAUSES)]))
+    info["energy_j"] = sum(row[n + len(DROP_CAUSES):])
+    return info

@@ -1,0 +1,119 @@
+"""Rewards: the paper's Eq. 1–5, a sparse alternative, user callables, potential-based shaping.
+
+The paper's reward for agent i placing task k on target a (i itself when kept local) is
+
+    R = r_u - (D + chi_O * O),   D = chi_wait * T_wait + chi_comm * T_comm + chi_exc * T_exc
+
+It leaves choices open; docs/reward.md states and justifies each one, all in seconds:
+
+- T_wait = Q_a * cycles_k / (N_a * phi_a): the target's queue (tasks admitted for processing, as last
+  heard) times this task's cycles, over the target's capacity — queue in tasks, converted to time
+  with the task at hand as the size estimate. Only the chosen target's queue counts.
+- T_comm = 8 (alpha_in + alpha_out) / r_{i,a}: the input travels to the target and the result
+  comes back; 0 when local.
+- T_exc = cycles_k / (N_a phi_a) - cycles_k / (N_i phi_i) (negative when the target is faster).
+- O = -ln(p) / 3 with p = max(epsilon, (Qmax_a - Q'_a) / Qmax_a) and
+  Q'_a = min(max(0, Q_a - phi_a) + 1, Qmax_a), where Q_a is the target's buffer occupancy (minus
+  this task itself when local, since it already sits in that buffer), phi_a the tasks it can finish
+  in one tick (capacity * dt / cycles_k), ln the natural log and epsilon = 1e-3.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import Any
+
+from node_runtime.observation import Observation, TaskView
+
+
+@dataclass(frozen=True)
+class PaperWeights:
+    """The paper's Table "Parameter values"."""
+
+    utility: float = 2.0  # r_u
+    wait: float = 20.0  # chi_wait
+    comm: float = 20.0  # chi_comm
+    exc: float = 20.0  # chi_exc
+    overload: float = 150.0  # chi_O
+    epsilon: float = 1e-3  # floor of p, so that log(p) stays finite
+
+
+@dataclass(frozen=True)
+class RewardTerms:
+    """Every term of one decision's paper reward (times in seconds)."""
+
+    utility: float
+    t_wait: float
+    t_comm: float
+    t_exc: float
+    delay: float  # D
+    overload: float  # O
+    reward: float
+
+    def as_dict(self) -> dict[str, float]:
+        return {"utility": self.utility, "t_wait": self.t_wait, "t_comm": self.t_comm, "t_exc": self.t_exc,
+                "delay": self.delay, "overload": self.overload, "reward": self.reward}
+
+
+def paper_terms(obs: Observation, task: TaskView, action: int, dt: float,
+                w: PaperWeights = PaperWeights()) -> RewardTerms:
+    own = obs.own
+    target = own if action == 0 else obs.neighbours[action - 1]
+    cycles = task.cycles
+    t_wait = target.queue * cycles / target.capacity
+    t_comm = 0.0 if action == 0 else 8.0 * (task.input_bytes + task.output_bytes) / target.rate_bps
+    t_exc = cycles / target.capacity - cycles / own.capacity
+    delay = w.wait * t_wait + w.comm * t_comm + w.exc * t_exc
+    occupancy = target.occupancy - (1 if action == 0 else 0)
+    finish_per_tick = target.capacity * dt / cycles
+    q_next = min(max(0.0, occupancy - finish_per_tick) + 1.0, float(target.buffer))
+    p = max(w.epsilon, (target.buffer - q_next) / target.buffer)
+    overload = -math.log(p) / 3.0
+    return RewardTerms(w.utility, t_wait, t_comm, t_exc, delay, overload,
+                       w.utility - (delay + w.overload * overload))
+
+
+@dataclass(slots=True)
+class RewardContext:
+    """Everything a reward function may look at for one agent and one step."""
+
+    agent: str
+    node: str
+    obs: Observation | None  # the view the agent acted on (None if its node was down)
+    action: Any  # int, or a sequence of ints in batch mode
+    next_obs: Observation | None
+    terms: tuple[RewardTerms, ...]  # paper terms of each task placed by this action
+    node_delta: dict[str, float]  # change of the node's counters during the step (completed, dropped, ...)
+    dt: float
+
+
+RewardFn = Callable[[RewardContext], float]
+
+
+def paper_reward(ctx: RewardContext) -> float:
+    """Sum of the paper reward over the tasks placed (0 when there was nothing to decide)."""
+    return sum(t.reward for t in ctx.terms)
+
+
+def sparse_reward(ctx: RewardContext) -> float:
+    """Tasks completed minus tasks dropped at the agent's node during the step."""
+    return ctx.node_delta["completed"] - ctx.node_delta["dropped"]
+
+
+REWARDS: dict[str, RewardFn] = {"paper": paper_reward, "sparse": sparse_reward}
+
+
+def resolve_reward(reward: str | RewardFn) -> RewardFn:
+    if callable(reward):
+        return reward
+    try:
+        return REWARDS[reward]
+    except KeyError:
+        raise ValueError(f"unknown reward {reward!r}; expected one of {', '.join(REWARDS)} or a callable") from None
+
+
+def shaped(reward: float, potential_before: float, potential_after: float, gamma: float) -> float:
+    """Potential-based shaping (Ng et al. 1999): R' = R + gamma * Xi(s') - Xi(s); it keeps optimal policies."""
+    return reward + gamma * potential_after - potential_before

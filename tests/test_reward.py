@@ -1,0 +1,58 @@
+"""The paper reward (Eq. 1–5 as read in docs/reward.md), term by term, against hand computation."""
+
+from __future__ import annotations
+
+import math
+
+import pytest
+
+from env.reward import PaperWeights, paper_terms, shaped
+from node_runtime.observation import NodeView, Observation, TaskView
+
+# An rpi3-like node (1 core at 4e6 cycles/s, buffer 3, holding 3 tasks of which 2 queued) next to a
+# nuc-like one (3.2e7 cycles/s, buffer 54, 5 tasks queued) over a 30 Mbit/s link.
+OWN = NodeView("a", queue=2, occupancy=3, buffer=3, capacity=4e6, tier=0, rate_bps=0.0, age=1, worker=True)
+NUC = NodeView("b", queue=5, occupancy=5, buffer=54, capacity=3.2e7, tier=1, rate_bps=3e7, age=1, worker=True)
+TASK = TaskView(1, instructions=8e7, input_bytes=1e7, output_bytes=5e6, cpi=1.0, deadline=100.0, time_left=97.0,
+                waited=1, origin="a")
+OBS = Observation(10, "a", OWN, 1, [TASK], [NUC])
+
+
+def test_keeping_the_task_local():
+    t = paper_terms(OBS, TASK, 0, dt=1.0)
+    assert t.t_wait == pytest.approx(40.0)  # 2 queued * 8e7 cycles / 4e6 cycles/s
+    assert t.t_comm == 0.0
+    assert t.t_exc == 0.0
+    assert t.delay == pytest.approx(800.0)  # 20 * 40
+    # Q = 3 - 1 (the task itself) = 2; phi = 4e6 / 8e7 = 0.05 tasks per tick; Q' = min(2 - 0.05 + 1, 3) = 2.95
+    # p = (3 - 2.95) / 3 = 0.016667; O = -ln(p) / 3 = 1.364781
+    assert t.overload == pytest.approx(-math.log(0.05 / 3) / 3)
+    assert t.overload == pytest.approx(1.3647815, rel=1e-6)
+    assert t.reward == pytest.approx(2 - (800 + 150 * 1.3647815), rel=1e-7)  # -1002.717
+
+
+def test_offloading_to_a_faster_neighbour():
+    t = paper_terms(OBS, TASK, 1, dt=1.0)
+    assert t.t_wait == pytest.approx(12.5)  # 5 * 8e7 / 3.2e7
+    assert t.t_comm == pytest.approx(4.0)  # 8 * (1e7 + 5e6) bits / 3e7 bit/s
+    assert t.t_exc == pytest.approx(-17.5)  # 8e7/3.2e7 - 8e7/4e6 = 2.5 - 20
+    assert t.delay == pytest.approx(-20.0)  # 20 * (12.5 + 4 - 17.5)
+    # Q = 5; phi = 3.2e7 / 8e7 = 0.4; Q' = 5.6; p = (54 - 5.6) / 54 = 0.896296; O = 0.0364947
+    assert t.overload == pytest.approx(0.0364947, rel=1e-5)
+    assert t.reward == pytest.approx(2 - (-20 + 150 * 0.0364947), rel=1e-5)  # 16.526
+
+
+def test_a_full_target_hits_the_floor():
+    full = NodeView("b", queue=54, occupancy=54, buffer=54, capacity=3.2e7, tier=1, rate_bps=3e7, age=1, worker=True)
+    t = paper_terms(Observation(10, "a", OWN, 1, [TASK], [full]), TASK, 1, dt=1.0)
+    # Q' = min(54 - 0.4 + 1, 54) = 54 -> p = max(1e-3, 0) = 1e-3 -> O = -ln(1e-3) / 3 = 2.302585
+    assert t.overload == pytest.approx(math.log(1000) / 3)
+
+
+def test_weights_are_configurable():
+    w = PaperWeights(utility=1.0, wait=1.0, comm=0.0, exc=0.0, overload=0.0)
+    assert paper_terms(OBS, TASK, 1, dt=1.0, w=w).reward == pytest.approx(1.0 - 12.5)
+
+
+def test_shaping_formula():
+    assert shaped(1.0, potential_before=2.0, potential_after=3.0, gamma=0.5) == pytest.approx(1.0 + 1.5 - 2.0)
