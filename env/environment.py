@@ -27,7 +27,7 @@ from pettingzoo import ParallelEnv
 
 from env.observations import Encoder, ObservationLayout
 from env.reward import PaperWeights, RewardContext, RewardFn, RewardTerms, paper_terms, resolve_reward, shaped
-from node_runtime.config import Scenario
+from node_runtime.config import Arrival, Scenario
 from node_runtime.observation import Observation
 from node_runtime.routing import Layout, role_id
 from orchestrator.metrics import DROP_CAUSES, ENERGY, F
@@ -61,7 +61,9 @@ class ZenohEdgeEnv(ParallelEnv):
         reward_weights: ``PaperWeights`` overriding the paper's r_u and chi weights.
         shaping: a potential ``Xi(observation) -> float``; adds gamma * Xi(s') - Xi(s) to the reward.
         mode, decision_interval, batch_size: override the scenario's decision settings.
-        max_steps: episode length in steps (default: the scenario's ``simulation.steps``, 1000).
+        max_steps: episode length in steps (default: the scenario's ``simulation.steps``, 1000); an episode
+            is the reset tick plus ``max_steps`` decision epochs.
+        arrival_rate: replace the workload's arrival schedule by a constant lambda (tasks/s per source).
         agents: controllers the agents drive (node ids); the others keep their node-side policy.
         uniform_spaces: pad every agent to the largest degree, so one network fits all agents.
         invalid_action: "raise" (default) or "penalty" (a masked action becomes 0 = local and
@@ -80,7 +82,7 @@ class ZenohEdgeEnv(ParallelEnv):
                  transport: str = "zenoh", layout: Layout | None = None, reward: str | RewardFn = "paper",
                  reward_weights: PaperWeights | None = None, shaping: Callable[[dict], float] | None = None,
                  gamma: float = 0.99, mode: str | None = None, decision_interval: int | None = None,
-                 batch_size: int | None = None, max_steps: int | None = None,
+                 batch_size: int | None = None, max_steps: int | None = None, arrival_rate: float | None = None,
                  agents: Sequence[str] | None = None, uniform_spaces: bool = False,
                  invalid_action: str = "raise", invalid_penalty: float = -10.0, render_mode: str | None = None,
                  connect: str | None = None, sim_id: str | None = None, timeout: float = 30.0) -> None:
@@ -91,6 +93,11 @@ class ZenohEdgeEnv(ParallelEnv):
             steps = sc.episode_ticks // sc.decision_interval
             sc = dataclasses.replace(sc, **changes)
             sc = dataclasses.replace(sc, episode_ticks=steps * sc.decision_interval)
+        if arrival_rate is not None:
+            if arrival_rate < 0:
+                raise ValueError(f"arrival_rate must be >= 0, not {arrival_rate}")
+            arrival = Arrival("constant", rate=float(arrival_rate))
+            sc = dataclasses.replace(sc, workload=dataclasses.replace(sc.workload, arrival=arrival, client_rates=()))
         if invalid_action not in ("raise", "penalty"):
             raise ValueError(f"invalid_action must be 'raise' or 'penalty', not {invalid_action!r}")
         if render_mode is not None and render_mode not in self.metadata["render_modes"]:
