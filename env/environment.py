@@ -86,9 +86,19 @@ class ZenohEdgeEnv(ParallelEnv):
                  agents: Sequence[str] | None = None, uniform_spaces: bool = False,
                  invalid_action: str = "raise", invalid_penalty: float = -10.0, render_mode: str | None = None,
                  connect: str | None = None, sim_id: str | None = None, timeout: float = 30.0) -> None:
-        sc = scenario if isinstance(scenario, Scenario) else load_scenario(scenario)
         changes = {k: v for k, v in (("mode", mode), ("decision_interval", decision_interval),
                                      ("batch_size", batch_size)) if v is not None}
+        if connect is not None:  # the served simulation fixes the scenario
+            if sim_id is None:
+                raise ValueError("connect= needs sim_id= (both are printed by `orchestrator launch --serve`)")
+            if changes or arrival_rate is not None:
+                raise ValueError("mode, decision_interval, batch_size and arrival_rate cannot change a served "
+                                 "simulation; set them in its scenario file")
+            from orchestrator.serve import describe
+
+            sc = Scenario.from_dict(describe(connect, sim_id, timeout=timeout)["scenario"])
+        else:
+            sc = scenario if isinstance(scenario, Scenario) else load_scenario(scenario)
         if changes:
             steps = sc.episode_ticks // sc.decision_interval
             sc = dataclasses.replace(sc, **changes)
@@ -270,9 +280,7 @@ class ZenohEdgeEnv(ParallelEnv):
 
     def _open(self) -> Simulation:
         if self.connect is not None:
-            from orchestrator.attach import attach
-
-            return attach(self.connect, self.sim_id, scenario=self.scenario, timeout=self.timeout)
+            return Simulation.attach(self.connect, self.sim_id, timeout=self.timeout)
         return Simulation(self.scenario, transport=self.transport, layout=self.layout, timeout=self.timeout)
 
     def _observe(self) -> None:

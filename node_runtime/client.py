@@ -50,18 +50,23 @@ class Client(Role):
                 raise ValueError(f"{self.id}: unexpected {env.kind.name} from {env.src}")
             task = env.body.task
             if failed:
-                st.node_failure += 1
+                self.drop(out, "node_failure", task.id)
             elif task.expired(t, dt):
-                st.expired += 1
+                self.drop(out, "expired", task.id)
             else:
+                response = (t - task.created) * dt
                 st.completed += 1
-                st.response_times.append((t - task.created) * dt)
+                st.response_times.append(response)
+                out.emit("completed", self.node.id, task=task.id, response_time=response,
+                         executor=env.body.executor)
         if failed:
             return
         me = self.node.id
         for instructions, in_bytes, out_bytes, cpi, deadline in self.source.draws(t):
             task = Task(self.task_id(), me, t, instructions, in_bytes, out_bytes, cpi, deadline)
             st.generated += 1
+            out.emit("created", me, task=task.id, instructions=instructions, input_bytes=in_bytes,
+                     output_bytes=out_bytes, deadline=deadline)
             if self.local:
                 out.send(Kind.TASK, role_id("worker", me), task)
                 continue

@@ -11,7 +11,7 @@ from __future__ import annotations
 import traceback
 from collections import defaultdict
 
-from node_runtime.host import Host
+from node_runtime.host import EVENT_KINDS, Host
 from node_runtime.keys import Keys
 from node_runtime.protocol import Batch, Done, Tick
 from node_runtime.transport import Transport
@@ -28,6 +28,8 @@ class HostDriver:
         self.stopped = False
         self.failed: str | None = None
         self.buffer: defaultdict[tuple[int, int], list[Batch]] = defaultdict(list)
+        self.monitors = {(kind, node): transport.monitored(keys.events(kind, node))
+                         for node in host.nodes for kind in EVENT_KINDS}
         transport.subscribe(keys.tick(), self.on_tick)
         transport.subscribe(keys.inbox(self.proc), self.on_batch)
         for topic in host.routing.topics_of(self.proc):
@@ -69,6 +71,7 @@ class HostDriver:
 
     def run(self, cmd: Tick) -> None:
         t = cmd.tick
+        self.host.events_on = any(m.listened for m in self.monitors.values())
         try:
             out = self.host.run(t, cmd.actions)
         except Exception as exc:  # report, then stop: the orchestrator names this process
@@ -81,3 +84,8 @@ class HostDriver:
         for topic, envelopes in out.topics.items():
             self.transport.publish(self.keys.topic(topic), Batch(self.episode, t, self.proc, envelopes))
         self.transport.publish(self.keys.done(self.proc), out.done)
+        for kind, node, fields in out.events:  # best effort: monitors never slow the emulation down
+            monitor = self.monitors[(kind, node)]
+            if monitor.listened:
+                monitor.put({"type": "event", "kind": kind, "node": node, "episode": self.episode, "tick": t,
+                             **fields})

@@ -25,11 +25,15 @@ ROLE_TYPES: dict[str, type[Role]] = {"worker": Worker, "client": Client, "contro
 CARRIES_TASK = (Kind.TASK, Kind.RESULT)
 
 
+EVENT_KINDS = ("created", "completed", "dropped", "offloaded", "overload", "failure")
+
+
 @dataclass(slots=True)
 class Outgoing:
     batches: dict[str, list[Envelope]]  # destination process -> envelopes
     topics: dict[str, list[Envelope]]  # broadcast topic -> envelopes
     done: Done
+    events: list[tuple[str, str, dict]]  # (kind, node, fields), collected only while a monitor listens
 
 
 def make_role(role: str, scenario: Scenario) -> Role:
@@ -51,8 +55,13 @@ class Host:
             self.remote_subs[topic] = list(dict.fromkeys(
                 routing.proc_of[r] for r in subs if routing.proc_of[r] != proc))
         self.external: set[str] = set()
+        self.events_on = False  # set by the driver while a monitor subscribes to events
         self.episode = 0
         self.reset(0, routing.scenario.seed)
+
+    @property
+    def nodes(self) -> list[str]:
+        return list(dict.fromkeys(r.node.id for r in self.roles))
 
     def published_topics(self) -> list[str]:
         """Broadcast topics of this host's workers that some other process listens to."""
@@ -91,19 +100,21 @@ class Host:
         """One tick of every role, in canonical order; mail out; the report."""
         actions = actions or {}
         mail = self.mail
+        events: list[tuple[str, str, dict]] = []
         for role in self.roles:
             inbox = mail[role.id].pop(t, [])
             if len(inbox) > 1:
                 inbox.sort(key=Envelope.order)
             out = self.outboxes[role.id]
             out.tick = t
+            out.events = events if self.events_on else None
             if role.id in self.external:
                 role.tick(t, inbox, out, actions.get(role.id))
             else:
                 role.tick(t, inbox, out)
-        return self._route(t)
+        return self._route(t, events)
 
-    def _route(self, t: int) -> Outgoing:
+    def _route(self, t: int, events: list[tuple[str, str, dict]]) -> Outgoing:
         proc_of = self.routing.proc_of
         batches: dict[str, list[Envelope]] = {}
         topics: dict[str, list[Envelope]] = {}
@@ -133,7 +144,7 @@ class Host:
         for topic in topics:
             for p in self.remote_subs[topic]:
                 sent[p] = sent.get(p, 0) + 1
-        return Outgoing(batches, topics, self.report(t, sent))
+        return Outgoing(batches, topics, self.report(t, sent), events)
 
     def report(self, t: int, sent: dict[str, int]) -> Done:
         """The Done of tick t. Its stats hold only the roles whose counters changed since the last

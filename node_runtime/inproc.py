@@ -11,7 +11,7 @@ from collections import deque
 from collections.abc import Callable
 from typing import Any
 
-from node_runtime.transport import Handler, TokenHandler, Transport, TransportError
+from node_runtime.transport import Handler, Monitored, TokenHandler, Transport, TransportError
 
 
 def key_matches(expr: str, key: str) -> bool:
@@ -37,6 +37,7 @@ class InprocBus:
         self._tokens: set[str] = set()
         self._queue: deque[tuple[Callable[..., None], tuple]] = deque()
         self._delivering = False
+        self._monitors: list[InprocMonitor] = []
 
     def endpoint(self) -> InprocEndpoint:
         return InprocEndpoint(self)
@@ -70,6 +71,13 @@ class InprocBus:
     def subscribe(self, key_expr: str, handler: Handler) -> None:
         self._subs.append((key_expr, handler))
         self._routes.clear()
+        for monitor in self._monitors:
+            monitor.listened = bool(self._handlers(monitor.key))
+
+    def monitored(self, key: str) -> InprocMonitor:
+        monitor = InprocMonitor(self, key)
+        self._monitors.append(monitor)
+        return monitor
 
     def token(self, key: str, alive: bool) -> None:
         (self._tokens.add if alive else self._tokens.discard)(key)
@@ -82,6 +90,16 @@ class InprocBus:
         for key in sorted(self._tokens):
             if key_matches(key_expr, key):
                 self._post(handler, key, True)
+
+
+class InprocMonitor(Monitored):
+    def __init__(self, bus: InprocBus, key: str) -> None:
+        self.bus = bus
+        self.key = key
+        self.listened = bool(bus._handlers(key))
+
+    def put(self, message: Any) -> None:
+        self.bus.publish(self.key, message)
 
 
 class InprocEndpoint(Transport):
@@ -108,6 +126,9 @@ class InprocEndpoint(Transport):
             self.bus._deliver()
         if not until():
             raise TransportError("in-process bus is idle but the awaited condition does not hold")
+
+    def monitored(self, key: str) -> InprocMonitor:
+        return self.bus.monitored(key)
 
     def close(self) -> None:
         for key in self._tokens:

@@ -46,5 +46,10 @@ class Keys:
     def events(self, kind: str = "*", node: str = "*") -> str:
         return f"{self.root}/events/{kind}/{node}"
 
-    def scenario(self) -> str:
-        return f"{self.root}/scenario"
+    def session(self) -> str:
+        """Queryable: what a remote driver or monitor needs to know about the simulation."""
+        return f"{self.root}/session"
+
+    def control(self) -> str:
+        """Queryable: claim or release the clock (attach mode)."""
+        return f"{self.root}/control"

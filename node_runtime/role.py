@@ -48,9 +48,6 @@ class Counters:
     # completions this tick: response times in seconds (drained by the host every tick)
     response_times: list[float] = field(default_factory=list)
 
-    def drop(self, cause: str, n: int = 1) -> None:
-        setattr(self, cause, getattr(self, cause) + n)
-
     @property
     def dropped(self) -> int:
         return self.queue_full + self.expired + self.node_failure + self.link_loss
@@ -63,7 +60,7 @@ read_stats = attrgetter(*STAT_FIELDS)  # Counters -> tuple of STAT_FIELDS, in on
 class Outbox:
     """Collects one role's envelopes during its tick, numbering them with the role's sequence."""
 
-    __slots__ = ("_seq", "broadcasts", "envelopes", "role", "tick")
+    __slots__ = ("_seq", "broadcasts", "envelopes", "events", "role", "tick")
 
     def __init__(self, role: str) -> None:
         self.role = role
@@ -71,6 +68,7 @@ class Outbox:
         self._seq = 0
         self.envelopes: list[Envelope] = []  # addressed to one role
         self.broadcasts: list[Envelope] = []  # addressed to a topic
+        self.events: list[tuple[str, str, dict]] | None = None  # (kind, node, fields) while a monitor listens
 
     def reset(self) -> None:
         self._seq = 0
@@ -86,6 +84,11 @@ class Outbox:
             raise ValueError(f"{self.role}: a message sent in tick {t} cannot arrive at tick {arrive}")
         self._seq += 1
         self.envelopes.append(Envelope(kind, self.role, dst, self._seq, t, arrive, body))
+
+    def emit(self, kind: str, node: str, **fields: object) -> None:
+        """Record a monitoring event (docs/bus.md). Costs nothing when nobody listens."""
+        if self.events is not None:
+            self.events.append((kind, node, fields))
 
     def broadcast(self, kind: Kind, topic: str, body: Body) -> None:
         """Publish on a topic; every subscribing role receives it next tick."""
@@ -115,12 +118,18 @@ class Role:
     def reset(self, seed: int) -> None:
         self.stats = Counters()
 
+    def drop(self, out: Outbox, cause: str, task_id: int) -> None:
+        """Account for one lost task, by exactly one cause (conservation depends on it)."""
+        setattr(self.stats, cause, getattr(self.stats, cause) + 1)
+        if out.events is not None:
+            out.emit("dropped", self.node.id, task=task_id, cause=cause, role=self.kind)
+
     def transmit(self, t: int, kind: Kind, dst_node: str, dst_role: str, body: Body, bits: float,
                  out: Outbox) -> None:
         """Queue a message on this node's link to ``dst_node``; it may be lost on the way."""
         sent = self.radio.send(t, dst_node, bits)
         if sent is None:
-            self.stats.link_loss += 1
+            self.drop(out, "link_loss", body.id if kind == Kind.TASK else body.task.id)
             return
         arrive, seconds = sent
         self.stats.energy_transmit += transmit_energy(self.node.tx_power_dbm, seconds)

@@ -43,4 +43,15 @@ class Transport(ABC):
         so callers can check process health. Raises ``TimeoutError`` after ``timeout`` seconds."""
 
     @abstractmethod
+    def monitored(self, key: str) -> Monitored:
+        """A best-effort publisher for monitors (never blocks) that knows whether anyone listens."""
+
+    @abstractmethod
     def close(self) -> None: ...
+
+
+class Monitored(ABC):
+    listened: bool
+
+    @abstractmethod
+    def put(self, message: Any) -> None: ...

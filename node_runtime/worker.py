@@ -73,7 +73,7 @@ class Worker(Role):
         """
         task = result.task
         if task.expired(t, self.dt):
-            self.stats.expired += 1
+            self.drop(out, "expired", task.id)
             return
         origin = task.origin
         if origin == self.node.id:
@@ -86,8 +86,9 @@ class Worker(Role):
             prev = task.path[result.hop]
             self.transmit(t, Kind.RESULT, prev, role_id("worker", prev), result, task.output_bytes * 8.0, out)
 
-    def drop_all(self, cause: str) -> None:
-        self.stats.drop(cause, self.occupancy)
+    def drop_all(self, out: Outbox, cause: str) -> None:
+        for task in [e[0] for e in self.queue] + [task for task, _ in self.undecided.values()]:
+            self.drop(out, cause, task.id)
         self.queue.clear()
         self.undecided.clear()
         self.next_expiry = math.inf
@@ -98,12 +99,17 @@ class Worker(Role):
     def tick(self, t: int, inbox: list[Envelope], out: Outbox) -> None:
         st = self.stats
         failed = self.down(t)
-        if failed and not self.failed:
-            self.drop_all("node_failure")
-            self.radio.reset(self.radio.rng)
+        if failed != self.failed:
+            out.emit("failure", self.node.id, down=failed)
+            if failed:
+                self.drop_all(out, "node_failure")
+                self.radio.reset(self.radio.rng)
         self.failed = failed
-        st.overloaded = int(self.occupancy >= self.node.buffer)
-        st.overloaded_ticks += st.overloaded
+        overloaded = int(self.occupancy >= self.node.buffer)
+        if overloaded != st.overloaded:
+            out.emit("overload", self.node.id, overloaded=bool(overloaded), occupancy=self.occupancy)
+        st.overloaded = overloaded
+        st.overloaded_ticks += overloaded
 
         arrivals: list[Task] = []
         decisions: list[Decision] = []
@@ -113,39 +119,44 @@ class Worker(Role):
                 arrivals.append(env.body)
             elif kind == Kind.RESULT:
                 if failed:
-                    st.node_failure += 1
+                    self.drop(out, "node_failure", env.body.task.id)
                 else:
                     self.route_result(t, env.body, out)
             elif kind == Kind.DECISION:
                 decisions.extend(env.body)
         if failed:
-            st.node_failure += len(arrivals)
+            for task in arrivals:
+                self.drop(out, "node_failure", task.id)
             self.publish(t, out)
             return
 
         if t >= self.next_expiry:
-            self.expire(t)
+            self.expire(t, out)
         if decisions:
             self.apply(t, decisions, out)
         if arrivals:
-            self.admit(t, arrivals)
+            self.admit(t, arrivals, out)
         if self.queue:
             self.serve(t, out)
         st.energy_idle += idle_energy(self.node.idle_power_w, self.dt)
         self.publish(t, out)
 
-    def expire(self, t: int) -> None:
+    def expire(self, t: int, out: Outbox) -> None:
         """Drop every held task past its deadline; then find when the next one expires."""
         dt = self.dt
         if self.queue and any(e[0].expired(t, dt) for e in self.queue):
-            kept = deque(e for e in self.queue if not e[0].expired(t, dt))
-            self.stats.expired += len(self.queue) - len(kept)
+            kept = deque()
+            for entry in self.queue:
+                if entry[0].expired(t, dt):
+                    self.drop(out, "expired", entry[0].id)
+                else:
+                    kept.append(entry)
             self.queue = kept
         if self.undecided:
             gone = [k for k, (task, _) in self.undecided.items() if task.expired(t, dt)]
             for k in gone:
                 del self.undecided[k]
-            self.stats.expired += len(gone)
+                self.drop(out, "expired", k)
             self._undecided_version += bool(gone)
         held = [e[0] for e in self.queue] + [task for task, _ in self.undecided.values()]
         self.next_expiry = min((task.expires_at(dt) for task in held), default=math.inf)
@@ -164,17 +175,17 @@ class Worker(Role):
             else:
                 task.hops += 1
                 st.offloaded += 1
+                out.emit("offloaded", self.node.id, task=task.id, to=d.target)
                 self.transmit(t, Kind.TASK, d.target, role_id("worker", d.target), task,
                               task.input_bytes * 8.0, out)
 
-    def admit(self, t: int, arrivals: list[Task]) -> None:
-        st = self.stats
+    def admit(self, t: int, arrivals: list[Task], out: Outbox) -> None:
         buffer = self.node.buffer
         for task in arrivals:
             if task.expired(t, self.dt):
-                st.expired += 1
+                self.drop(out, "expired", task.id)
             elif self.occupancy >= buffer:
-                st.queue_full += 1
+                self.drop(out, "queue_full", task.id)
             else:
                 task.path = (*task.path, self.node.id)
                 self.next_expiry = min(self.next_expiry, task.expires_at(self.dt))

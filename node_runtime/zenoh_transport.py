@@ -21,7 +21,7 @@ from typing import Any, Literal
 import zenoh
 
 from node_runtime import codec
-from node_runtime.transport import Handler, TokenHandler, Transport, TransportError
+from node_runtime.transport import Handler, Monitored, TokenHandler, Transport, TransportError
 
 Mode = Literal["router", "client", "peer"]
 IDLE_SLICE = 0.1  # seconds between idle checks while dispatching
@@ -128,6 +128,32 @@ class ZenohTransport(Transport):
             for listener in listeners:
                 listener.undeclare()
 
+    # ----- request / reply (session description, control) -----
+
+    def serve(self, key: str, handler: Callable[[Any], Any]) -> None:
+        """Answer requests on ``key`` with ``handler(message)``. The handler runs in a Zenoh thread."""
+
+        def on_query(query: zenoh.Query) -> None:
+            message = codec.decode(query.payload.to_bytes()) if query.payload is not None else None
+            query.reply(query.key_expr, codec.encode(handler(message)))
+
+        self._entities.append(self.session.declare_queryable(key, on_query))
+
+    def request(self, key: str, message: Any, timeout: float = 10.0) -> Any:
+        """Ask whoever serves ``key``; the first answer wins."""
+        for reply in self.session.get(key, payload=codec.encode(message), timeout=timeout):
+            if reply.ok is not None:
+                return codec.decode(reply.ok.payload.to_bytes())
+        raise TransportError(f"no answer from {key} within {timeout:.0f} s")
+
+    # ----- best-effort publications for monitors -----
+
+    def monitored(self, key: str) -> MonitorPublisher:
+        """A publisher that drops rather than blocks, and knows whether anyone listens."""
+        pub = MonitorPublisher(self.session, key)
+        self._entities.append(pub)
+        return pub
+
     def subscribe(self, key_expr: str, handler: Handler) -> None:
         q = self._queue
 
@@ -178,3 +204,23 @@ class ZenohTransport(Transport):
         self._entities.clear()
         self._pubs.clear()
         close_session(self.session)
+
+
+class MonitorPublisher(Monitored):
+    """For traffic nobody in the barrier waits for (metrics, events): never blocks the emulation, and
+    ``listened`` (kept current by a matching listener) lets callers skip building unwanted messages."""
+
+    def __init__(self, session: zenoh.Session, key: str) -> None:
+        self.publisher = session.declare_publisher(key, congestion_control=zenoh.CongestionControl.DROP)
+        self.listened = self.publisher.matching_status.matching
+        self._listener = self.publisher.declare_matching_listener(self._on_matching)
+
+    def _on_matching(self, status: zenoh.MatchingStatus) -> None:
+        self.listened = status.matching
+
+    def put(self, message: Any) -> None:
+        self.publisher.put(codec.encode(message))
+
+    def undeclare(self) -> None:
+        self._listener.undeclare()
+        self.publisher.undeclare()

@@ -11,7 +11,9 @@ or bad arguments, 130 interrupted.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import datetime as dt
+import json
 import signal
 import sys
 import time
@@ -38,6 +40,10 @@ def fail(message: str) -> None:
     print(message, file=sys.stderr, flush=True)
 
 
+class UsageError(Exception):
+    """A bad combination of arguments: one line on stderr, exit status 2."""
+
+
 class Terminated(Exception):
     """SIGTERM, turned into an exception so that cleanup runs exactly as for Ctrl-C."""
 
@@ -52,41 +58,76 @@ def cmd_launch(args: argparse.Namespace) -> int:
     scenario = load_scenario(args.scenario)
     ticks = (args.steps or scenario.episode_ticks // scenario.decision_interval) * scenario.decision_interval
     out = Path(args.out) if args.out else Path("runs") / f"{scenario.name}-{dt.datetime.now():%Y%m%d-%H%M%S}"
+    if args.serve and args.transport != "zenoh":
+        raise UsageError("--serve needs --transport zenoh: other processes reach the simulation over Zenoh")
     layout = args.layout or ("single" if args.transport == "inproc" else "per-role")
+    host, port = parse_listen(args.listen) if args.listen else ("127.0.0.1", None)
     console = Console(stderr=True, highlight=False, quiet=args.quiet)
     seed = args.seed if args.seed is not None else scenario.seed
     console.print(f"[bold]{scenario.name}[/]: {len(scenario.nodes)} nodes, {len(scenario.controllers)} controllers, "
                   f"{len(scenario.clients)} task sources; {ticks} ticks of {scenario.dt:g} s; "
                   f"transport {args.transport} ({layout}); seed {seed}")
     t0 = time.perf_counter()
-    with Simulation(scenario, transport=args.transport, layout=layout, timeout=args.timeout) as sim:
+    with Simulation(scenario, transport=args.transport, layout=layout, timeout=args.timeout, listen_host=host,
+                    port=port) as sim:
+        server = None
         if args.transport == "zenoh":
             console.print(f"router {sim.endpoint}, simulation id [bold]{sim.keys.sim_id}[/], "
                           f"{len(sim.routing.procs)} processes ready in {sim.startup_s:.2f} s")
-        progress = Progress(TextColumn("[progress.description]{task.description}"), BarColumn(),
-                            MofNCompleteColumn(), TextColumn("{task.fields[stats]}"), TimeRemainingColumn(),
-                            console=console, transient=True, disable=args.quiet)
-        with progress:
-            task = progress.add_task("ticks", total=ticks, stats="")
-            every = max(1, ticks // 200)
+        if args.serve:
+            from orchestrator.serve import Server
 
-            def on_tick(r: TickReport) -> None:
-                if r.tick % every == 0 or r.tick == ticks - 1:
-                    progress.update(task, completed=r.tick + 1, stats=(
-                        f"gen {int(r['generated'])}  done {int(r['completed'])}  drop {r.dropped}  "
-                        f"in-system {r.in_system}"))
-
-            summary = sim.run(ticks, seed=args.seed, policy=args.policy, on_tick=on_tick)
-    summary["run"]["total_wall_s"] = round(time.perf_counter() - t0, 3)
-    sim.metrics.write(out, summary)
-    if args.json:
-        import json
-
-        print(json.dumps(summary, indent=2))
-    else:
-        Console(highlight=False).print(summary_table(summary))
-    console.print(f"results: {out}/summary.json, ticks.csv, nodes.csv")
+            server = Server(sim)
+            console.print(f"serving: monitor with `orchestrator monitor --connect {sim.endpoint} --sim "
+                          f"{sim.keys.sim_id}`; attach an environment with ZenohEdgeEnv(connect=\"{sim.endpoint}\", "
+                          f"sim_id=\"{sim.keys.sim_id}\")")
+        for episode in range(args.episodes):
+            where = out if args.episodes == 1 else out / f"episode-{episode}"
+            with server.own_clock() if server else contextlib.nullcontext():
+                summary = run_episode(sim, ticks, None if seed is None else seed + episode, args, console)
+            summary["run"]["total_wall_s"] = round(time.perf_counter() - t0, 3)
+            sim.metrics.write(where, summary)
+            if args.json:
+                print(json.dumps(summary, indent=2))
+            else:
+                Console(highlight=False).print(summary_table(summary))
+            console.print(f"results: {where}/summary.json, ticks.csv, nodes.csv")
+        if server is not None:
+            console.print("serving until Ctrl-C")
+            server.wait()
     return EXIT_OK
+
+
+def run_episode(sim: Simulation, ticks: int, seed: int, args: argparse.Namespace, console: Console) -> dict[str, Any]:
+    """One episode with node-side policies, a progress bar, and optional pacing for live viewing."""
+    progress = Progress(TextColumn("[progress.description]{task.description}"), BarColumn(),
+                        MofNCompleteColumn(), TextColumn("{task.fields[stats]}"), TimeRemainingColumn(),
+                        console=console, transient=True, disable=args.quiet)
+    period = 1.0 / args.tick_rate if args.tick_rate else 0.0
+    next_at = [time.perf_counter()]
+    with progress:
+        task = progress.add_task("ticks", total=ticks, stats="")
+        every = max(1, ticks // 200)
+
+        def on_tick(r: TickReport) -> None:
+            if r.tick % every == 0 or r.tick == ticks - 1:
+                progress.update(task, completed=r.tick + 1, stats=(
+                    f"gen {int(r['generated'])}  done {int(r['completed'])}  drop {r.dropped}  "
+                    f"in-system {r.in_system}"))
+            if period:  # pace the run for people watching a monitor
+                next_at[0] += period
+                time.sleep(max(0.0, next_at[0] - time.perf_counter()))
+
+        return sim.run(ticks, seed=seed, policy=args.policy, on_tick=on_tick)
+
+
+def parse_listen(text: str) -> tuple[str, int | None]:
+    """HOST:PORT (or tcp/HOST:PORT) -> (host, port)."""
+    text = text.removeprefix("tcp/")
+    host, _, port = text.rpartition(":")
+    if not host or not port.isdigit():
+        raise UsageError(f"--listen: expected HOST:PORT such as 0.0.0.0:7447, not {text!r}")
+    return host, int(port)
 
 
 def summary_table(s: dict[str, Any]) -> Table:
@@ -184,6 +225,16 @@ def build_parser() -> argparse.ArgumentParser:
                    help="seconds to wait for a tick before declaring a process hung (default 30)")
     p.add_argument("--json", action="store_true", help="print the summary as JSON instead of a table")
     p.add_argument("-q", "--quiet", action="store_true", help="no progress bar or status lines")
+    p.add_argument("--episodes", type=int, default=1, metavar="N",
+                   help="episodes to run (default 1; with --serve, 0 runs none and only serves)")
+    p.add_argument("--serve", action="store_true",
+                   help="keep the simulation up after the episodes: monitors and ZenohEdgeEnv(connect=...) can "
+                        "attach from other processes or hosts until Ctrl-C")
+    p.add_argument("--listen", metavar="HOST:PORT",
+                   help="where the router listens (default 127.0.0.1 on a free port); e.g. 0.0.0.0:7447 to serve "
+                        "other hosts")
+    p.add_argument("--tick-rate", type=float, metavar="HZ",
+                   help="run at most HZ ticks per second, to watch a run live with `orchestrator monitor`")
     p.set_defaults(func=cmd_launch)
 
     p = sub.add_parser("bench", help="measure ticks/s against a bare Zenoh barrier",
@@ -213,6 +264,9 @@ def main(argv: list[str] | None = None) -> int:
     except ScenarioError as exc:
         for line in exc.errors:
             fail(line)
+        return EXIT_USAGE
+    except UsageError as exc:
+        fail(f"orchestrator: {exc}")
         return EXIT_USAGE
     except (ClockError, ConservationError) as exc:
         fail(f"error: {exc}")

@@ -39,12 +39,14 @@ class Clock:
         self.timeout = timeout
         self.health = health
         self.episode = -1
+        self.latest = -1  # the highest episode run or seen on the bus (another driver may have run some)
         self.tick = -1
         self.expect: dict[str, int] = {}
         self.dones: dict[str, Done] = {}
         transport.subscribe(keys.done(), self.on_done)
 
     def on_done(self, key: str, done: Done) -> None:
+        self.latest = max(self.latest, done.episode)
         if done.error is not None:
             first = done.error.strip().splitlines()[0]
             raise ProcessFailed(done.proc, self.routing.node_of_proc(done.proc), f"failed in tick {done.tick}: {first}"
@@ -54,7 +56,8 @@ class Clock:
 
     def reset(self, seed: int, external: list[str] | None = None, policy: str | None = None) -> list[Done]:
         """Start a new episode: every process resets its roles, then runs tick 0."""
-        self.episode += 1
+        self.episode = max(self.episode, self.latest) + 1
+        self.latest = self.episode
         self.tick = 0
         return self._run(Tick(self.episode, 0, "reset", seed=seed, external=list(external or ()), policy=policy))
 
@@ -62,6 +65,10 @@ class Clock:
         """Run the next tick; ``actions`` go to externally driven controllers."""
         self.tick += 1
         return self._run(Tick(self.episode, self.tick, "run", expect=self.expect, actions=actions or {}))
+
+    def catch_up(self, episode: int) -> None:
+        """Another driver ran episodes up to ``episode``: number ours after them."""
+        self.latest = max(self.latest, episode)
 
     def stop(self) -> None:
         self.transport.publish(self.keys.tick(), Tick(self.episode, self.tick + 1, "stop"))

@@ -61,6 +61,40 @@ class TickReport:
         return int(self.totals[F["overloaded"]])
 
 
+def bus_record(report: TickReport, metrics: Metrics, sim_id: str, episode: int) -> dict[str, Any]:
+    """The ``…/metrics/tick`` message for monitors (schema in docs/bus.md): this tick's totals, its
+    changes, its completions' response times, and one column per node field."""
+    t, d = report.totals, report.delta
+    nodes, nd = report.nodes, report.node_delta
+    cap = metrics.capacity
+    with np.errstate(divide="ignore", invalid="ignore"):
+        util = np.where(cap > 0, nd[:, F["busy_cycles"]] / np.where(cap > 0, cap, 1), 0.0)
+    return {
+        "type": "metrics", "sim": sim_id, "episode": episode, "tick": report.tick,
+        "time_s": report.tick * metrics.scenario.dt,
+        "totals": {
+            "generated": int(t[F["generated"]]), "completed": int(t[F["completed"]]),
+            "dropped": {c: int(t[F[c]]) for c in DROP_CAUSES}, "offloaded": int(t[F["offloaded"]]),
+            "in_system": report.in_system, "overloaded_nodes": report.overloaded_nodes,
+            "energy_j": float(sum(t[F[k]] for k in ENERGY)),
+        },
+        "delta": {"generated": int(d[F["generated"]]), "completed": int(d[F["completed"]]),
+                  "dropped": int(sum(d[F[c]] for c in DROP_CAUSES)), "offloaded": int(d[F["offloaded"]])},
+        "response_times": report.response_times,
+        "nodes": {
+            "id": list(metrics.node_ids),
+            "buffer": [n.buffer for n in metrics.scenario.nodes],
+            "queue": nodes[:, F["queue"]].astype(int).tolist(),
+            "undecided": nodes[:, F["undecided"]].astype(int).tolist(),
+            "overloaded": nodes[:, F["overloaded"]].astype(int).tolist(),
+            "completed": nodes[:, F["completed"]].astype(int).tolist(),
+            "dropped": nodes[:, [F[c] for c in DROP_CAUSES]].sum(axis=1).astype(int).tolist(),
+            "offloaded": nodes[:, F["offloaded"]].astype(int).tolist(),
+            "utilisation": util.tolist(),
+        },
+    }
+
+
 class Metrics:
     def __init__(self, routing: Routing) -> None:
         sc = routing.scenario

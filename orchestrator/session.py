@@ -31,7 +31,7 @@ from node_runtime.routing import Layout, Routing
 from node_runtime.transport import Transport
 from node_runtime.zenoh_transport import ZenohTransport, free_port
 from orchestrator.clock import Clock
-from orchestrator.metrics import Metrics, TickReport
+from orchestrator.metrics import Metrics, TickReport, bus_record
 from orchestrator.supervisor import Supervisor
 
 TransportName = Literal["zenoh", "inproc"]
@@ -63,6 +63,8 @@ class Simulation:
         self.keys = Keys(sim_id or new_sim_id(), prefix)
         self.metrics = Metrics(self.routing)
         self.supervisor: Supervisor | None = None
+        self.attached: str | None = None  # our driver name, when attached to a served simulation
+        self.live = None  # publisher of …/metrics/tick, for monitors
         self.endpoint: str | None = None
         self.startup_s = 0.0
         self.seed = scenario.seed
@@ -77,6 +79,7 @@ class Simulation:
             self.drivers = [HostDriver(Host(p, self.routing), bus.endpoint(), self.keys) for p in self.routing.procs]
             self.transport: Transport = bus.endpoint()
             self.clock = Clock(self.transport, self.keys, self.routing, timeout)
+            self.live = self.transport.monitored(self.keys.metrics())
         else:
             self.drivers = []
             router, self.endpoint = open_router(listen_host, port)
@@ -84,10 +87,55 @@ class Simulation:
             try:
                 self.supervisor = Supervisor(router, self.keys, self.routing)
                 self.clock = Clock(router, self.keys, self.routing, timeout, health=self.supervisor.check)
+                self.live = router.monitored(self.keys.metrics())
                 self.startup_s = self.supervisor.start(scenario, self.layout, self.endpoint)
             except BaseException:
                 self.close()
                 raise
+
+    @classmethod
+    def attach(cls, endpoint: str, sim_id: str, prefix: str = DEFAULT_PREFIX, timeout: float = 30.0) -> Simulation:
+        """Drive a simulation served by ``orchestrator launch --serve`` (possibly on another host).
+
+        The served processes stay up when this object closes; the server gets its clock back.
+        """
+        from orchestrator.serve import claim  # the serving side's protocol
+
+        self = cls.__new__(cls)
+        keys = Keys(sim_id, prefix)
+        transport = ZenohTransport.client(endpoint)
+        try:
+            info, driver = claim(transport, keys, timeout)
+        except BaseException:
+            transport.close()
+            raise
+        self.scenario = Scenario.from_dict(info["scenario"])
+        self.transport_name = "zenoh"
+        self.layout = info["layout"]
+        self.routing = Routing(self.scenario, self.layout)
+        self.keys = keys
+        self.metrics = Metrics(self.routing)
+        self.endpoint = endpoint
+        self.startup_s = 0.0
+        self.seed = self.scenario.seed
+        self.policy = None
+        self.last = []
+        self._closed = False
+        self._t0 = self._run_started = time.perf_counter()
+        self._ticks_run = 0
+        self.drivers = []
+        self.transport = transport
+        self.attached = driver
+        try:
+            self.supervisor = Supervisor(transport, keys, self.routing, token=driver)
+            self.supervisor.wait_ready(timeout)
+            self.clock = Clock(transport, keys, self.routing, timeout, health=self.supervisor.check)
+            self.clock.catch_up(info["episode"])
+            self.live = transport.monitored(keys.metrics())
+        except BaseException:
+            self.close()
+            raise
+        return self
 
     # ----- episode control -----
 
@@ -104,12 +152,18 @@ class Simulation:
         self.last = self.clock.reset(self.seed, external, policy)
         self._run_started = time.perf_counter()
         self._ticks_run = 1
-        return self.metrics.add(0, self.last)
+        return self._publish(self.metrics.add(0, self.last))
 
     def step(self, actions: dict[str, Action] | None = None) -> TickReport:
         self.last = self.clock.step(actions)
         self._ticks_run += 1
-        return self.metrics.add(self.clock.tick, self.last)
+        return self._publish(self.metrics.add(self.clock.tick, self.last))
+
+    def _publish(self, report: TickReport) -> TickReport:
+        """Per-tick metrics for monitors, built only when someone listens."""
+        if self.live is not None and self.live.listened:
+            self.live.put(bus_record(report, self.metrics, self.keys.sim_id, self.clock.episode))
+        return report
 
     @property
     def tick(self) -> int:
@@ -159,7 +213,12 @@ class Simulation:
         if self._closed:
             return
         self._closed = True
-        if self.supervisor is not None:
+        if self.attached is not None:  # the processes belong to the server: hand the clock back
+            from orchestrator.serve import release
+
+            with contextlib.suppress(Exception):
+                release(self.transport, self.keys, self.attached, self.clock.episode)
+        elif self.supervisor is not None:
             with contextlib.suppress(Exception):
                 self.clock.stop()
             self.supervisor.shutdown()

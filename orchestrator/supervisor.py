@@ -24,15 +24,21 @@ from orchestrator.clock import ProcessFailed
 
 
 class Supervisor:
-    def __init__(self, transport: Transport, keys: Keys, routing: Routing) -> None:
+    """Watches the processes of a simulation; starts the local ones when asked.
+
+    ``token`` is this side's own liveliness: the orchestrator's (node processes exit when it
+    vanishes), or a remote driver's when it attaches to a served simulation.
+    """
+
+    def __init__(self, transport: Transport, keys: Keys, routing: Routing, token: str = ORCHESTRATOR) -> None:
         self.transport = transport
         self.keys = keys
         self.routing = routing
         self.children: dict[str, int] = {}  # process name -> pid
-        self.forks = ForkServer.shared()
+        self.forks: ForkServer | None = None
         self.ready: set[str] = set()
         self.stopping = False
-        transport.declare_token(keys.alive(ORCHESTRATOR))
+        transport.declare_token(keys.alive(token))
         transport.watch_tokens(keys.alive(), self.on_token)
 
     def nodes(self, proc: str) -> tuple[str, ...]:
@@ -40,7 +46,7 @@ class Supervisor:
 
     def on_token(self, key: str, alive: bool) -> None:
         proc = key.rsplit("/", 1)[-1]
-        if proc == ORCHESTRATOR or proc not in self.routing.roles_of:
+        if proc not in self.routing.roles_of:  # the orchestrator, a driver, a monitor
             return
         if alive:
             self.ready.add(proc)
@@ -50,7 +56,7 @@ class Supervisor:
 
     def check(self) -> None:
         """Raise if a local child has exited while it should be running."""
-        if self.stopping:
+        if self.stopping or self.forks is None:
             return
         for proc, pid in self.children.items():
             status = self.forks.exit_status(pid)
@@ -65,9 +71,15 @@ class Supervisor:
         Returns the seconds it took.
         """
         t0 = time.perf_counter()
+        self.forks = ForkServer.shared()
         for proc in procs if procs is not None else self.routing.procs:
             spec = ProcSpec(proc, scenario, layout, endpoint, self.keys)
             self.children[proc] = self.forks.start(proc, node_process.main, spec)
+        self.wait_ready(timeout)
+        return time.perf_counter() - t0
+
+    def wait_ready(self, timeout: float) -> None:
+        """Wait until every process of the layout has announced itself."""
         want = set(self.routing.procs)
         try:
             self.transport.dispatch(until=lambda: want <= self.ready, timeout=timeout, idle=self.check)
@@ -76,7 +88,6 @@ class Supervisor:
             raise ProcessFailed(missing[0], self.nodes(missing[0]),
                                 f"was not ready within {timeout:.0f} s ({len(missing)} process(es) missing: "
                                 f"{', '.join(missing[:6])}{' ...' if len(missing) > 6 else ''})") from None
-        return time.perf_counter() - t0
 
     def shutdown(self, grace: float = 5.0) -> list[str]:
         """Wait for the children to exit after a stop; terminate, then kill, what remains.
@@ -84,6 +95,8 @@ class Supervisor:
         Returns the names of processes that had to be forced.
         """
         self.stopping = True
+        if self.forks is None:
+            return []
         pids = list(self.children.values())
         left = self.forks.wait(pids, grace)
         forced = [p for p, pid in self.children.items() if pid in left]

@@ -1,0 +1,66 @@
+"""`orchestrator launch --serve`: environments attach from other processes and drive the clock."""
+
+from __future__ import annotations
+
+import signal
+
+import numpy as np
+import pytest
+
+from env import ZenohEdgeEnv
+from orchestrator.serve import Busy
+from tests.launcher import Launch, assert_all_gone, served
+
+pytestmark = pytest.mark.zenoh
+
+
+def play(env, seed, steps, actions_seed=0):
+    obs, _ = env.reset(seed=seed)
+    rng = np.random.default_rng(actions_seed)
+    rewards = []
+    for _ in range(steps):
+        actions = {a: int(rng.choice(np.flatnonzero(obs[a]["action_mask"]))) for a in env.agents}
+        obs, r, *_ = env.step(actions)
+        rewards.append(r)
+    return obs, rewards, env.summary()
+
+
+def test_attach_drive_detach_and_stop(tmp_path):
+    run = Launch("aot1", "--serve", "--episodes", "1", "--steps", "30", "--layout", "per-node", "--out", str(tmp_path))
+    run.wait_for("serving until Ctrl-C")
+    children = run.descendants()
+    endpoint, sim = served(run)
+
+    env = ZenohEdgeEnv(connect=endpoint, sim_id=sim, max_steps=40)
+    assert env.scenario.name == "aot1" and len(env.possible_agents) == 10
+    obs, rewards, summary = play(env, seed=7, steps=40)
+
+    # while it holds the clock, nobody else can take it
+    other = ZenohEdgeEnv(connect=endpoint, sim_id=sim)
+    with pytest.raises(Busy, match="held by driver/"):
+        other.reset(seed=1)
+    other.close()
+    env.close()
+
+    # the attached episode is the emulation a local run gives for the same seed and actions
+    local = ZenohEdgeEnv("aot1", transport="inproc", max_steps=40)
+    local_obs, local_rewards, local_summary = play(local, seed=7, steps=40)
+    local.close()
+    assert rewards == local_rewards
+    assert all(np.array_equal(obs[a][k], local_obs[a][k]) for a in obs for k in obs[a])
+    assert {k: v for k, v in summary.items() if k != "run"} == {k: v for k, v in local_summary.items() if k != "run"}
+
+    # the clock is free again after close: a second driver gets it, with a later episode number
+    again = ZenohEdgeEnv(connect=endpoint, sim_id=sim, max_steps=5)
+    again.reset(seed=2)
+    assert again.sim.clock.episode == 2  # 0: the server's own episode, 1: the first driver's
+    again.close()
+
+    run.proc.send_signal(signal.SIGTERM)
+    assert run.finish(30) == 130
+    assert_all_gone(children)
+
+
+def test_connect_requires_the_sim_id():
+    with pytest.raises(ValueError, match="sim_id"):
+        ZenohEdgeEnv(connect="tcp/127.0.0.1:1")
