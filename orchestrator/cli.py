@@ -11,7 +11,6 @@ or bad arguments, 130 interrupted.
 from __future__ import annotations
 
 import argparse
-import contextlib
 import datetime as dt
 import json
 import signal
@@ -24,10 +23,12 @@ from rich.console import Console
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
 from rich.table import Table
 
+from node_runtime.keys import CHUNK, new_sim_id
 from node_runtime.policies import POLICIES
-from node_runtime.routing import LAYOUTS
+from node_runtime.routing import LAYOUTS, Routing
 from orchestrator.clock import ClockError
 from orchestrator.metrics import ConservationError, TickReport
+from orchestrator.placement import load_placement
 from orchestrator.scenario import ScenarioError, load_scenario
 from orchestrator.session import Simulation
 
@@ -58,33 +59,43 @@ def cmd_launch(args: argparse.Namespace) -> int:
     scenario = load_scenario(args.scenario)
     ticks = (args.steps or scenario.episode_ticks // scenario.decision_interval) * scenario.decision_interval
     out = Path(args.out) if args.out else Path("runs") / f"{scenario.name}-{dt.datetime.now():%Y%m%d-%H%M%S}"
+    if args.sim_id and not CHUNK.match(args.sim_id):
+        raise UsageError(f"--sim-id: expected letters, digits, '_', '.' or '-', not {args.sim_id!r}")
     if args.serve and args.transport != "zenoh":
         raise UsageError("--serve needs --transport zenoh: other processes reach the simulation over Zenoh")
     layout = args.layout or ("single" if args.transport == "inproc" else "per-role")
     host, port = parse_listen(args.listen) if args.listen else ("127.0.0.1", None)
+    placement = None
+    if args.placement:
+        if args.transport != "zenoh":
+            raise UsageError("--placement needs --transport zenoh")
+        placement = load_placement(args.placement, Routing(scenario, layout))
+    sim_id = args.sim_id or new_sim_id()
     console = Console(stderr=True, highlight=False, quiet=args.quiet)
     seed = args.seed if args.seed is not None else scenario.seed
     console.print(f"[bold]{scenario.name}[/]: {len(scenario.nodes)} nodes, {len(scenario.controllers)} controllers, "
                   f"{len(scenario.clients)} task sources; {ticks} ticks of {scenario.dt:g} s; "
                   f"transport {args.transport} ({layout}); seed {seed}")
+
+    def waiting(groups: dict[str, list[str]]) -> None:
+        where = f"tcp/<this host's address>:{port}" if host in ("0.0.0.0", "::") else f"tcp/{host}:{port}"
+        console.print(f"waiting for {sum(map(len, groups.values()))} processes on other hosts; run there:")
+        for group in groups:
+            console.print(f"  zenohedge-node --connect {where} --sim {sim_id} --group {group}", markup=False)
+
     t0 = time.perf_counter()
     with Simulation(scenario, transport=args.transport, layout=layout, timeout=args.timeout, listen_host=host,
-                    port=port) as sim:
-        server = None
+                    port=port, sim_id=sim_id, placement=placement, on_waiting=waiting) as sim:
         if args.transport == "zenoh":
             console.print(f"router {sim.endpoint}, simulation id [bold]{sim.keys.sim_id}[/], "
                           f"{len(sim.routing.procs)} processes ready in {sim.startup_s:.2f} s")
         if args.serve:
-            from orchestrator.serve import Server
-
-            server = Server(sim)
             console.print(f"serving: monitor with `orchestrator monitor --connect {sim.endpoint} --sim "
                           f"{sim.keys.sim_id}`; attach an environment with ZenohEdgeEnv(connect=\"{sim.endpoint}\", "
                           f"sim_id=\"{sim.keys.sim_id}\")")
         for episode in range(args.episodes):
             where = out if args.episodes == 1 else out / f"episode-{episode}"
-            with server.own_clock() if server else contextlib.nullcontext():
-                summary = run_episode(sim, ticks, None if seed is None else seed + episode, args, console)
+            summary = run_episode(sim, ticks, None if seed is None else seed + episode, args, console)
             summary["run"]["total_wall_s"] = round(time.perf_counter() - t0, 3)
             sim.metrics.write(where, summary)
             if args.json:
@@ -92,9 +103,9 @@ def cmd_launch(args: argparse.Namespace) -> int:
             else:
                 Console(highlight=False).print(summary_table(summary))
             console.print(f"results: {where}/summary.json, ticks.csv, nodes.csv")
-        if server is not None:
+        if args.serve:
             console.print("serving until Ctrl-C")
-            server.wait()
+            sim.server.wait()
     return EXIT_OK
 
 
@@ -233,6 +244,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--listen", metavar="HOST:PORT",
                    help="where the router listens (default 127.0.0.1 on a free port); e.g. 0.0.0.0:7447 to serve "
                         "other hosts")
+    p.add_argument("--placement", metavar="FILE",
+                   help="run the nodes listed in FILE's groups on other hosts with zenohedge-node (see deploy/); "
+                        "use with --listen")
+    p.add_argument("--sim-id", metavar="ID", help="simulation id (default: random); fix it to script remote hosts")
     p.add_argument("--tick-rate", type=float, metavar="HZ",
                    help="run at most HZ ticks per second, to watch a run live with `orchestrator monitor`")
     p.set_defaults(func=cmd_launch)

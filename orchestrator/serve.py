@@ -1,11 +1,12 @@
 """Serving a simulation to other processes and hosts (``orchestrator launch --serve``).
 
-The serving orchestrator owns the router and the node processes, and answers two queries:
+Every simulation over Zenoh answers two queries through its orchestrator's ``Server``:
 
-- ``…/session``: the scenario (as a dict), the layout, the current episode — what a remote driver
-  or a monitor needs to make sense of the bus;
-- ``…/control``: ``{"claim": name}`` / ``{"release": name, "episode": n}`` — one driver at a time
-  (e.g. ``ZenohEdgeEnv(connect=...)``) takes the clock; the server drives it otherwise.
+- ``…/session``: the scenario (as a dict), the layout, the current episode and the placement of
+  processes on hosts — what a remote driver, a remote node group or a monitor needs;
+- ``…/control``: ``{"claim": name}`` / ``{"release": name, "episode": n}`` — while the orchestrator
+  serves (``launch --serve``, after its own episodes), one driver at a time (e.g.
+  ``ZenohEdgeEnv(connect=...)``) takes the clock.
 
 A driver announces itself with the liveliness token ``…/alive/driver/<id>``; if it vanishes (the driver
 crashed), the server takes the clock back. Episode numbers only grow, whoever drives, so node
@@ -14,16 +15,15 @@ processes can always tell late mail of an old episode from the current one.
 
 from __future__ import annotations
 
-import contextlib
 import secrets
 import threading
-from collections.abc import Iterator
 from typing import Any
 
+from node_runtime.config import Scenario
 from node_runtime.keys import DEFAULT_PREFIX, Keys
 from node_runtime.zenoh_transport import ZenohTransport
-from orchestrator.clock import ClockError
-from orchestrator.session import Simulation
+from orchestrator.clock import Clock, ClockError
+from orchestrator.supervisor import Supervisor
 
 DRIVER_PREFIX = "driver/"
 
@@ -33,34 +33,39 @@ class Busy(ClockError):
 
 
 class Server:
-    def __init__(self, sim: Simulation) -> None:
-        if not isinstance(sim.transport, ZenohTransport):
-            raise ValueError("only a simulation over Zenoh can be served")
-        self.sim = sim
+    def __init__(self, transport: ZenohTransport, keys: Keys, scenario: Scenario, layout: str, clock: Clock,
+                 supervisor: Supervisor, placement: dict[str, list[str]] | None = None) -> None:
+        self.transport = transport
+        self.keys = keys
+        self.scenario = scenario
+        self.layout = layout
+        self.clock = clock
+        self.supervisor = supervisor
+        self.placement = placement or {}
         self.driver: str | None = None
-        self.running = False  # the server is running an episode itself
+        self.serving = False  # remote drivers may take the clock (launch --serve, after its episodes)
         self._lock = threading.Lock()
-        sim.transport.serve(sim.keys.session(), self._session)
-        sim.transport.serve(sim.keys.control(), self._control)
-        sim.transport.watch_tokens(sim.keys.alive(f"{DRIVER_PREFIX}*"), self._on_driver_token)
+        transport.serve(keys.session(), self._session)
+        transport.serve(keys.control(), self._control)
+        transport.watch_tokens(keys.alive(f"{DRIVER_PREFIX}*"), self._on_driver_token)
 
     def _session(self, _: Any) -> dict[str, Any]:
-        sim = self.sim
         with self._lock:
-            return {"type": "session", "scenario": sim.scenario.to_dict(), "layout": sim.layout,
-                    "episode": sim.clock.latest, "driver": self.driver, "procs": list(sim.routing.procs)}
+            return {"type": "session", "scenario": self.scenario.to_dict(), "layout": self.layout,
+                    "episode": self.clock.latest, "driver": self.driver, "procs": list(self.supervisor.routing.procs),
+                    "placement": self.placement}
 
     def _control(self, msg: dict[str, Any]) -> dict[str, Any]:
         with self._lock:
             if "claim" in msg:
-                if self.driver is not None or self.running:
-                    who = self.driver or "the server's own episode"
+                if self.driver is not None or not self.serving:
+                    who = self.driver or "the orchestrator (it is not serving: launch it with --serve)"
                     return {"type": "control", "granted": False, "reason": f"the clock is held by {who}"}
                 self.driver = msg["claim"]
-                return {"type": "control", "granted": True, "episode": self.sim.clock.latest}
+                return {"type": "control", "granted": True, "episode": self.clock.latest}
             if "release" in msg and msg["release"] == self.driver:
                 self.driver = None
-                self.sim.clock.catch_up(int(msg.get("episode", -1)))
+                self.clock.catch_up(int(msg.get("episode", -1)))
                 return {"type": "control", "released": True}
         return {"type": "control", "released": False}
 
@@ -70,24 +75,17 @@ class Server:
             if not alive and name == self.driver:  # the driver died without releasing
                 self.driver = None
 
-    @contextlib.contextmanager
-    def own_clock(self) -> Iterator[None]:
-        """Run the server's own episode; refused while a remote driver holds the clock."""
+    def wait(self, stop: threading.Event | None = None) -> None:
+        """Serve remote drivers until ``stop`` is set (or Ctrl-C), noticing dead processes meanwhile."""
+        stop = stop or threading.Event()
         with self._lock:
-            if self.driver is not None:
-                raise Busy(f"the clock is held by {self.driver}")
-            self.running = True
-            self.sim.clock.catch_up(self.sim.clock.latest)
+            self.serving = True
         try:
-            yield
+            self.transport.dispatch(until=stop.is_set, idle=self.supervisor.check)
         finally:
             with self._lock:
-                self.running = False
-
-    def wait(self, stop: threading.Event | None = None) -> None:
-        """Serve until ``stop`` is set (or Ctrl-C), noticing dead processes meanwhile."""
-        stop = stop or threading.Event()
-        self.sim.transport.dispatch(until=stop.is_set, idle=self.sim.supervisor.check)
+                self.serving = False
+                self.driver = None
 
 
 def describe(endpoint: str, sim_id: str, prefix: str = DEFAULT_PREFIX, timeout: float = 10.0) -> dict[str, Any]:

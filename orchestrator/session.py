@@ -17,6 +17,7 @@ from __future__ import annotations
 import contextlib
 import datetime as dt
 import time
+from collections.abc import Callable
 from typing import Any, Literal
 
 from node_runtime.config import Scenario
@@ -32,6 +33,7 @@ from node_runtime.transport import Transport
 from node_runtime.zenoh_transport import ZenohTransport, free_port
 from orchestrator.clock import Clock
 from orchestrator.metrics import Metrics, TickReport, bus_record
+from orchestrator.serve import Server, claim, release
 from orchestrator.supervisor import Supervisor
 
 TransportName = Literal["zenoh", "inproc"]
@@ -53,7 +55,11 @@ def open_router(host: str = "127.0.0.1", port: int | None = None) -> tuple[Zenoh
 class Simulation:
     def __init__(self, scenario: Scenario, *, transport: TransportName = "inproc", layout: Layout | None = None,
                  sim_id: str | None = None, prefix: str = DEFAULT_PREFIX, timeout: float = 30.0,
-                 listen_host: str = "127.0.0.1", port: int | None = None) -> None:
+                 listen_host: str = "127.0.0.1", port: int | None = None,
+                 placement: dict[str, list[str]] | None = None, join_timeout: float = 600.0,
+                 on_waiting: Callable[[dict[str, list[str]]], None] | None = None) -> None:
+        """``placement`` (group -> processes) leaves those processes to ``zenohedge-node`` on other hosts;
+        their start is awaited up to ``join_timeout`` seconds, after calling ``on_waiting(placement)``."""
         if transport not in ("zenoh", "inproc"):
             raise ValueError(f"transport must be 'zenoh' or 'inproc', not {transport!r}")
         self.scenario = scenario
@@ -63,6 +69,7 @@ class Simulation:
         self.keys = Keys(sim_id or new_sim_id(), prefix)
         self.metrics = Metrics(self.routing)
         self.supervisor: Supervisor | None = None
+        self.server: Server | None = None  # answers …/session and …/control (Zenoh only)
         self.attached: str | None = None  # our driver name, when attached to a served simulation
         self.live = None  # publisher of …/metrics/tick, for monitors
         self.endpoint: str | None = None
@@ -88,7 +95,13 @@ class Simulation:
                 self.supervisor = Supervisor(router, self.keys, self.routing)
                 self.clock = Clock(router, self.keys, self.routing, timeout, health=self.supervisor.check)
                 self.live = router.monitored(self.keys.metrics())
-                self.startup_s = self.supervisor.start(scenario, self.layout, self.endpoint)
+                self.server = Server(router, self.keys, scenario, self.layout, self.clock, self.supervisor, placement)
+                remote = {p for procs in (placement or {}).values() for p in procs}
+                local = tuple(p for p in self.routing.procs if p not in remote)
+                if remote and on_waiting is not None:
+                    on_waiting(placement)
+                self.startup_s = self.supervisor.start(scenario, self.layout, self.endpoint, local,
+                                                       timeout=join_timeout if remote else 60.0)
             except BaseException:
                 self.close()
                 raise
@@ -99,8 +112,6 @@ class Simulation:
 
         The served processes stay up when this object closes; the server gets its clock back.
         """
-        from orchestrator.serve import claim  # the serving side's protocol
-
         self = cls.__new__(cls)
         keys = Keys(sim_id, prefix)
         transport = ZenohTransport.client(endpoint)
@@ -126,6 +137,7 @@ class Simulation:
         self.drivers = []
         self.transport = transport
         self.attached = driver
+        self.server = None
         try:
             self.supervisor = Supervisor(transport, keys, self.routing, token=driver)
             self.supervisor.wait_ready(timeout)
@@ -214,8 +226,6 @@ class Simulation:
             return
         self._closed = True
         if self.attached is not None:  # the processes belong to the server: hand the clock back
-            from orchestrator.serve import release
-
             with contextlib.suppress(Exception):
                 release(self.transport, self.keys, self.attached, self.clock.episode)
         elif self.supervisor is not None:

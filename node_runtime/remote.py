@@ -1,0 +1,87 @@
+"""``zenohedge-node``: run a group of node processes of a simulation served from another host.
+
+    zenohedge-node --connect tcp/10.0.0.1:7447 --sim lab1 --group edge-a
+
+The orchestrator (``orchestrator launch … --placement FILE``) owns the clock and the router; this
+command asks it (query ``…/session``) for the scenario, the layout and the processes placed in
+``--group``, starts them here through the same fork server as a local run, and stays until they
+end. They end when the orchestrator stops the run or vanishes; Ctrl-C here stops them too.
+"""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+import os
+import signal
+import sys
+import threading
+
+from node_runtime import process as node_process
+from node_runtime.config import Scenario
+from node_runtime.forkserver import ForkServer
+from node_runtime.keys import DEFAULT_PREFIX, Keys
+from node_runtime.process import ORCHESTRATOR, ProcSpec
+from node_runtime.zenoh_transport import ZenohTransport
+
+EXIT_OK, EXIT_FAILED, EXIT_USAGE = 0, 1, 2
+
+
+def run_group(endpoint: str, keys: Keys, group: str, timeout: float = 30.0) -> int:
+    transport = ZenohTransport.client(endpoint)
+    forks: ForkServer | None = None
+    pids: list[int] = []
+    try:
+        try:
+            info = transport.request(keys.session(), {"type": "session?"}, timeout=timeout)
+        except Exception:
+            print(f"zenohedge-node: no simulation {keys.sim_id!r} answers at {endpoint}", file=sys.stderr)
+            return EXIT_USAGE
+        placement = info.get("placement") or {}
+        if group not in placement:
+            print(f"zenohedge-node: simulation {keys.sim_id} has no group {group!r}; groups: "
+                  f"{', '.join(sorted(placement)) or '(none: launch it with --placement)'}", file=sys.stderr)
+            return EXIT_USAGE
+        scenario = Scenario.from_dict(info["scenario"])
+        procs = placement[group]
+        forks = ForkServer.shared()
+        for proc in procs:
+            pids.append(forks.start(proc, node_process.main, ProcSpec(proc, scenario, info["layout"], endpoint, keys)))
+        print(f"zenohedge-node: group {group}: started {len(procs)} processes of simulation {keys.sim_id} "
+              f"({', '.join(procs[:6])}{' ...' if len(procs) > 6 else ''})", file=sys.stderr, flush=True)
+
+        gone = threading.Event()
+        transport.watch_tokens(keys.alive(ORCHESTRATOR), lambda key, alive: alive or gone.set())
+        transport.dispatch(until=lambda: gone.is_set() or not forks.wait(pids, 0.0))
+        left = forks.wait(pids, 10.0)
+        failed = [pid for pid in pids if (forks.exit_status(pid) or 0) not in (0, node_process.EXIT_ORPHANED)]
+        return EXIT_FAILED if left or failed else EXIT_OK
+    except KeyboardInterrupt:
+        return EXIT_OK
+    finally:
+        if forks is not None:
+            for pid in forks.wait(pids, 0.0):
+                with contextlib.suppress(ProcessLookupError):
+                    os.kill(pid, signal.SIGTERM)
+            forks.wait(pids, 5.0)
+        transport.close()
+
+
+def main(argv: list[str] | None = None) -> None:
+    parser = argparse.ArgumentParser(
+        prog="zenohedge-node",
+        description="Run, on this host, the node processes placed in one group of a ZenohEdge simulation launched "
+                    "elsewhere with `orchestrator launch SCENARIO --listen 0.0.0.0:PORT --placement FILE`.",
+        epilog="See deploy/README.md.")
+    parser.add_argument("--connect", required=True, metavar="ENDPOINT",
+                        help="the orchestrator's router, e.g. tcp/10.0.0.1:7447")
+    parser.add_argument("--sim", required=True, metavar="ID", help="the simulation id (launch --sim-id fixes it)")
+    parser.add_argument("--group", required=True, help="the group of the placement file this host runs")
+    parser.add_argument("--prefix", default=DEFAULT_PREFIX, help="key prefix (default: zedge)")
+    parser.add_argument("--timeout", type=float, default=30.0, help="seconds to wait for the orchestrator")
+    args = parser.parse_args(argv)
+    sys.exit(run_group(args.connect, Keys(args.sim, args.prefix), args.group, args.timeout))
+
+
+if __name__ == "__main__":
+    main()
