@@ -25,10 +25,11 @@ import numpy as np
 from gymnasium import spaces
 from pettingzoo import ParallelEnv
 
-from env.observations import Encoder, ObservationLayout
+from env.observations import DictObservation, ObservationBuilder, ObservationLayout
 from env.reward import PaperWeights, RewardContext, RewardFn, RewardTerms, paper_terms, resolve_reward, shaped
 from node_runtime.config import Arrival, Scenario
 from node_runtime.observation import Observation
+from node_runtime.plugins import load
 from node_runtime.routing import Layout, role_id
 from orchestrator.metrics import DROP_CAUSES, ENERGY, F
 from orchestrator.scenario import load_scenario
@@ -57,7 +58,10 @@ class ZenohEdgeEnv(ParallelEnv):
         seed: seed of the first episode (later resets without a seed draw from a stream it seeds).
         transport: "zenoh" (node processes over a Zenoh router) or "inproc" (same code, one process).
         layout: "per-role" (default for zenoh), "per-node", or "single" (default for inproc).
-        reward: "paper" (Eq. 1–5, see docs/reward.md), "sparse", or a callable ``f(RewardContext)``.
+        reward: "paper" (Eq. 1–5, see docs/reward.md), "sparse", a callable ``f(RewardContext)`` or its
+            import path (default: the scenario's ``reward`` key, else "paper").
+        observation: an ``ObservationBuilder`` subclass or its import path (default: the scenario's
+            ``observation`` key, else the documented Dict observation).
         reward_weights: ``PaperWeights`` overriding the paper's r_u and chi weights.
         shaping: a potential ``Xi(observation) -> float``; adds gamma * Xi(s') - Xi(s) to the reward.
         mode, decision_interval, batch_size: override the scenario's decision settings.
@@ -79,7 +83,8 @@ class ZenohEdgeEnv(ParallelEnv):
     }
 
     def __init__(self, scenario: str | Path | dict | Scenario = "aot1", *, seed: int | None = None,
-                 transport: str = "zenoh", layout: Layout | None = None, reward: str | RewardFn = "paper",
+                 transport: str = "zenoh", layout: Layout | None = None, reward: str | RewardFn | None = None,
+                 observation: type[ObservationBuilder] | str | None = None,
                  reward_weights: PaperWeights | None = None, shaping: Callable[[dict], float] | None = None,
                  gamma: float = 0.99, mode: str | None = None, decision_interval: int | None = None,
                  batch_size: int | None = None, max_steps: int | None = None, arrival_rate: float | None = None,
@@ -115,7 +120,7 @@ class ZenohEdgeEnv(ParallelEnv):
         self.scenario = sc
         self.transport = transport
         self.layout = layout
-        self.reward_fn = resolve_reward(reward)
+        self.reward_fn = resolve_reward(reward or sc.extra.get("reward") or "paper")
         self.weights = reward_weights or PaperWeights()
         self.shaping = shaping
         self.gamma = gamma
@@ -141,7 +146,11 @@ class ZenohEdgeEnv(ParallelEnv):
         slots = max(degrees.values(), default=0)
         batch = None if sc.mode == "binary" else sc.batch_size
         self.layouts = {a: ObservationLayout(d, slots if uniform_spaces else d, batch) for a, d in degrees.items()}
-        self.observation_spaces = {a: lay.space() for a, lay in self.layouts.items()}
+        builder = observation or sc.extra.get("observation") or DictObservation
+        if isinstance(builder, str):
+            builder = load(builder, ObservationBuilder)
+        self.builders = {a: builder(lay) for a, lay in self.layouts.items()}
+        self.observation_spaces = {a: b.space() for a, b in self.builders.items()}
         self.action_spaces = {a: lay.action_space() for a, lay in self.layouts.items()}
 
         self.sim: Simulation | None = None
@@ -153,7 +162,7 @@ class ZenohEdgeEnv(ParallelEnv):
         self._steps = 0
         self._last_actions: dict[str, Any] = {}
         self._renderer = None
-        self._encoders: dict[str, Encoder] = {}
+        self._masks: dict[str, Any] = {}
 
     # ----- PettingZoo API -----
 
@@ -285,20 +294,15 @@ class ZenohEdgeEnv(ParallelEnv):
 
     def _observe(self) -> None:
         by_role = self.sim.observations()
-        for agent, node in self.node_of.items():
-            raw = by_role.get(role_id("controller", node))
+        for agent, role in self._role.items():
+            raw = by_role.get(role)
             self._raw[agent] = raw
-            if raw is None:
-                self._obs[agent] = self.layouts[agent].empty()
-                continue
-            encoder = self._encoders.get(agent)
-            if encoder is None:
-                encoder = self._encoders[agent] = Encoder(self.layouts[agent], raw)
-            self._obs[agent] = encoder.encode(raw)
+            self._masks[agent] = self.layouts[agent].masks(raw)
+            self._obs[agent] = self.builders[agent].encode(raw)
 
     def _check(self, agent: str, action: Any) -> tuple[Any, bool]:
         """The action to send, and whether it broke the mask (raises in "raise" mode)."""
-        mask = self._obs[agent]["action_mask"]
+        mask = self._masks[agent]
         layout = self.layouts[agent]
         if layout.batch is None:
             a = int(action)

@@ -20,6 +20,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from functools import cached_property
+from typing import Any
 
 import numpy as np
 from gymnasium import spaces
@@ -75,23 +76,65 @@ class ObservationLayout:
         return copy_obs(self._template)
 
 
+    def masks(self, obs: Observation | None) -> np.ndarray | tuple[np.ndarray, ...]:
+        """The action mask(s) of this observation: what the environment validates actions against."""
+        base = np.zeros(self.n_actions, dtype=np.int8)
+        base[0] = 1
+        rows = [base.copy() for _ in range(1 if self.batch is None else self.batch)]
+        if obs is not None:
+            worker = [n.worker for n in obs.neighbours]
+            for k in range(len(obs.tasks)):
+                rows[k][1:1 + self.degree] = worker
+        return rows[0] if self.batch is None else tuple(rows)
 
-class Encoder:
-    """Fills one agent's arrays: the static features (buffers, capacities, tiers, link rates, which
-    neighbours take tasks) once, the changing ones (queues, ages, tasks) at every step."""
 
-    def __init__(self, layout: ObservationLayout, first: Observation) -> None:
+class ObservationBuilder:
+    """Turns a controller's raw view into what its agent observes.
+
+    Subclass it and name it in the scenario (``observation: mylab.obs:MyBuilder``) or pass the class as
+    ``ZenohEdgeEnv(observation=...)``. Override ``space`` and ``encode``; the action masks the
+    environment enforces come from ``layout.masks(obs)`` whatever the observation holds.
+    """
+
+    def __init__(self, layout: ObservationLayout) -> None:
         self.layout = layout
-        template = layout.empty()
+
+    def space(self) -> spaces.Space:
+        raise NotImplementedError
+
+    def encode(self, obs: Observation | None) -> Any:
+        """``obs`` is None when the agent's node is down (nothing was heard from its controller)."""
+        raise NotImplementedError
+
+
+class DictObservation(ObservationBuilder):
+    """The default: the documented Dict of float32 arrays and the action mask.
+
+    Static features (buffers, capacities, tiers, link rates, which neighbours take tasks) are filled
+    once, from the first view; the changing ones (queues, ages, tasks) at every step.
+    """
+
+    def __init__(self, layout: ObservationLayout) -> None:
+        super().__init__(layout)
+        self.template: dict[str, Any] | None = None
+
+    def space(self) -> spaces.Dict:
+        return self.layout.space()
+
+    def _fill_static(self, first: Observation) -> dict[str, Any]:
+        template = self.layout.empty()
         own = first.own
         template["own"][2:5] = (own.buffer, own.capacity * 1e-9, own.tier)
         nb = template["neighbours"]
         for i, n in enumerate(first.neighbours):
             nb[i, [0, 3, 4, 5, 6]] = (1.0, n.buffer, n.capacity * 1e-9, n.tier, n.rate_bps * 1e-6)
-        self.template = template
-        self.worker = np.array([n.worker for n in first.neighbours], dtype=np.int8)
+        return template
 
-    def encode(self, obs: Observation) -> dict[str, np.ndarray]:
+    def encode(self, obs: Observation | None) -> dict[str, Any]:
+        if obs is None:
+            return self.layout.empty()
+        if self.template is None:
+            self.template = self._fill_static(obs)
         out = copy_obs(self.template)
         own = out["own"]
         own[0] = obs.own.queue
@@ -100,14 +143,11 @@ class Encoder:
         if obs.neighbours:
             out["neighbours"][:len(obs.neighbours), [1, 2, 7]] = [(n.queue, n.occupancy, n.age) for n in obs.neighbours]
         if obs.tasks:
-            batched = self.layout.batch is not None
-            tasks = out["task"] if batched else out["task"][None, :]
-            mask = out["action_mask"] if batched else (out["action_mask"],)
-            degree = self.layout.degree
+            tasks = out["task"] if self.layout.batch is not None else out["task"][None, :]
             for k, task in enumerate(obs.tasks):
                 tasks[k] = (1.0, task.instructions * 1e-9, task.input_bytes * 1e-6, task.output_bytes * 1e-6, task.cpi,
                             task.time_left, task.waited)
-                mask[k][1:1 + degree] = self.worker
+            out["action_mask"] = self.layout.masks(obs)
         return out
 
 

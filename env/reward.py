@@ -26,6 +26,7 @@ from dataclasses import dataclass
 from typing import Any
 
 from node_runtime.observation import Observation, TaskView
+from node_runtime.plugins import is_import_path, load
 
 
 @dataclass(frozen=True)
@@ -106,12 +107,16 @@ REWARDS: dict[str, RewardFn] = {"paper": paper_reward, "sparse": sparse_reward}
 
 
 def resolve_reward(reward: str | RewardFn) -> RewardFn:
+    """A built-in reward by name, a callable, or a callable's import path ("module:function")."""
     if callable(reward):
         return reward
+    if is_import_path(reward):
+        return load(reward, callable_ok=True)
     try:
         return REWARDS[reward]
     except KeyError:
-        raise ValueError(f"unknown reward {reward!r}; expected one of {', '.join(REWARDS)} or a callable") from None
+        raise ValueError(f"unknown reward {reward!r}; expected one of {', '.join(REWARDS)}, a callable, "
+                         "or an import path 'module:function'") from None
 
 
 def shaped(reward: float, potential_before: float, potential_after: float, gamma: float) -> float:

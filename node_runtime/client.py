@@ -10,6 +10,7 @@ from __future__ import annotations
 from node_runtime.comm import Radio
 from node_runtime.config import NodeSpec, Scenario
 from node_runtime.messages import Envelope, Kind, Task
+from node_runtime.plugins import load
 from node_runtime.rng import CLIENT, stream
 from node_runtime.role import Outbox, Role
 from node_runtime.routing import role_id
@@ -30,8 +31,10 @@ class Client(Role):
 
     def reset(self, seed: int) -> None:
         super().reset(seed)
-        self.source = TaskSource(self.scenario, self.node.id, stream(seed, self.index, CLIENT, COUNTS),
-                                 stream(seed, self.index, CLIENT, TYPES))
+        source = self.scenario.workload.source
+        cls = load(source, TaskSource) if source else TaskSource
+        self.source = cls(self.scenario, self.node.id, stream(seed, self.index, CLIENT, COUNTS),
+                          stream(seed, self.index, CLIENT, TYPES))
         self.target_rng = stream(seed, self.index, CLIENT, TARGETS)
         self.seq = 0
         if self.radio is not None:

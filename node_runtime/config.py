@@ -32,13 +32,21 @@ class NodeSpec:
     worker: bool = True
     controller: bool = False
     client: bool = False
-    policy: str = "local"  # node-side decision policy when no agent drives the controller
+    policy: str = "local"  # node-side decision policy (a name, or an import path "module:Class")
     profile: str = ""  # hardware profile name, for display
+    worker_impl: str = ""  # import path of a user Worker subclass ("" = the built-in one)
+    client_impl: str = ""
+    controller_impl: str = ""
+    params: tuple[tuple[str, Any], ...] = ()  # free parameters for user extensions (``params:`` key)
 
     @property
     def capacity(self) -> float:
         """Cycles per second the worker can spend on its queue."""
         return self.cores * self.frequency
+
+    def param(self, name: str, default: Any = None) -> Any:
+        """A value of the node's ``params`` (set in its profile or its own entry of the scenario)."""
+        return dict(self.params).get(name, default)
 
 
 @dataclass(frozen=True, slots=True)
@@ -97,6 +105,7 @@ class Workload:
     client_rates: tuple[tuple[str, float], ...] = ()  # per-client constant overrides
     client_targets: tuple[tuple[str, tuple[str, ...]], ...] = ()  # client node -> worker nodes
     trace: tuple[TraceRow, ...] | None = None
+    source: str = ""  # import path of a user TaskSource subclass ("" = Poisson / trace)
 
 
 @dataclass(frozen=True, slots=True)
@@ -201,6 +210,7 @@ class Scenario:
             client_rates=tuple((c, float(r)) for c, r in wl["client_rates"]),
             client_targets=tuple((c, tuple(ts)) for c, ts in wl["client_targets"]),
             trace=None if wl["trace"] is None else tuple(TraceRow(**r) for r in wl["trace"]),
+            source=wl.get("source", ""),
         )
         return cls(
             name=d["name"],
@@ -212,7 +222,8 @@ class Scenario:
             max_hops=int(d["max_hops"]),
             batch_size=int(d["batch_size"]),
             state_interval=int(d["state_interval"]),
-            nodes=tuple(NodeSpec(**{**n, "position": tuple(n["position"])}) for n in d["nodes"]),
+            nodes=tuple(NodeSpec(**{**n, "position": tuple(n["position"]),
+                                     "params": tuple(tuple(kv) for kv in n.get("params", ()))}) for n in d["nodes"]),
             links=tuple(LinkSpec(**lk) for lk in d["links"]),
             workload=workload,
             failures=tuple(Failure(**f) for f in d["failures"]),

@@ -85,7 +85,9 @@ class HostDriver:
             self.transport.publish(self.keys.topic(topic), Batch(self.episode, t, self.proc, envelopes))
         self.transport.publish(self.keys.done(self.proc), out.done)
         for kind, node, fields in out.events:  # best effort: monitors never slow the emulation down
-            monitor = self.monitors[(kind, node)]
+            monitor = self.monitors.get((kind, node))
+            if monitor is None:  # an event kind of a user extension
+                monitor = self.monitors[(kind, node)] = self.transport.monitored(self.keys.events(kind, node))
             if monitor.listened:
                 monitor.put({"type": "event", "kind": kind, "node": node, "episode": self.episode, "tick": t,
                              **fields})

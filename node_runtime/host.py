@@ -16,6 +16,7 @@ from node_runtime.config import Scenario
 from node_runtime.controller import Action, Controller
 from node_runtime.messages import Envelope, Kind
 from node_runtime.observation import Observation
+from node_runtime.plugins import load
 from node_runtime.protocol import Done
 from node_runtime.role import Outbox, Role, read_stats
 from node_runtime.routing import Routing, role_kind, role_node, state_topic
@@ -37,7 +38,12 @@ class Outgoing:
 
 
 def make_role(role: str, scenario: Scenario) -> Role:
-    return ROLE_TYPES[role_kind(role)](scenario.node[role_node(role)], scenario)
+    """The role's class: the built-in one, or the scenario's subclass of it (``roles:`` key)."""
+    node = scenario.node[role_node(role)]
+    kind = role_kind(role)
+    impl = getattr(node, f"{kind}_impl")
+    cls = load(impl, ROLE_TYPES[kind]) if impl else ROLE_TYPES[kind]
+    return cls(node, scenario)
 
 
 class Host:

@@ -13,6 +13,7 @@ from typing import ClassVar
 import numpy as np
 
 from node_runtime.observation import NodeView, Observation, TaskView
+from node_runtime.plugins import is_import_path, load
 
 
 class Policy:
@@ -111,6 +112,9 @@ POLICIES: dict[str, type[Policy]] = {p.name: p for p in (Local, Random, RoundRob
 
 
 def make_policy(name: str) -> Policy:
+    """A built-in policy by name, or a user's ``Policy`` subclass by import path ("module:Class")."""
+    if is_import_path(name):
+        return load(name, Policy)()
     try:
         return POLICIES[name]()
     except KeyError:

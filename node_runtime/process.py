@@ -18,6 +18,7 @@ from node_runtime.config import Scenario
 from node_runtime.driver import HostDriver
 from node_runtime.host import Host
 from node_runtime.keys import Keys
+from node_runtime.plugins import extend_path
 from node_runtime.routing import Layout, Routing
 from node_runtime.transport import TransportError
 from node_runtime.zenoh_transport import ZenohTransport, use_lean_runtime
@@ -34,6 +35,7 @@ class ProcSpec:
     layout: Layout
     endpoint: str  # the router to connect to
     keys: Keys
+    paths: tuple[str, ...] = ()  # the orchestrator's sys.path, where user extensions may live
 
 
 PR_SET_PDEATHSIG, PR_SET_NAME = 1, 15
@@ -60,6 +62,7 @@ def run(spec: ProcSpec) -> int:
     """Run one node process to completion; returns its exit status."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C reaches the whole group: the orchestrator handles it
     use_lean_runtime()
+    extend_path(spec.paths)
     transport = ZenohTransport.client(spec.endpoint)
     try:
         routing = Routing(spec.scenario, spec.layout)

@@ -149,7 +149,8 @@ class Metrics:
             parts = ", ".join(f"{name}={int(t[F[name]])}" for name in
                               ("completed", *DROP_CAUSES, "queue", "undecided", "in_flight"))
             raise ConservationError(f"tick {tick}: generated={int(generated)} but {parts} "
-                                    f"account for {int(accounted)}")
+                                    f"account for {int(accounted)}: a task was lost or invented (a custom role "
+                                    "must hand every task on, keep it, or drop it with Role.drop)")
 
     # ----- episode results -----
 

@@ -16,6 +16,7 @@ import csv
 import difflib
 import inspect
 import math
+import sys
 from pathlib import Path
 from typing import Annotated, Any, Literal
 
@@ -26,6 +27,7 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_valida
 from node_runtime.comm import log_distance_gain_db, shannon_rate
 from node_runtime.config import Arrival, Failure, LinkSpec, NodeSpec, Scenario, TaskType, TraceRow, Workload
 from node_runtime.keys import CHUNK
+from node_runtime.plugins import PluginError, is_import_path, load
 from node_runtime.policies import POLICIES
 from topologies import scenario_path
 from topologies.draft import Draft, DraftLink, DraftNode
@@ -67,8 +69,8 @@ class SimulationCfg(Strict):
     @field_validator("policy")
     @classmethod
     def known_policy(cls, v: str) -> str:
-        if v not in POLICIES:
-            raise ValueError(f"expected one of {', '.join(POLICIES)}")
+        if v not in POLICIES and not is_import_path(v):
+            raise ValueError(f"expected one of {', '.join(POLICIES)}, or an import path 'module:Class'")
         return v
 
 
@@ -118,11 +120,20 @@ class WorkloadCfg(Strict):
     targets: dict[str, list[str]] = {}
     tasks: Annotated[list[TaskCfg], Field(min_length=1)] = [TaskCfg()]
     trace: str | None = None
+    source: str | None = None  # import path of a TaskSource subclass
 
 
 class EnergyCfg(Strict):
     kappa: NonNeg = 1.0e-27
     idle_power_w: NonNeg = 0.0
+
+
+class RolesCfg(Strict):
+    """User subclasses of the roles, by import path ("package.module:Class")."""
+
+    worker: str | None = None
+    client: str | None = None
+    controller: str | None = None
 
 
 class ProfileCfg(Strict):
@@ -138,11 +149,14 @@ class ProfileCfg(Strict):
     idle_power_w: NonNeg | None = None
     kappa: NonNeg | None = None
 
+    roles: RolesCfg | None = None
+    params: dict[str, float | int | bool | str] | None = None  # free parameters for user extensions
+
     @field_validator("policy")
     @classmethod
     def known_policy(cls, v: str | None) -> str | None:
-        if v is not None and v not in POLICIES:
-            raise ValueError(f"expected one of {', '.join(POLICIES)}")
+        if v is not None and v not in POLICIES and not is_import_path(v):
+            raise ValueError(f"expected one of {', '.join(POLICIES)}, or an import path 'module:Class'")
         return v
 
 
@@ -209,6 +223,9 @@ class FailureCfg(Strict):
 class ScenarioFile(Strict):
     name: str | None = None
     description: str = ""
+    roles: RolesCfg = RolesCfg()
+    reward: str | None = None  # for the environment: "paper", "sparse", or an import path of a callable
+    observation: str | None = None  # for the environment: import path of an observation builder class
     simulation: SimulationCfg = SimulationCfg()
     network: NetworkCfg = NetworkCfg()
     workload: WorkloadCfg = WorkloadCfg()
@@ -384,6 +401,8 @@ class _Resolver:
         failures = self.failures(ids)
         workload = self.workload(tasks, nodes, links)
         self.fail_if_errors()
+        self.check_extensions(nodes)
+        self.fail_if_errors()
         sim = cfg.simulation
         return Scenario(
             name=name,
@@ -400,8 +419,65 @@ class _Resolver:
             workload=workload,
             failures=failures,
             source=self.label,
-            extra={"description": cfg.description},
+            extra={"description": cfg.description, "reward": cfg.reward or "", "observation": cfg.observation or ""},
         )
+
+    # --- user extensions ---
+
+    def check_extensions(self, nodes: list[NodeSpec]) -> None:
+        """Import every extension once here, so that a typo fails with its key path, not in a node.
+
+        Modules next to the scenario file are importable (its directory joins sys.path, which node
+        processes inherit)."""
+        from node_runtime.client import Client
+        from node_runtime.controller import Controller
+        from node_runtime.policies import Policy
+        from node_runtime.worker import Worker
+        from node_runtime.workload import TaskSource
+
+        cfg = self.cfg
+        checks: dict[tuple[str, str], tuple[type | None, bool]] = {}
+        bases = {"worker": Worker, "client": Client, "controller": Controller}
+        for kind, base in bases.items():
+            path = getattr(cfg.roles, kind)
+            if path:
+                checks[(f"roles.{kind}", path)] = (base, False)
+        for name, profile in cfg.profiles.items():
+            for kind, base in bases.items():
+                path = getattr(profile.roles, kind) if profile.roles else None
+                if path:
+                    checks[(f"profiles.{name}.roles.{kind}", path)] = (base, False)
+            if profile.policy and is_import_path(profile.policy):
+                checks[(f"profiles.{name}.policy", profile.policy)] = (Policy, False)
+        for i, node in enumerate(cfg.topology.nodes):
+            for kind, base in bases.items():
+                path = getattr(node.roles, kind) if node.roles else None
+                if path:
+                    checks[(f"topology.nodes[{i}].roles.{kind}", path)] = (base, False)
+            if node.policy and is_import_path(node.policy):
+                checks[(f"topology.nodes[{i}].policy", node.policy)] = (Policy, False)
+        if is_import_path(cfg.simulation.policy):
+            checks[("simulation.policy", cfg.simulation.policy)] = (Policy, False)
+        if cfg.workload.source:
+            checks[("workload.source", cfg.workload.source)] = (TaskSource, False)
+        if cfg.reward and cfg.reward not in ("paper", "sparse"):
+            checks[("reward", cfg.reward)] = (None, True)
+        if (checks or cfg.observation) and self.base.is_dir() and str(self.base) not in sys.path:
+            sys.path.append(str(self.base))
+        for (key, path), (base, callable_ok) in checks.items():
+            try:
+                load(path, base, callable_ok=callable_ok)
+            except PluginError as exc:
+                self.error(key, str(exc))
+        if cfg.observation:
+            try:
+                builder = load(cfg.observation)
+                if not (isinstance(builder, type) and callable(getattr(builder, "encode", None))
+                        and callable(getattr(builder, "space", None))):
+                    raise PluginError(f"{cfg.observation} is not an observation builder class (with space() and "
+                                      "encode() methods; see env.observations.ObservationBuilder)")
+            except PluginError as exc:
+                self.error("observation", str(exc))
 
     # --- topology ---
 
@@ -478,9 +554,21 @@ class _Resolver:
             values.update(node.hints)
             if profile_name in cfg.profiles:
                 values.update(cfg.profiles[profile_name].model_dump(exclude_none=True))
+            roles = cfg.roles.model_dump(exclude_none=True)
+            params: dict[str, Any] = {}
+            profile = cfg.profiles.get(profile_name) if profile_name else None
+            if profile is not None:
+                roles.update(profile.roles.model_dump(exclude_none=True) if profile.roles else {})
+                params.update(profile.params or {})
+            values.pop("roles", None)
+            values.pop("params", None)
             position = node.position
             if override is not None:
-                values.update(override.model_dump(exclude_none=True, exclude={"id", "profile", "position"}))
+                values.update(override.model_dump(exclude_none=True,
+                                                  exclude={"id", "profile", "position", "roles", "params"}))
+                if override.roles is not None:
+                    roles.update(override.roles.model_dump(exclude_none=True))
+                params.update(override.params or {})
                 if "position" in override.model_fields_set:
                     position = override.position
             if values["controller"] and not values["worker"]:
@@ -490,7 +578,9 @@ class _Resolver:
                 buffer=values["buffer"], position=(float(position[0]), float(position[1])),
                 tx_power_dbm=float(values["tx_power_dbm"]), idle_power_w=float(values["idle_power_w"]),
                 kappa=float(values["kappa"]), worker=values["worker"], controller=values["controller"],
-                client=values["client"], policy=values["policy"], profile=profile_name or ""))
+                client=values["client"], policy=values["policy"], profile=profile_name or "",
+                worker_impl=roles.get("worker", ""), client_impl=roles.get("client", ""),
+                controller_impl=roles.get("controller", ""), params=tuple(sorted(params.items()))))
         for name in cfg.profiles:
             if not any(n.profile == name for n in out) and name not in BUILTIN_PROFILES:
                 self.error(f"profiles.{name}", "profile is not used by any node")
@@ -586,6 +676,7 @@ class _Resolver:
             client_rates=tuple(sorted(wl.rates.items())),
             client_targets=tuple((c, tuple(ts)) for c, ts in sorted(wl.targets.items())),
             trace=trace,
+            source=wl.source or "",
         )
 
     def trace(self, path: Path, by_id: dict[str, NodeSpec]) -> tuple[TraceRow, ...] | None:

@@ -11,6 +11,7 @@ from __future__ import annotations
 import contextlib
 import os
 import signal
+import sys
 import time
 
 from node_runtime import process as node_process
@@ -73,7 +74,7 @@ class Supervisor:
         t0 = time.perf_counter()
         self.forks = ForkServer.shared()
         for proc in procs if procs is not None else self.routing.procs:
-            spec = ProcSpec(proc, scenario, layout, endpoint, self.keys)
+            spec = ProcSpec(proc, scenario, layout, endpoint, self.keys, tuple(sys.path))
             self.children[proc] = self.forks.start(proc, node_process.main, spec)
         self.wait_ready(timeout)
         return time.perf_counter() - t0
