@@ -41,15 +41,18 @@ class Controller(Role):
         self.worker = role_id("worker", node.id)
         self.per_epoch = 1 if scenario.mode == "binary" else scenario.batch_size
         self.external = False
+        self.policy_spec = node.policy
         self.policy: Policy = make_policy(node.policy)
         self.reset(scenario.seed)
 
     def reset(self, seed: int, external: bool = False, policy: str | None = None) -> None:
-        """Start an episode. ``external``: an agent sends the actions; else the node-side policy."""
+        """Start an episode. ``external``: an agent sends the actions; else the node-side policy —
+        ``policy`` for this episode if given, the node's own otherwise."""
         super().reset(seed)
         self.external = external
-        if policy is not None and policy != self.policy.name:
-            self.policy = make_policy(policy)
+        wanted = policy or self.node.policy
+        if wanted != self.policy_spec:
+            self.policy_spec, self.policy = wanted, make_policy(wanted)
         self.policy.reset(stream(seed, self.index, CONTROLLER))
         sc = self.scenario
         self.states: dict[str, NodeState] = {

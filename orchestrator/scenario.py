@@ -83,7 +83,7 @@ class PathLossCfg(Strict):
 class NetworkCfg(Strict):
     bandwidth_hz: Pos = 2.0e6
     tx_power_dbm: float = 20.0
-    noise_dbm: float = -174.0 + 10 * math.log10(2.0e6)  # thermal noise over 2 MHz
+    noise_dbm: float | None = None  # default: thermal noise over the bandwidth, -174 + 10 log10(B) dBm
     path_loss: PathLossCfg = PathLossCfg()
     loss: Prob = 0.0
 
@@ -99,6 +99,15 @@ class ArrivalCfg(Strict):
 
     @model_validator(mode="after")
     def ordered(self) -> ArrivalCfg:
+        uses = {"constant": {"rate"}, "linear": {"start", "end"}, "zigzag": {"low", "high", "period"},
+                "uniform": {"low", "high"}}[self.kind]
+        stray = sorted(self.model_fields_set - uses - {"kind"})
+        if stray:
+            raise ValueError(f"{', '.join(stray)} {'is' if len(stray) == 1 else 'are'} not used by kind "
+                             f"{self.kind!r}, which takes {', '.join(sorted(uses))}")
+        missing = sorted(uses - self.model_fields_set) if self.kind != "constant" else []
+        if missing:
+            raise ValueError(f"kind {self.kind!r} needs {', '.join(missing)}")
         if self.kind in ("zigzag", "uniform") and self.high < self.low:
             raise ValueError("high must be >= low")
         return self
@@ -121,6 +130,15 @@ class WorkloadCfg(Strict):
     tasks: Annotated[list[TaskCfg], Field(min_length=1)] = [TaskCfg()]
     trace: str | None = None
     source: str | None = None  # import path of a TaskSource subclass
+
+    @model_validator(mode="after")
+    def one_workload(self) -> WorkloadCfg:
+        if self.trace is not None:
+            ignored = sorted({"arrival", "rates", "source"} & self.model_fields_set)
+            if ignored:
+                raise ValueError(f"a trace gives every task itself: remove {', '.join(ignored)} "
+                                 "(task sizes come from the trace too; 'tasks' only sizes Ether buffers)")
+        return self
 
 
 class EnergyCfg(Strict):
@@ -209,6 +227,8 @@ class TopologyCfg(Strict):
         sources = [s for s in ("ether", "generator") if getattr(self, s) is not None]
         if len(sources) > 1:
             raise ValueError("give either 'ether' or 'generator', not both")
+        if "link_rates" in self.model_fields_set and self.ether is None:
+            raise ValueError("link_rates only applies to an Ether import ('ether: FILE')")
         if not sources and not self.nodes:
             raise ValueError("expected one of 'ether', 'generator' or 'nodes'")
         return self
@@ -514,6 +534,7 @@ class _Resolver:
             draft = Draft([], [])
         known = {n.id: i for i, n in enumerate(draft.nodes)}
         listed: set[str] = set()
+        reported: set[str] = set()  # ids already in an error: no follow-on errors about them
         for i, node in enumerate(topo.nodes):  # explicit nodes: new ones, or overrides of imported ones
             if node.id in listed:
                 self.error(f"topology.nodes[{i}].id", f"duplicate node id {node.id!r}")
@@ -522,14 +543,22 @@ class _Resolver:
             if node.id in known:
                 continue
             if draft.nodes and node.profile is None and topo.ether is not None:
-                self.error(f"topology.nodes[{i}].id", f"no node {node.id!r} in the Ether file")
+                self.error(f"topology.nodes[{i}].id", f"no node {node.id!r} in the Ether file (to add a new "
+                           "node, give it a profile)")
+                reported.add(node.id)
                 continue
             known[node.id] = len(draft.nodes)
             draft.nodes.append(DraftNode(node.id, node.profile or "", node.position))
+        listed_links: dict[frozenset[str], int] = {}
         for i, link in enumerate(topo.links):
+            key = frozenset(link.between)
+            if key in listed_links:
+                self.error(f"topology.links[{i}].between", f"duplicate link (also topology.links[{listed_links[key]}])")
+                continue
+            listed_links[key] = i
             draft.links.append(DraftLink(link.between[0], link.between[1], link.rate_bps))
             for end in link.between:
-                if end not in known:
+                if end not in known and end not in reported:
                     self.error(f"topology.links[{i}].between", f"unknown node {end!r}")
         return draft
 
@@ -537,6 +566,7 @@ class _Resolver:
         cfg = self.cfg
         explicit = {n.id: (i, n) for i, n in enumerate(cfg.topology.nodes)}
         out = []
+        unknown_profiles: set[tuple[str, str]] = set()
         for node in draft.nodes:  # ids are unique here: the draft step rejected duplicates
             where = f"topology.nodes[{explicit[node.id][0]}]" if node.id in explicit else f"node {node.id!r}"
             override = explicit.get(node.id, (0, None))[1]
@@ -547,8 +577,15 @@ class _Resolver:
             values.update(tx_power_dbm=cfg.network.tx_power_dbm, idle_power_w=cfg.energy.idle_power_w,
                           kappa=cfg.energy.kappa, policy=cfg.simulation.policy)
             if profile_name and profile_name not in BUILTIN_PROFILES and profile_name not in cfg.profiles:
-                self.error(f"{where}.profile", f"unknown profile {profile_name!r}; define it under 'profiles' "
-                           f"or use one of {', '.join(BUILTIN_PROFILES)}")
+                # a generator's profile is reported once, not once per generated node
+                generated = cfg.topology.generator is not None and not (override and override.profile)
+                key = "topology.generator" if generated else f"{where}.profile"
+                if (key, profile_name) not in unknown_profiles:
+                    unknown_profiles.add((key, profile_name))
+                    hint = difflib.get_close_matches(profile_name, [*BUILTIN_PROFILES, *cfg.profiles], n=1)
+                    self.error(key, f"unknown profile {profile_name!r}"
+                               + (f" (did you mean '{hint[0]}'?)" if hint else "")
+                               + f"; define it under 'profiles' or use one of {', '.join(BUILTIN_PROFILES)}")
                 continue
             values.update(BUILTIN_PROFILES.get(profile_name, {}))
             values.update(node.hints)
@@ -584,12 +621,13 @@ class _Resolver:
         for name in cfg.profiles:
             if not any(n.profile == name for n in out) and name not in BUILTIN_PROFILES:
                 self.error(f"profiles.{name}", "profile is not used by any node")
-        if not out:
+        if not draft.nodes:
             self.error("topology", "the topology has no nodes")
         return out
 
     def links(self, draft: Draft, nodes: list[NodeSpec]) -> list[LinkSpec]:
         net = self.cfg.network
+        noise = net.noise_dbm if net.noise_dbm is not None else -174.0 + 10 * math.log10(net.bandwidth_hz)
         by_id = {n.id: n for n in nodes}
         explicit = {frozenset(lk.between): (i, lk) for i, lk in enumerate(self.cfg.topology.links)}
         seen: set[frozenset[str]] = set()
@@ -616,7 +654,7 @@ class _Resolver:
                     gain = override.gain_db if override is not None and override.gain_db is not None else \
                         log_distance_gain_db(math.dist(a.position, b.position), net.path_loss.ref_loss_db,
                                              net.path_loss.ref_distance_m, net.path_loss.exponent)
-                    r = shannon_rate(net.bandwidth_hz, a.tx_power_dbm, gain, net.noise_dbm)
+                    r = shannon_rate(net.bandwidth_hz, a.tx_power_dbm, gain, noise)
                 if r <= 0:
                     self.error(f"{where}", f"link {src}->{dst} has no capacity (rate {r:g} bit/s)")
                 out.append(LinkSpec(src, dst, r, loss))
@@ -699,9 +737,11 @@ class _Resolver:
                         continue
                     if row.client not in by_id or not by_id[row.client].client:
                         self.error(where, f"{path}:{line}: {row.client!r} is not a task source node")
-                    bad = [c for c in columns[2:] if getattr(row, c) <= 0] + (["time"] if row.time < 0 else [])
+                    bad = [c for c in columns[2:] if getattr(row, c) <= 0]
                     if bad:
                         self.error(where, f"{path}:{line}: expected positive {', '.join(bad)}")
+                    if row.time < 0:
+                        self.error(where, f"{path}:{line}: expected time >= 0")
                     rows.append(row)
         except FileNotFoundError:
             self.error(where, f"file not found: {path}")

@@ -39,3 +39,14 @@ def test_zenoh_agrees_with_inproc(tmp_path, request, scenario_name):
     for layout in ("per-role", "per-node"):
         got = outputs(tmp_path, scenario, layout, ticks=300, seed=11, policy="random", transport="zenoh", layout=layout)
         assert got == ref, f"zenoh {layout} differs from inproc"
+
+
+def test_a_policy_override_lasts_one_episode(aot1):
+    from orchestrator.session import Simulation
+
+    with Simulation(aot1, transport="inproc") as sim:
+        first = model_part(sim.run(200))
+        overridden = sim.run(200, policy="random")
+        again = model_part(sim.run(200))
+    assert overridden["totals"]["offloaded"] > 0 and overridden["policy"] == "random"
+    assert again == first  # the scenario's own policy (local) is back

@@ -81,3 +81,29 @@ def test_execution_time_is_cycles_over_capacity():
     task = Task(1, "a", 0, 8e7, 1, 1, 1.5, 100)
     assert task.cycles / (2 * 3e7) == pytest.approx(2.0)
     assert math.isclose(task.cycles, 1.2e8)
+
+
+def test_expiry_tick_agrees_with_expired():
+    for dt in (1.0, 0.1, 0.25, 0.3, 2.0):
+        for deadline in (0.5, 1.0, 4.0, 99.9, 100.0):
+            task = Task(1, "a", created=7, instructions=1, input_bytes=1, output_bytes=1, cpi=1, deadline=deadline)
+            t = task.expires_at(dt)
+            assert task.expired(t, dt) and not task.expired(t - 1, dt), (dt, deadline)
+
+
+def test_noise_follows_the_bandwidth(tmp_path):
+    from orchestrator.scenario import load_scenario
+    from tests.conftest import write_scenario
+
+    def rate(bandwidth):
+        sc = load_scenario(write_scenario(tmp_path, {
+            "network": {"bandwidth_hz": bandwidth, "path_loss": {"exponent": 3.0}},
+            "topology": {"nodes": [{"id": "a", "client": True, "position": [0, 0]},
+                                   {"id": "b", "position": [100, 0]}], "links": [["a", "b"]]}}))
+        return sc.link[("a", "b")].rate_bps
+
+    # SNR = 20 - (40 + 60) - (-174 + 10 log10 B) dB; at 2 MHz: 20 - 100 + 110.99 = 30.99 dB
+    snr = 10 ** (30.99 / 10)
+    assert rate(2e6) == pytest.approx(2e6 * math.log2(1 + snr), rel=1e-3)
+    snr = 10 ** (20.99 / 10)  # ten times the bandwidth, ten times the noise
+    assert rate(2e7) == pytest.approx(2e7 * math.log2(1 + snr), rel=1e-3)

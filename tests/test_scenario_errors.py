@@ -75,6 +75,18 @@ CASES = [
      "topology.nodes[0].id: expected a name of letters"),
     ("both_sources", {"topology": {"ether": "x.json", "generator": {"kind": "ring", "n": 3}}}, {},
      "topology: give either 'ether' or 'generator'"),
+    ("duplicate_link", with_nodes(*NODES, links=[["a", "b"], {"between": ["b", "a"], "rate_bps": 1e6}]), {},
+     "topology.links[1].between: duplicate link (also topology.links[0])"),
+    ("arrival_key_of_another_kind", good(workload={"arrival": {"kind": "linear", "rate": 0.3}}), {},
+     "workload.arrival: rate is not used by kind 'linear', which takes end, start"),
+    ("arrival_missing_keys", good(workload={"arrival": {"kind": "zigzag", "low": 0.1}}), {},
+     "workload.arrival: kind 'zigzag' needs high, period"),
+    ("link_rates_without_ether", {"topology": {"nodes": NODES, "links": LINKS, "link_rates": "ether"}}, {},
+     "topology: link_rates only applies to an Ether import"),
+    ("trace_and_arrival", good(workload={"trace": "t.csv", "arrival": {"rate": 0.2}}), {"t.csv": HEADER},
+     "workload: a trace gives every task itself: remove arrival"),
+    ("generator_profile_typo", {"topology": {"generator": {"kind": "ring", "n": 5, "profile": "tierO"}}}, {},
+     "topology.generator: unknown profile 'tierO'"),
 ]
 
 
@@ -120,3 +132,9 @@ def test_cli_process_exit_status_and_no_traceback(tmp_path):
 def test_validate_prints_the_counts(capsys):
     assert main(["validate", "topologies/aot2.yaml"]) == 0
     assert capsys.readouterr().out.strip() == "19 nodes, 34 links, 15 controllers, 12 task sources"
+
+
+def test_a_generator_profile_typo_is_reported_once(tmp_path, capsys):
+    path = write_case(tmp_path, "typo", {"topology": {"generator": {"kind": "ring", "n": 6, "profile": "tierO"}}}, {})
+    assert main(["validate", str(path)]) == 2
+    assert len(capsys.readouterr().err.strip().splitlines()) == 1
