@@ -2,6 +2,8 @@
 
     orchestrator launch topologies/aot2.yaml            # run a scenario over Zenoh processes
     orchestrator validate my_scenario.yaml              # check a scenario file
+    orchestrator topology aot2 --png aot2.png           # draw a scenario's network
+    orchestrator plot runs/aot2-20261123-101500         # time-series PNGs of a finished run
     orchestrator bench                                  # ticks/s against a bare Zenoh barrier
 
 Exit status: 0 success, 1 the run failed (a node died, conservation broke, ...), 2 a bad scenario
@@ -198,6 +200,20 @@ def cmd_bench(args: argparse.Namespace) -> int:
     return EXIT_OK
 
 
+# ----- topology, plot (matplotlib is imported only when they run) -----
+
+def cmd_topology(args: argparse.Namespace) -> int:
+    from orchestrator import draw
+
+    return draw.cmd_topology(args)
+
+
+def cmd_plot(args: argparse.Namespace) -> int:
+    from orchestrator import plots
+
+    return plots.cmd_plot(args)
+
+
 # ----- validate -----
 
 def cmd_validate(args: argparse.Namespace) -> int:
@@ -262,6 +278,24 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--transports", nargs="+", choices=("inproc", "zenoh"), default=["inproc", "zenoh"])
     p.add_argument("--out", metavar="FILE", help="also write the rows as JSON")
     p.set_defaults(func=cmd_bench)
+
+    p = sub.add_parser(
+        "topology", help="draw a scenario's network to a PNG",
+        description="Draw the network of a scenario without running it: nodes at their positions (metres), "
+                    "coloured by tier, circles for controllers (agents), squares for worker-only nodes, a dark "
+                    "outline on task sources, size by capacity and link width by rate (both log scale).")
+    p.add_argument("scenario", metavar="SCENARIO", help="scenario YAML file, or a bundled name such as aot2")
+    p.add_argument("--png", required=True, metavar="FILE", help="PNG file to write (folders are created)")
+    p.add_argument("--title", metavar="T", help="heading instead of the scenario name (counts are always shown)")
+    p.set_defaults(func=cmd_topology)
+
+    p = sub.add_parser(
+        "plot", help="draw PNG time series of a finished run",
+        description="Read summary.json, ticks.csv and nodes.csv from a directory written by `orchestrator "
+                    "launch` and write overview.png, queues.png, drops.png, response_time.png and energy.png.")
+    p.add_argument("run_dir", metavar="RUN_DIR", help="a run directory, e.g. runs/aot2-20250101-120000")
+    p.add_argument("--out", metavar="DIR", help="where to write the PNGs (default: RUN_DIR/plots)")
+    p.set_defaults(func=cmd_plot)
 
     p = sub.add_parser("validate", help="check a scenario file",
                        description="Load and validate a scenario. Prints 'N nodes, E links, C controllers, S task "
