@@ -83,13 +83,19 @@ class Radio:
     def __contains__(self, node: str) -> bool:
         return node in self.links
 
-    def send(self, tick: int, dst: str, bits: float) -> tuple[int, float] | None:
-        """(arrival tick, seconds on air), or None when the message is lost on the way.
+    def send(self, tick: int, dst: str, bits: float, latest_start: float = math.inf) -> tuple[int, float] | str:
+        """(arrival tick, seconds on air), or why the message never arrives: "expired" or "link_loss".
 
-        A lost message still occupied the link, as a real transmission would.
+        A message whose transmission could only start after ``latest_start`` (in ticks: its task's
+        deadline) is never sent and takes no airtime: a sender does not transmit an expired task, so a
+        backlog cannot grow without bound behind tasks that are already lost. A lost message did
+        occupy the link, as a real transmission would.
         """
-        arrive, seconds = self.links[dst].send(tick, bits)
+        link = self.links[dst]
+        if max(float(tick), link.busy_until) > latest_start:
+            return "expired"
+        arrive, seconds = link.send(tick, bits)
         loss = self.loss[dst]
         if loss > 0.0 and self.rng.random() < loss:
-            return None
+            return "link_loss"
         return arrive, seconds

@@ -126,10 +126,11 @@ class Role:
 
     def transmit(self, t: int, kind: Kind, dst_node: str, dst_role: str, body: Body, bits: float,
                  out: Outbox) -> None:
-        """Queue a message on this node's link to ``dst_node``; it may be lost on the way."""
-        sent = self.radio.send(t, dst_node, bits)
-        if sent is None:
-            self.drop(out, "link_loss", body.id if kind == Kind.TASK else body.task.id)
+        """Queue a message on this node's link to ``dst_node``; it may expire in the queue or be lost."""
+        task = body if kind == Kind.TASK else body.task
+        sent = self.radio.send(t, dst_node, bits, task.created + task.deadline / self.scenario.dt)
+        if isinstance(sent, str):
+            self.drop(out, sent, task.id)
             return
         arrive, seconds = sent
         self.stats.energy_transmit += transmit_energy(self.node.tx_power_dbm, seconds)

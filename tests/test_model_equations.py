@@ -107,3 +107,18 @@ def test_noise_follows_the_bandwidth(tmp_path):
     assert rate(2e6) == pytest.approx(2e6 * math.log2(1 + snr), rel=1e-3)
     snr = 10 ** (20.99 / 10)  # ten times the bandwidth, ten times the noise
     assert rate(2e7) == pytest.approx(2e7 * math.log2(1 + snr), rel=1e-3)
+
+
+def test_a_task_that_would_expire_in_the_link_queue_is_never_sent():
+    import numpy as np
+
+    from node_runtime.comm import Radio
+
+    radio = Radio({"b": (8e6, 0.0)}, dt=1.0)  # 1 MB/s
+    radio.reset(np.random.default_rng(0))
+    # 10 MB at tick 0: on air 0 -> 10, arrives at 10
+    assert radio.send(0, "b", 80e6, latest_start=100.0) == (10, 10.0)
+    # a task whose deadline passes at tick 5 would only start at 10: expired, and no airtime is used ...
+    assert radio.send(1, "b", 8e6, latest_start=5.0) == "expired"
+    # ... so the next message starts right after the first one
+    assert radio.send(2, "b", 8e6, latest_start=100.0) == (11, 1.0)
