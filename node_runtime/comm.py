@@ -29,11 +29,6 @@ def log_distance_gain_db(distance_m: float, ref_loss_db: float, ref_distance_m: 
     return -(ref_loss_db + 10.0 * exponent * math.log10(d / ref_distance_m))
 
 
-def transfer_ticks(bits: float, rate_bps: float, dt: float) -> int:
-    """Ticks an idle link needs to deliver ``bits``: max(1, ceil(b / r / dt))."""
-    return max(1, math.ceil(bits / rate_bps / dt))
-
-
 class LinkTransmitter:
     """One directed link: transmits one message at a time, first in, first out.
 

@@ -2,8 +2,6 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-
 from node_runtime.comm import dbm_to_watts
 
 
@@ -21,13 +19,3 @@ def transmit_energy(tx_power_dbm: float, seconds: float) -> float:
     """E = P_tx(W) * time on air."""
     return dbm_to_watts(tx_power_dbm) * seconds
 
-
-@dataclass(slots=True)
-class EnergyMeter:
-    compute: float = 0.0
-    idle: float = 0.0
-    transmit: float = 0.0
-
-    @property
-    def total(self) -> float:
-        return self.compute + self.idle + self.transmit

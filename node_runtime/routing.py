@@ -15,7 +15,6 @@ from node_runtime.config import Scenario
 
 Layout = Literal["per-role", "per-node", "single"]
 LAYOUTS: tuple[Layout, ...] = ("per-role", "per-node", "single")
-ROLE_KINDS = ("worker", "client", "controller")
 
 
 def role_id(kind: str, node: str) -> str:

@@ -78,7 +78,6 @@ class Simulation:
         self.policy: str | None = None
         self.last: list[Done] = []
         self._closed = False
-        self._t0 = time.perf_counter()
         self._run_started = 0.0
         self._ticks_run = 0
         if transport == "inproc":
@@ -132,7 +131,7 @@ class Simulation:
         self.policy = None
         self.last = []
         self._closed = False
-        self._t0 = self._run_started = time.perf_counter()
+        self._run_started = time.perf_counter()
         self._ticks_run = 0
         self.drivers = []
         self.transport = transport

@@ -6,7 +6,7 @@ import math
 
 import pytest
 
-from node_runtime.comm import LinkTransmitter, dbm_to_watts, log_distance_gain_db, shannon_rate, transfer_ticks
+from node_runtime.comm import LinkTransmitter, dbm_to_watts, log_distance_gain_db, shannon_rate
 from node_runtime.energy import compute_energy, idle_energy, transmit_energy
 from node_runtime.messages import Task
 
@@ -34,13 +34,13 @@ def test_dbm_to_watts():
     assert dbm_to_watts(30.0) == pytest.approx(1.0)
 
 
-def test_transfer_ticks():
+def test_transfer_over_an_idle_link_takes_max_1_ceil_b_over_r_dt():
     # 150 MiB = 1,258,291,200 bits at 30 Mbit/s = 41.94 s -> 42 ticks of 1 s, 84 ticks of 0.5 s
     bits = 150 * 1024 * 1024 * 8
-    assert transfer_ticks(bits, 30e6, 1.0) == 42
-    assert transfer_ticks(bits, 30e6, 0.5) == 84
+    assert LinkTransmitter(30e6, 1.0).send(100, bits)[0] == 100 + 42
+    assert LinkTransmitter(30e6, 0.5).send(100, bits)[0] == 100 + 84
     # a tiny message still takes one tick: nothing arrives in the tick it was sent
-    assert transfer_ticks(8, 1e9, 1.0) == 1
+    assert LinkTransmitter(1e9, 1.0).send(100, 8)[0] == 101
 
 
 def test_link_fifo_queues_messages():

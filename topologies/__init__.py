@@ -9,7 +9,6 @@ from __future__ import annotations
 from pathlib import Path
 
 HERE = Path(__file__).resolve().parent
-BUILTIN = ("aot1", "aot2", "aot3", "aot4")
 
 
 def scenario_path(name: str) -> Path:
