@@ -103,7 +103,8 @@ def from_wire(d: dict[str, Any]) -> Any:
 
 def encode(msg: Any) -> bytes:
     d = to_wire(msg)
-    return msgpack.packb({"v": SCHEMA_VERSION, **d}, use_bin_type=True)
+    d["v"] = SCHEMA_VERSION
+    return msgpack.packb(d, use_bin_type=True)
 
 
 def decode(data: bytes) -> Any:

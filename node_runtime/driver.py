@@ -23,6 +23,7 @@ class HostDriver:
         self.transport = transport
         self.keys = keys
         self.proc = host.proc
+        self.proc_index = host.routing.proc_index[host.proc]
         self.episode = -1
         self.pending: Tick | None = None
         self.stopped = False
@@ -61,7 +62,7 @@ class HostDriver:
             self.run(cmd)
             return
         arrived = self.buffer.get((self.episode, cmd.tick - 1), ())
-        if len(arrived) < cmd.expect.get(self.proc, 0):
+        if len(arrived) < cmd.expect.get(self.proc_index, 0):
             return
         self.pending = None
         for key in sorted(k for k in self.buffer if k[0] == self.episode and k[1] < cmd.tick):

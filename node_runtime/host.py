@@ -124,7 +124,7 @@ class Host:
         proc_of = self.routing.proc_of
         batches: dict[str, list[Envelope]] = {}
         topics: dict[str, list[Envelope]] = {}
-        sent: dict[str, int] = {}
+        sent: dict[int, int] = {}
         for rid, out in self.outboxes.items():
             if not out.envelopes and not out.broadcasts:
                 continue
@@ -145,20 +145,22 @@ class Host:
                     topics.setdefault(env.dst, []).append(env)
             out.envelopes.clear()
             out.broadcasts.clear()
+        index = self.routing.proc_index
         for p in batches:
-            sent[p] = 1
+            sent[index[p]] = 1
         for topic in topics:
             for p in self.remote_subs[topic]:
-                sent[p] = sent.get(p, 0) + 1
+                sent[index[p]] = sent.get(index[p], 0) + 1
         return Outgoing(batches, topics, self.report(t, sent), events)
 
-    def report(self, t: int, sent: dict[str, int]) -> Done:
+    def report(self, t: int, sent: dict[int, int]) -> Done:
         """The Done of tick t. Its stats hold only the roles whose counters changed since the last
         report (all of them after a reset): the orchestrator keeps the others' last values."""
-        stats: dict[str, tuple] = {}
-        rts: dict[str, list[float]] = {}
-        obs: dict[str, Observation] = {}
+        stats: dict[int, tuple] = {}
+        rts: dict[int, list[float]] = {}
+        obs: dict[int, Observation] = {}
         reported = self.reported
+        index = self.routing.role_index
         for role in self.roles:
             rid = role.id
             arrivals = self.arrivals[rid]
@@ -167,10 +169,10 @@ class Host:
             st = role.stats
             values = (*read_stats(st), self.flying[rid])
             if reported.get(rid) != values:
-                reported[rid] = stats[rid] = values
+                reported[rid] = stats[index[rid]] = values
             if st.response_times:
-                rts[role.id] = st.response_times
+                rts[index[rid]] = st.response_times
                 st.response_times = []
-            if role.id in self.external and role.last is not None and role.last.tick == t:
-                obs[role.id] = role.last
+            if rid in self.external and role.last is not None and role.last.tick == t:
+                obs[index[rid]] = role.last
         return Done(self.proc, self.episode, t, sent, stats, rts, obs)

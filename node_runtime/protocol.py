@@ -2,6 +2,10 @@
 
 - ``Tick``: the orchestrator opens tick t, telling each process how many publications sent in
   tick t - 1 it must have received first, and carrying the agents' actions;
+
+Processes and roles are named by their canonical index (``Routing.procs`` / ``Routing.roles``
+order): every participant derives the same indices from the scenario and the layout, and small ints
+decode faster than strings in dozens of processes every tick.
 - ``Batch``: one process's mail of one tick for one destination process (or one broadcast topic);
 - ``Done``: a process finished tick t: what it sent to whom, and its roles' accounting.
 
@@ -26,7 +30,7 @@ class Tick:
     episode: int
     tick: int
     command: Command = "run"
-    expect: dict[str, int] = field(default_factory=dict)  # process -> publications sent in tick - 1
+    expect: dict[int, int] = field(default_factory=dict)  # process index -> publications sent in tick - 1
     actions: dict[str, Any] = field(default_factory=dict)  # controller role -> action
     seed: int = 0  # reset only
     external: list[str] = field(default_factory=list)  # reset only: controllers an agent drives
@@ -48,8 +52,8 @@ class Done:
     proc: str
     episode: int
     tick: int
-    sent: dict[str, int]  # publications per destination process
-    stats: dict[str, tuple]  # role -> values of STAT_FIELDS, then in_flight (changed roles only)
-    response_times: dict[str, list[float]] = field(default_factory=dict)  # client role -> this tick's
-    obs: dict[str, Observation] = field(default_factory=dict)  # externally driven controller -> its view
+    sent: dict[int, int]  # destination process index -> publications
+    stats: dict[int, tuple]  # role index -> values of STAT_FIELDS, then in_flight (changed roles only)
+    response_times: dict[int, list[float]] = field(default_factory=dict)  # client role index -> this tick's
+    obs: dict[int, Observation] = field(default_factory=dict)  # externally driven controller index -> its view
     error: str | None = None  # set when the process failed; it exits after sending this

@@ -62,6 +62,15 @@ class Routing:
         return tuple(out)
 
     @cached_property
+    def role_index(self) -> dict[str, int]:
+        """Roles are named by this index on the wire (a small int instead of a string)."""
+        return {r: i for i, r in enumerate(self.roles)}
+
+    @cached_property
+    def proc_index(self) -> dict[str, int]:
+        return {p: i for i, p in enumerate(self.procs)}
+
+    @cached_property
     def proc_of(self) -> dict[str, str]:
         return {r: proc_for(self.layout, r) for r in self.roles}
 

@@ -41,7 +41,7 @@ class Clock:
         self.episode = -1
         self.latest = -1  # the highest episode run or seen on the bus (another driver may have run some)
         self.tick = -1
-        self.expect: dict[str, int] = {}
+        self.expect: dict[int, int] = {}  # process index -> publications to wait for
         self.dones: dict[str, Done] = {}
         transport.subscribe(keys.done(), self.on_done)
 
@@ -86,7 +86,7 @@ class Clock:
                              f"{', '.join(silent[:8])}{' ...' if len(silent) > 8 else ''} "
                              f"(nodes {', '.join(nodes[:8])})") from None
         dones = [self.dones[p] for p in self.procs]
-        expect: dict[str, int] = {}
+        expect: dict[int, int] = {}
         for d in dones:
             for p, count in d.sent.items():
                 expect[p] = expect.get(p, 0) + count

@@ -100,7 +100,6 @@ class Metrics:
         sc = routing.scenario
         self.scenario = sc
         self.roles = routing.roles
-        self.row = {r: i for i, r in enumerate(self.roles)}
         self.node_ids = tuple(n.id for n in sc.nodes)
         incidence = np.zeros((len(self.node_ids), len(self.roles)))
         for i, r in enumerate(self.roles):
@@ -121,15 +120,14 @@ class Metrics:
 
     def add(self, tick: int, dones: list[Done]) -> TickReport:
         m = self._matrix
-        row = self.row
         rts: list[float] = []
-        for d in dones:
+        for d in dones:  # roles are named by their canonical index, which is their row
             for role, values in d.stats.items():
-                m[row[role]] = values
+                m[role] = values
         for d in dones:  # completions, in canonical role order within each process
             for role, times in d.response_times.items():
                 rts.extend(times)
-                self.rt_by_node.setdefault(role_node(role), []).extend(times)
+                self.rt_by_node.setdefault(role_node(self.roles[role]), []).extend(times)
         totals = m.sum(axis=0)
         nodes = self.incidence @ m
         self.check(tick, totals)

@@ -181,11 +181,9 @@ class Simulation:
         return self.clock.tick
 
     def observations(self) -> dict[str, Observation]:
-        """Observations the externally driven controllers produced in the last tick."""
-        out: dict[str, Observation] = {}
-        for d in self.last:
-            out.update(d.obs)
-        return out
+        """Observations the externally driven controllers produced in the last tick, by role."""
+        roles = self.routing.roles
+        return {roles[i]: obs for d in self.last for i, obs in d.obs.items()}
 
     def run(self, ticks: int | None = None, seed: int | None = None, policy: str | None = None,
             on_tick: Any = None) -> dict[str, Any]:

@@ -28,13 +28,13 @@ def test_batch_roundtrip():
 
 
 def test_tick_and_done_roundtrip():
-    tick = Tick(2, 17, "run", {"node-a": 2}, {"controller:a": 1, "controller:b": [0, 2]}, 0, [], None)
+    tick = Tick(2, 17, "run", {0: 2}, {"controller:a": 1, "controller:b": [0, 2]}, 0, [], None)
     assert codec.decode(codec.encode(tick)) == tick
     obs = Observation(5, "a", NodeView("a", 1, 2, 3, 4e6, 0, 0.0, 1, True), 2,
                       [TaskView(7, 8e7, 1.0, 2.0, 1.0, 100.0, 95.0, 2, "a")],
                       [NodeView("b", 0, 0, 26, 4e6, 1, 3e7, 1, True)])
-    done = Done("node-a", 2, 17, {"node-b": 1}, {"worker:a": [1, 2.5, 0]}, {"client:a": [7.0]},
-                {"controller:a": obs})
+    done = Done("node-a", 2, 17, {1: 1}, {0: [1, 2.5, 0]}, {1: [7.0]},
+                {2: obs})
     assert codec.decode(codec.encode(done)) == done
 
 
