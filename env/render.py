@@ -8,12 +8,9 @@ its target. pygame is imported lazily, so the environment itself does not need i
 from __future__ import annotations
 
 import math
-from typing import TYPE_CHECKING
+from typing import Any
 
 import numpy as np
-
-if TYPE_CHECKING:
-    from env.environment import ZenohEdgeEnv
 
 SIZE = (900, 640)
 MARGIN = 50
@@ -29,7 +26,8 @@ def occupancy_colour(fill: float) -> tuple[int, int, int]:
 
 
 class Renderer:
-    def __init__(self, env: ZenohEdgeEnv) -> None:
+    def __init__(self, env: Any) -> None:
+        """``env``: the ZenohEdgeEnv to draw (its scenario, its simulation and its last actions)."""
         self.env = env
         self.sc = env.scenario
         self.screen = None
