@@ -462,20 +462,15 @@ class _Resolver:
             path = getattr(cfg.roles, kind)
             if path:
                 checks[(f"roles.{kind}", path)] = (base, False)
-        for name, profile in cfg.profiles.items():
+        entries = [(f"profiles.{name}", p) for name, p in cfg.profiles.items()]
+        entries += [(f"topology.nodes[{i}]", n) for i, n in enumerate(cfg.topology.nodes)]
+        for where, entry in entries:  # profiles and nodes both take roles and a policy
             for kind, base in bases.items():
-                path = getattr(profile.roles, kind) if profile.roles else None
+                path = getattr(entry.roles, kind) if entry.roles else None
                 if path:
-                    checks[(f"profiles.{name}.roles.{kind}", path)] = (base, False)
-            if profile.policy and is_import_path(profile.policy):
-                checks[(f"profiles.{name}.policy", profile.policy)] = (Policy, False)
-        for i, node in enumerate(cfg.topology.nodes):
-            for kind, base in bases.items():
-                path = getattr(node.roles, kind) if node.roles else None
-                if path:
-                    checks[(f"topology.nodes[{i}].roles.{kind}", path)] = (base, False)
-            if node.policy and is_import_path(node.policy):
-                checks[(f"topology.nodes[{i}].policy", node.policy)] = (Policy, False)
+                    checks[(f"{where}.roles.{kind}", path)] = (base, False)
+            if entry.policy and is_import_path(entry.policy):
+                checks[(f"{where}.policy", entry.policy)] = (Policy, False)
         if is_import_path(cfg.simulation.policy):
             checks[("simulation.policy", cfg.simulation.policy)] = (Policy, False)
         if cfg.workload.source:
