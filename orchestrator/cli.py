@@ -214,6 +214,26 @@ def cmd_plot(args: argparse.Namespace) -> int:
     return plots.cmd_plot(args)
 
 
+# ----- trace -----
+
+def cmd_trace(args: argparse.Namespace) -> int:
+    from topologies.alibaba import Conversion, TraceError, convert, write
+
+    scenario = load_scenario(args.scenario)
+    conversion = Conversion(frequency=args.frequency, memory_bytes=args.memory, output_ratio=args.output_ratio,
+                            deadline_factor=args.deadline_factor, time_scale=args.time_scale, limit=args.limit)
+    try:
+        rows = convert(Path(args.input), list(scenario.clients), conversion)
+    except TraceError as exc:
+        fail(f"orchestrator trace: {exc}")
+        return EXIT_USAGE
+    write(rows, Path(args.out))
+    span = rows[-1]["time"] if rows else 0
+    print(f"{len(rows)} tasks over {span:g} s for {len(scenario.clients)} task sources -> {args.out} "
+          f"(use it with `workload: {{trace: {Path(args.out).name}}}`)")
+    return EXIT_OK
+
+
 # ----- validate -----
 
 def cmd_validate(args: argparse.Namespace) -> int:
@@ -296,6 +316,24 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("run_dir", metavar="RUN_DIR", help="a run directory, e.g. runs/aot2-20250101-120000")
     p.add_argument("--out", metavar="DIR", help="where to write the PNGs (default: RUN_DIR/plots)")
     p.set_defaults(func=cmd_plot)
+
+    p = sub.add_parser(
+        "trace", help="turn an Alibaba cluster trace into a trace workload",
+        description="Convert Alibaba cluster-trace v2018 batch_task.csv into the emulator's trace CSV, the way the "
+                    "PeersimGym paper reads it: each job becomes one task arriving at its start, with its peak CPU "
+                    "x duration x --frequency instructions and its peak memory as data size; tasks go to the "
+                    "scenario's task sources in turn.")
+    p.add_argument("format", choices=("alibaba",), help="the input's format")
+    p.add_argument("input", help="batch_task.csv (no header)")
+    p.add_argument("--scenario", required=True, help="scenario whose task sources receive the tasks")
+    p.add_argument("--out", required=True, metavar="FILE", help="trace CSV to write")
+    p.add_argument("--frequency", type=float, default=4.0e6, help="instructions/s of one core (default 4e6)")
+    p.add_argument("--memory", type=float, default=1.0e9, help="bytes that plan_mem = 100 stands for (default 1e9)")
+    p.add_argument("--output-ratio", type=float, default=1.0, help="output bytes / input bytes (default 1)")
+    p.add_argument("--deadline-factor", type=float, default=3.0, help="deadline = factor x job duration (default 3)")
+    p.add_argument("--time-scale", type=float, default=1.0, help="emulated seconds per trace second (default 1)")
+    p.add_argument("--limit", type=int, help="keep the earliest N jobs")
+    p.set_defaults(func=cmd_trace)
 
     p = sub.add_parser("validate", help="check a scenario file",
                        description="Load and validate a scenario. Prints 'N nodes, E links, C controllers, S task "

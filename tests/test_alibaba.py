@@ -1,0 +1,63 @@
+"""The Alibaba cluster-trace importer: jobs become tasks as the paper describes, by hand."""
+
+from __future__ import annotations
+
+import csv
+
+import pytest
+
+from orchestrator.cli import main
+from orchestrator.scenario import load_scenario
+from tests.conftest import run_summary, write_scenario
+from topologies.alibaba import Conversion, TraceError, convert
+
+# task_name, instance_num, job_name, task_type, status, start_time, end_time, plan_cpu, plan_mem
+BATCH = """M1,1,j_1,1,Terminated,100,110,100,0.5
+R2_1,1,j_1,1,Terminated,105,120,200,0.25
+M1,2,j_2,1,Terminated,130,134,50,1.0
+M1,1,j_3,1,Running,140,0,100,1.0
+"""
+
+
+def test_jobs_become_tasks(tmp_path):
+    src = tmp_path / "batch_task.csv"
+    src.write_text(BATCH)
+    rows = convert(src, ["a", "b"], Conversion(frequency=1e6, memory_bytes=1e9))
+    assert len(rows) == 2  # j_3 never finished
+    j1, j2 = rows
+    # j_1: starts at 100 (the origin), runs 100..120 = 20 s, peak 2 cores, peak 0.5 % of 1e9 bytes
+    assert j1 == {"time": 0.0, "client": "a", "instructions": 2 * 20 * 1e6, "input_bytes": 5e6, "output_bytes": 5e6,
+                  "cpi": 1.0, "deadline": 60.0}
+    # j_2: starts 30 s later, 4 s at half a core, 1 % of memory; deadline max(10, 3 x 4)
+    assert j2["time"] == 30.0 and j2["client"] == "b"
+    assert j2["instructions"] == pytest.approx(0.5 * 4 * 1e6)
+    assert j2["input_bytes"] == pytest.approx(1e7) and j2["deadline"] == 12.0
+
+
+def test_cli_writes_a_trace_the_emulator_runs(tmp_path, capsys):
+    src = tmp_path / "batch_task.csv"
+    src.write_text(BATCH)
+    scenario = write_scenario(tmp_path, {"simulation": {"steps": 60, "policy": "least_queue"},
+                                         "workload": {"trace": "trace.csv"},
+                                         "topology": {"nodes": [{"id": "a", "client": True, "controller": True,
+                                                                 "frequency": 1e6},
+                                                                {"id": "b", "client": True, "frequency": 1e6}],
+                                                      "links": [["a", "b"]]}})
+    (tmp_path / "trace.csv").write_text("time,client,instructions,input_bytes,output_bytes,cpi,deadline\n")
+    out = tmp_path / "trace.csv"
+    assert main(["trace", "alibaba", str(src), "--scenario", str(scenario), "--out", str(out),
+                 "--frequency", "1e6"]) == 0
+    assert "2 tasks over 30 s for 2 task sources" in capsys.readouterr().out
+    assert len(list(csv.DictReader(out.open()))) == 2
+    summary = run_summary(load_scenario(scenario))
+    assert summary["totals"]["generated"] == 2
+
+
+def test_bad_input(tmp_path, capsys):
+    src = tmp_path / "bad.csv"
+    src.write_text("a,b,c\n")
+    with pytest.raises(TraceError, match=r"bad\.csv:1: expected 9 columns"):
+        convert(src, ["a"])
+    assert main(["trace", "alibaba", str(tmp_path / "none.csv"), "--scenario", "aot1", "--out",
+                 str(tmp_path / "o.csv")]) == 2
+    assert "none.csv: file not found" in capsys.readouterr().err
