@@ -1,0 +1,127 @@
+"""Heuristic policies that read the same observations as the learning agents and respect the masks.
+
+They are the comparison points of the paper (local, random, least queue) plus two stronger ones
+(round robin, greedy). In batch mode the tasks of one step are placed one after another, and each
+placed task counts against its target, so that a batch does not pile onto one node.
+"""
+
+from __future__ import annotations
+
+import math
+from abc import ABC, abstractmethod
+from collections.abc import Mapping
+
+import numpy as np
+
+from agents.common import NEIGHBOUR, OWN, TASK, Action, Observation, is_batch, masks_of
+
+
+class Baseline(ABC):
+    """Shared plumbing: per-slot masks, the extra load a batch puts on each target, no-op slots."""
+
+    name = "baseline"
+
+    def __init__(self, seed: int | None = None) -> None:
+        self.reset(seed)
+
+    def reset(self, seed: int | None = None) -> None:
+        self.rng = np.random.default_rng(seed)
+
+    def act(self, observations: Mapping[str, Observation]) -> dict[str, Action]:
+        actions: dict[str, Action] = {}
+        for agent, obs in observations.items():
+            masks = masks_of(obs)
+            tasks = np.asarray(obs["task"]).reshape(len(masks), -1)
+            extra = np.zeros(len(masks[0]), dtype=np.float64)  # tasks of this step already sent to each target
+            chosen = []
+            for task, mask in zip(tasks, masks, strict=True):
+                valid = np.flatnonzero(mask)
+                if task[TASK["present"]] > 0 and len(valid) > 1:
+                    a = int(self.choose(agent, obs, task, valid, extra))
+                    extra[a] += 1
+                else:
+                    a = int(valid[0])  # nothing to decide (or a single choice): the only valid action
+                chosen.append(a)
+            actions[agent] = chosen if is_batch(obs) else chosen[0]
+        return actions
+
+    @abstractmethod
+    def choose(self, agent: str, obs: Observation, task: np.ndarray, valid: np.ndarray, extra: np.ndarray) -> int:
+        """One valid action (from ``valid``) for ``task``; ``extra`` counts this step's tasks per target."""
+
+
+def _queues(obs: Observation) -> np.ndarray:
+    """Queue length of every target: the node itself (action 0), then each neighbour slot."""
+    return np.concatenate([[obs["own"][OWN["queue"]]], obs["neighbours"][:, NEIGHBOUR["queue"]]])
+
+
+class Local(Baseline):
+    """Never offload."""
+
+    name = "local"
+
+    def choose(self, agent, obs, task, valid, extra):
+        return 0 if 0 in valid else valid[0]
+
+
+class Random(Baseline):
+    """A uniformly random valid target, the node itself included."""
+
+    name = "random"
+
+    def choose(self, agent, obs, task, valid, extra):
+        return self.rng.choice(valid)
+
+
+class RoundRobin(Baseline):
+    """Cycle through the valid targets, the node itself first, with one counter per agent."""
+
+    name = "round_robin"
+
+    def reset(self, seed: int | None = None) -> None:
+        super().reset(seed)
+        self.next: dict[str, int] = {}
+
+    def choose(self, agent, obs, task, valid, extra):
+        k = self.next.get(agent, 0)
+        self.next[agent] = k + 1
+        return valid[k % len(valid)]
+
+
+class LeastQueue(Baseline):
+    """The valid target with the shortest queue as last heard; ties go to the lowest action (local first)."""
+
+    name = "least_queue"
+
+    def choose(self, agent, obs, task, valid, extra):
+        load = (_queues(obs) + extra)[valid]
+        return valid[int(np.argmin(load))]  # argmin keeps the first of equal values
+
+
+class Greedy(Baseline):
+    """The least estimated completion time: transfer (input + output) * 8 / rate, plus waiting
+    queue * cycles / capacity, plus execution cycles / capacity. Local has no transfer; a neighbour whose
+    buffer is full is skipped, since the task would be dropped there."""
+
+    name = "greedy"
+
+    def choose(self, agent, obs, task, valid, extra):
+        costs = [self.estimate(obs, task, int(a), extra[a]) for a in valid]
+        return valid[int(np.argmin(costs))]
+
+    @staticmethod
+    def estimate(obs: Observation, task: np.ndarray, action: int, extra: float) -> float:
+        cycles = task[TASK["instructions_g"]] * task[TASK["cpi"]] * 1e9
+        if action == 0:
+            own = obs["own"]
+            capacity = own[OWN["capacity_gcps"]] * 1e9
+            return (own[OWN["queue"]] + extra + 1) * cycles / capacity if capacity > 0 else math.inf
+        nb = obs["neighbours"][action - 1]
+        capacity = nb[NEIGHBOUR["capacity_gcps"]] * 1e9
+        if nb[NEIGHBOUR["occupancy"]] + extra >= nb[NEIGHBOUR["buffer"]] or capacity <= 0:
+            return math.inf
+        transfer = (task[TASK["input_mb"]] + task[TASK["output_mb"]]) * 8e6 / (nb[NEIGHBOUR["rate_mbps"]] * 1e6)
+        return transfer + (nb[NEIGHBOUR["queue"]] + extra + 1) * cycles / capacity
+
+
+BASELINES: dict[str, type[Baseline]] = {p.name: p for p in (Local, Random, RoundRobin, LeastQueue, Greedy)}

@@ -1,0 +1,228 @@
+"""What every agent shares: the policy protocol, observation flattening, masked distributions, networks.
+
+Nothing here knows the emulator: it works from the PettingZoo API and the observation conventions of
+this project's environments (a dict with ``own`` (6,), ``task`` (7,) or (B, 7), ``neighbours`` (D, 8)
+and ``action_mask``; ``task[0] == 0`` means there is nothing to decide). The field order is restated
+below rather than imported, so that the agents stay independent of ``env``.
+"""
+
+from __future__ import annotations
+
+import itertools
+import random
+import warnings
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+from typing import Any, Protocol, runtime_checkable
+
+import numpy as np
+import torch
+from gymnasium import spaces
+from torch import nn
+
+Observation = Mapping[str, Any]  # one agent's observation dict
+Action = int | list[int]
+
+# Field order of the observation arrays (see the environment's documentation).
+OWN = {name: i for i, name in enumerate(("queue", "occupancy", "buffer", "capacity_gcps", "tier", "undecided"))}
+TASK = {name: i for i, name in enumerate(
+    ("present", "instructions_g", "input_mb", "output_mb", "cpi", "time_left_s", "waited_ticks"))}
+NEIGHBOUR = {name: i for i, name in enumerate(
+    ("present", "queue", "occupancy", "buffer", "capacity_gcps", "tier", "rate_mbps", "age_ticks"))}
+
+
+@runtime_checkable
+class Policy(Protocol):
+    """Anything that maps every live agent's observation to a valid action."""
+
+    name: str
+
+    def reset(self, seed: int | None = None) -> None:
+        """Start an episode (per-episode state such as round-robin counters, and the random stream)."""
+
+    def act(self, observations: Mapping[str, Observation]) -> dict[str, Action]:
+        """One action per agent in ``observations``; never a masked one."""
+
+
+# ----- observation helpers -----
+
+def has_decision(obs: Observation) -> bool:
+    """True when the agent has at least one task to place (otherwise its action is ignored)."""
+    return bool(np.any(np.asarray(obs["task"])[..., TASK["present"]] > 0))
+
+
+def masks_of(obs: Observation) -> list[np.ndarray]:
+    """The action mask of each task slot: one array in binary mode, B in batch mode."""
+    mask = obs["action_mask"]
+    return [np.asarray(mask)] if isinstance(mask, np.ndarray) else [np.asarray(m) for m in mask]
+
+
+def is_batch(obs: Observation) -> bool:
+    return not isinstance(obs["action_mask"], np.ndarray)
+
+
+def symlog(x: np.ndarray) -> np.ndarray:
+    """sign(x) log(1 + |x|): squashes magnitudes spanning decades (buffers 3..600, rates, seconds)."""
+    return np.sign(x) * np.log1p(np.abs(x))
+
+
+@dataclass(frozen=True)
+class AgentSpec:
+    """What a network needs to know about one agent: neighbour slots and number of actions."""
+
+    slots: int
+    n_actions: int
+
+    @classmethod
+    def of(cls, observation_space: spaces.Dict, action_space: spaces.Space) -> AgentSpec:
+        if not isinstance(action_space, spaces.Discrete):
+            raise ValueError(f"learning agents need binary mode (a Discrete action space), not {action_space}; "
+                             "batch mode is supported by the baselines only")
+        return cls(slots=observation_space["neighbours"].shape[0], n_actions=int(action_space.n))
+
+
+def specs_of(env: Any) -> dict[str, AgentSpec]:
+    """The spec of every possible agent of a PettingZoo parallel env."""
+    return {a: AgentSpec.of(env.observation_space(a), env.action_space(a)) for a in env.possible_agents}
+
+
+def flat_dim(slots: int) -> int:
+    """Length of ``flatten``'s output for an agent with ``slots`` neighbour slots."""
+    return 7 + 7 + 9 * slots + 3 * (1 + slots)
+
+
+def flatten(own: np.ndarray, task: np.ndarray, neighbours: np.ndarray) -> np.ndarray:
+    """Observations of N agents with the same slot count -> (N, flat_dim) float32 features.
+
+    Blocks, in order (each documented in docs/agents.md):
+      own (7): symlog of queue, occupancy, buffer, capacity [Mcycles/s], undecided; tier; fill = occupancy/buffer
+      task (7): present, cpi, symlog of instructions [M], input [MB], output [MB], time left [s], ticks waited
+      neighbours (9 per slot): present, tier, symlog of queue, occupancy, buffer, capacity [Mcycles/s],
+        rate [Mbit/s], age [ticks]; fill
+      estimates (3 per target: local, then each slot): symlog of the task's wait, execution and transfer
+        times [s] at that target, the quantities ``greedy`` adds up; 0 without a task or a neighbour.
+    Magnitudes stay within about [-1, 10] on every bundled scenario, whatever its scale.
+    """
+    own = own.astype(np.float64)
+    task = task.astype(np.float64)
+    nb = neighbours.astype(np.float64)
+    o = OWN
+    own_buffer = np.maximum(own[:, o["buffer"]], 1.0)
+    own_f = np.stack([
+        symlog(own[:, o["queue"]]), symlog(own[:, o["occupancy"]]), symlog(own[:, o["buffer"]]),
+        symlog(own[:, o["capacity_gcps"]] * 1e3), symlog(own[:, o["undecided"]]), own[:, o["tier"]],
+        own[:, o["occupancy"]] / own_buffer,
+    ], axis=1)
+    t = TASK
+    present = task[:, t["present"]]
+    task_f = np.stack([
+        present, task[:, t["cpi"]], symlog(task[:, t["instructions_g"]] * 1e3), symlog(task[:, t["input_mb"]]),
+        symlog(task[:, t["output_mb"]]), symlog(task[:, t["time_left_s"]]), symlog(task[:, t["waited_ticks"]]),
+    ], axis=1)
+    n = NEIGHBOUR
+    nb_present = nb[..., n["present"]]
+    nb_f = np.stack([
+        nb_present, nb[..., n["tier"]], symlog(nb[..., n["queue"]]), symlog(nb[..., n["occupancy"]]),
+        symlog(nb[..., n["buffer"]]), symlog(nb[..., n["capacity_gcps"]] * 1e3), symlog(nb[..., n["rate_mbps"]]),
+        symlog(nb[..., n["age_ticks"]]), nb[..., n["occupancy"]] / np.maximum(nb[..., n["buffer"]], 1.0),
+    ], axis=2)
+    # Estimated times of the task at each target, in seconds (capacities in cycles/s, sizes in bits).
+    cycles = task[:, t["instructions_g"]] * task[:, t["cpi"]] * 1e9  # (N,)
+    bits = (task[:, t["input_mb"]] + task[:, t["output_mb"]]) * 8e6
+    capacity = np.concatenate([own[:, None, o["capacity_gcps"]], nb[..., n["capacity_gcps"]]], axis=1) * 1e9
+    queue = np.concatenate([own[:, None, o["queue"]], nb[..., n["queue"]]], axis=1)
+    rate = nb[..., n["rate_mbps"]] * 1e6
+    valid = np.concatenate([np.ones_like(present)[:, None], nb_present], axis=1) * present[:, None]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        execution = np.where(valid > 0, cycles[:, None] / capacity, 0.0)
+        transfer = np.zeros_like(execution)
+        transfer[:, 1:] = np.where(valid[:, 1:] > 0, bits[:, None] / rate, 0.0)
+    wait = queue * execution
+    est = np.stack([symlog(wait), symlog(execution), symlog(transfer)], axis=2)
+    est = np.nan_to_num(est, nan=0.0, posinf=20.0)
+    rows = len(own)
+    return np.concatenate([own_f, task_f, nb_f.reshape(rows, -1), est.reshape(rows, -1)], axis=1).astype(np.float32)
+
+
+def flatten_one(obs: Observation) -> np.ndarray:
+    """``flatten`` for one binary-mode observation -> (flat_dim,)."""
+    return flatten(obs["own"][None], obs["task"][None], obs["neighbours"][None])[0]
+
+
+def one_hot(index: int, size: int) -> np.ndarray:
+    out = np.zeros(size, dtype=np.float32)
+    out[index] = 1.0
+    return out
+
+
+# ----- masked distributions -----
+
+def masked_argmax(values: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
+    """Index of the largest value among the allowed actions; masked actions count as -inf."""
+    return values.masked_fill(~mask, -torch.inf).argmax(dim=-1)
+
+
+class MaskedCategorical:
+    """A categorical over the allowed actions only (masked logits get probability exactly 0).
+
+    Masked logits are set to the most negative finite float rather than -inf, so that log-probabilities
+    and the entropy stay finite (0 * -inf would be NaN)."""
+
+    def __init__(self, logits: torch.Tensor, mask: torch.Tensor) -> None:
+        self.mask = mask
+        self.logits = torch.log_softmax(logits.masked_fill(~mask, torch.finfo(logits.dtype).min), dim=-1)
+        self.probs = self.logits.exp()
+
+    def sample(self, generator: torch.Generator | None = None) -> torch.Tensor:
+        return torch.multinomial(self.probs, 1, generator=generator).squeeze(-1)
+
+    def mode(self) -> torch.Tensor:
+        return masked_argmax(self.logits, self.mask)
+
+    def log_prob(self, actions: torch.Tensor) -> torch.Tensor:
+        return self.logits.gather(-1, actions.long().unsqueeze(-1)).squeeze(-1)
+
+    def entropy(self) -> torch.Tensor:
+        return -(self.probs * self.logits).masked_fill(~self.mask, 0.0).sum(-1)
+
+
+# ----- networks, devices, seeds -----
+
+def mlp(n_in: int, hidden: Sequence[int], n_out: int, out_gain: float = 1.0) -> nn.Sequential:
+    """A ReLU MLP with orthogonal initialisation (CleanRL's choice); ``out_gain`` scales the last layer."""
+    layers: list[nn.Module] = []
+    sizes = [n_in, *hidden]
+    for a, b in itertools.pairwise(sizes):
+        layers += [_init(nn.Linear(a, b), np.sqrt(2)), nn.ReLU()]
+    layers.append(_init(nn.Linear(sizes[-1], n_out), out_gain))
+    return nn.Sequential(*layers)
+
+
+def _init(layer: nn.Linear, gain: float) -> nn.Linear:
+    nn.init.orthogonal_(layer.weight, gain)
+    nn.init.zeros_(layer.bias)
+    return layer
+
+
+def resolve_device(name: str) -> torch.device:
+    """``cpu`` (default) or ``cuda``; cuda only when asked for and available (else a warning and the CPU)."""
+    if name not in ("cpu", "cuda") and not name.startswith("cuda:"):
+        raise ValueError(f"device must be 'cpu' or 'cuda', not {name!r}")
+    if name.startswith("cuda") and not torch.cuda.is_available():
+        warnings.warn("CUDA is not available: running on the CPU", stacklevel=2)
+        return torch.device("cpu")
+    return torch.device(name)
+
+
+def seed_everything(seed: int) -> None:
+    """Seed Python, NumPy and torch (weights initialisation); the agents keep their own generators."""
+    random.seed(seed)
+    np.random.seed(seed)
+    torch.manual_seed(seed)
+
+
+def polyak(target: nn.Module, online: nn.Module, tau: float) -> None:
+    """target <- tau * online + (1 - tau) * target (tau = 1 is a hard copy)."""
+    with torch.no_grad():
+        for t, o in zip(target.parameters(), online.parameters(), strict=True):
+            t.lerp_(o, tau)

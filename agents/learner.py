@@ -1,0 +1,222 @@
+"""The part every learning agent shares: decision tracking, parameter sharing, checkpoints.
+
+An agent only acts when it has a task (``task[0] == 1``); the steps in between are no-ops whose action
+the environment ignores. A learner therefore sees each agent as a semi-MDP over its own decisions: the
+transition opened at a decision is closed at the agent's next decision, carrying the rewards received
+in between (discounted per environment step) and the discount gamma^k to bootstrap with, k being the
+number of steps it lasted. At the end of an episode an open transition is closed as terminal when the
+agent terminated, or bootstraps from the final observation when truncated with a task in it; truncated
+without a task there is no decision state to bootstrap from, and it is closed as terminal too.
+
+With ``shared=True`` one network serves every agent: the spaces must be uniform (pass
+``uniform_spaces=True`` to the environment) and the agent's one-hot id is appended to its features.
+"""
+
+from __future__ import annotations
+
+from abc import ABC, abstractmethod
+from collections.abc import Mapping
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import Any, ClassVar
+
+import numpy as np
+import torch
+
+from agents.common import (
+    Action,
+    AgentSpec,
+    Observation,
+    flat_dim,
+    flatten_one,
+    has_decision,
+    one_hot,
+    resolve_device,
+    specs_of,
+)
+
+SHARED = "shared"  # the group name of the network every agent uses when parameters are shared
+
+
+@dataclass
+class LearnerConfig:
+    """Settings common to every learner."""
+
+    gamma: float = 0.99  # discount per environment step
+    reward_scale: float = 1e-3  # the paper reward is in the hundreds to thousands; keep targets near 1
+    hidden: tuple[int, ...] = (128, 128)
+    lr: float = 5e-4
+    shared: bool = False  # one network for all agents (needs uniform spaces), agent id appended
+    seed: int = 0
+
+
+@dataclass
+class Pending:
+    """An agent's open transition: its last decision and what happened since."""
+
+    features: np.ndarray
+    mask: np.ndarray
+    action: int
+    extras: dict[str, Any] = field(default_factory=dict)  # what the learner stored when acting (log-prob ...)
+    reward: float = 0.0  # scaled, discounted sum of the rewards since the decision
+    discount: float = 1.0  # gamma ** (steps since the decision)
+
+
+@dataclass
+class Closed:
+    """A transition closed at the agent's next decision or at the end of the episode."""
+
+    agent: str
+    pending: Pending
+    next_obs: Observation | None  # None: nothing to bootstrap from
+    discount: float  # to apply to the next state's value (0 when terminal)
+    last: bool  # closed by the end of the episode: the agent's next transition starts a new one
+
+
+class Learner(ABC):
+    """A policy that learns: ``explore`` while training, ``observe`` the outcome, ``act`` to evaluate."""
+
+    name: ClassVar[str]
+    Config: ClassVar[type[LearnerConfig]]
+
+    def __init__(self, specs: Mapping[str, AgentSpec], config: LearnerConfig | None = None,
+                 device: str = "cpu") -> None:
+        self.specs = dict(specs)
+        self.agents = list(self.specs)
+        self.config = config if config is not None else self.Config()
+        self.device = resolve_device(device)
+        self.index = {a: i for i, a in enumerate(self.agents)}
+        if self.config.shared and len(set(self.specs.values())) > 1:
+            raise ValueError("shared parameters need every agent to have the same spaces: "
+                             "create the environment with uniform_spaces=True")
+        self.group = {a: SHARED if self.config.shared else a for a in self.agents}
+        self.pending: dict[str, Pending] = {}
+        self.env_steps = 0  # environment steps observed while training
+        self.total_steps = 1  # the training horizon, for schedules (set by start_training)
+        self.rng = np.random.default_rng(self.config.seed)
+        self.generator = torch.Generator(device=self.device).manual_seed(self.config.seed)
+        torch.manual_seed(self.config.seed)  # network initialisation
+
+    @classmethod
+    def for_env(cls, env: Any, config: LearnerConfig | None = None, device: str = "cpu") -> Learner:
+        """A learner for every possible agent of a PettingZoo parallel environment."""
+        return cls(specs_of(env), config, device)
+
+    # ----- features -----
+
+    def input_dim(self, group: str) -> int:
+        spec = self.specs[self.agents[0] if group == SHARED else group]
+        return flat_dim(spec.slots) + (len(self.agents) if group == SHARED else 0)
+
+    def n_actions(self, group: str) -> int:
+        return self.specs[self.agents[0] if group == SHARED else group].n_actions
+
+    def groups(self) -> list[str]:
+        return [SHARED] if self.config.shared else list(self.agents)
+
+    def features(self, agent: str, obs: Observation) -> np.ndarray:
+        x = flatten_one(obs)
+        return np.concatenate([x, one_hot(self.index[agent], len(self.agents))]) if self.config.shared else x
+
+    # ----- acting -----
+
+    def reset(self, seed: int | None = None) -> None:
+        """Start an episode: forget open transitions (an unfinished episode's are dropped), reseed sampling."""
+        self.pending.clear()
+        if seed is not None:
+            self.rng = np.random.default_rng(seed)
+            self.generator.manual_seed(seed)
+
+    def act(self, observations: Mapping[str, Observation]) -> dict[str, Action]:
+        """The evaluation policy (greedy for DDQN, the learnt distribution for actor-critics)."""
+        return self._decide(observations, explore=False)
+
+    def explore(self, observations: Mapping[str, Observation]) -> dict[str, Action]:
+        """The behaviour policy while training; opens a transition for every agent that decides."""
+        return self._decide(observations, explore=True)
+
+    def _decide(self, observations: Mapping[str, Observation], explore: bool) -> dict[str, Action]:
+        actions: dict[str, Action] = {a: int(np.flatnonzero(o["action_mask"])[0]) for a, o in observations.items()}
+        by_group: dict[str, list[str]] = {}
+        for agent, obs in observations.items():
+            if has_decision(obs):
+                by_group.setdefault(self.group[agent], []).append(agent)
+        for group, agents in by_group.items():
+            feats = np.stack([self.features(a, observations[a]) for a in agents])
+            masks = np.stack([np.asarray(observations[a]["action_mask"], dtype=bool) for a in agents])
+            chosen, extras = self.choose(group, agents, feats, masks, observations, explore)
+            for i, agent in enumerate(agents):
+                actions[agent] = int(chosen[i])
+                if explore:
+                    if agent in self.pending:
+                        raise RuntimeError(f"{agent}: explore() called twice without observe() in between")
+                    self.pending[agent] = Pending(feats[i], masks[i], int(chosen[i]),
+                                                  {k: v[i] for k, v in extras.items()})
+        return actions
+
+    @abstractmethod
+    def choose(self, group: str, agents: list[str], feats: np.ndarray, masks: np.ndarray,
+               observations: Mapping[str, Observation], explore: bool) -> tuple[np.ndarray, dict[str, np.ndarray]]:
+        """Actions for the deciding agents of one group, and per-agent extras to keep with the decision."""
+
+    # ----- learning -----
+
+    def start_training(self, total_steps: int) -> None:
+        """Set the horizon (environment steps) that the exploration and learning-rate schedules span."""
+        self.total_steps = max(1, int(total_steps))
+
+    def observe(self, rewards: Mapping[str, float], next_observations: Mapping[str, Observation],
+                terminations: Mapping[str, bool], truncations: Mapping[str, bool]) -> None:
+        """Feed back one environment step; closes transitions and learns when the learner's schedule says so."""
+        gamma = self.config.gamma
+        closed: list[Closed] = []
+        for agent, reward in rewards.items():
+            p = self.pending.get(agent)
+            if p is None:
+                continue
+            p.reward += p.discount * float(reward) * self.config.reward_scale
+            p.discount *= gamma
+            nxt = next_observations.get(agent)
+            can_bootstrap = nxt is not None and has_decision(nxt) and not terminations.get(agent, False)
+            if terminations.get(agent, False) or truncations.get(agent, False):
+                closed.append(Closed(agent, p, nxt if can_bootstrap else None, p.discount if can_bootstrap else 0.0,
+                                     last=True))
+            elif can_bootstrap:
+                closed.append(Closed(agent, p, nxt, p.discount, last=False))
+        for c in closed:
+            del self.pending[c.agent]
+        self.env_steps += 1
+        self.learn(closed, next_observations)
+
+    @abstractmethod
+    def learn(self, closed: list[Closed], next_observations: Mapping[str, Observation]) -> None:
+        """Store the transitions closed at this step and update the networks when due."""
+
+    @abstractmethod
+    def stats(self) -> dict[str, float]:
+        """Training diagnostics for the log (always the same keys; NaN when not yet available)."""
+
+    # ----- checkpoints -----
+
+    @abstractmethod
+    def state_dict(self) -> dict[str, Any]:
+        """Networks, optimisers and counters."""
+
+    @abstractmethod
+    def load_state_dict(self, state: dict[str, Any]) -> None: ...
+
+    def save(self, path: str | Path) -> None:
+        """Write a checkpoint: algorithm, config, agent specs and weights (not the replay buffer)."""
+        torch.save({"algo": self.name, "config": asdict(self.config),
+                    "specs": {a: asdict(s) for a, s in self.specs.items()}, "state": self.state_dict()}, path)
+
+    @classmethod
+    def load(cls, path: str | Path, device: str = "cpu") -> Learner:
+        """Rebuild a learner from ``save``'s checkpoint, ready to act or to go on training."""
+        ckpt = torch.load(path, map_location="cpu", weights_only=True)
+        if ckpt["algo"] != cls.name:
+            raise ValueError(f"{path} is a {ckpt['algo']} checkpoint, not {cls.name}")
+        config = cls.Config(**{**ckpt["config"], "hidden": tuple(ckpt["config"]["hidden"])})
+        learner = cls({a: AgentSpec(**s) for a, s in ckpt["specs"].items()}, config, device)
+        learner.load_state_dict(ckpt["state"])
+        return learner

@@ -1,0 +1,208 @@
+"""Rollouts, advantages and networks shared by the on-policy actor-critics (A2C and PPO).
+
+Every ``rollout_steps`` environment steps the transitions closed since the last update are turned into
+advantages, per agent and in time order, with GAE over the agent's own decisions:
+
+    delta_k = r_k + g_k V(s_{k+1}) - V(s_k),    A_k = delta_k + g_k lambda A_{k+1}
+
+where g_k = gamma^(steps between the two decisions), 0 when terminal. The recursion stops at the end of
+an episode and at the agent's last transition of the rollout, which bootstraps from V of its next
+decision state (computed when the transition closed). lambda = 1 gives A2C's n-step returns
+(Mnih et al. 2016), bootstrapped at the end of the rollout.
+
+``centralised_critic=True`` gives the critic the observations of every agent (MAPPO-style, Yu et al.
+2022) instead of the agent's own; the actor always sees only its own observation.
+"""
+
+from __future__ import annotations
+
+from abc import abstractmethod
+from collections.abc import Mapping
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+import torch
+from torch import nn
+
+from agents.common import AgentSpec, MaskedCategorical, Observation, flat_dim, flatten_one, mlp, one_hot
+from agents.learner import Closed, Learner, LearnerConfig
+
+
+@dataclass
+class ActorCriticConfig(LearnerConfig):
+    rollout_steps: int = 32  # environment steps between updates
+    gae_lambda: float = 1.0
+    ent_coef: float = 0.01
+    vf_coef: float = 0.5
+    max_grad_norm: float = 0.5
+    anneal_lr: bool = False  # decay the learning rate linearly to 0 over the training horizon
+    centralised_critic: bool = False  # the critic sees every agent's observation (MAPPO)
+    sample_eval: bool = True  # act() samples the learnt policy; False: its most likely action
+
+
+class ActorCritic(nn.Module):
+    """Separate actor and critic MLPs (CleanRL's layout); a small last actor layer keeps the first policy
+    close to uniform over the valid actions."""
+
+    def __init__(self, dim: int, critic_dim: int, hidden: tuple[int, ...], n_actions: int) -> None:
+        super().__init__()
+        self.actor = mlp(dim, hidden, n_actions, out_gain=0.01)
+        self.critic = mlp(critic_dim, hidden, 1, out_gain=1.0)
+
+    def value(self, x: torch.Tensor) -> torch.Tensor:
+        return self.critic(x).squeeze(-1)
+
+
+@dataclass
+class Record:
+    """One closed transition, with what the update needs."""
+
+    agent: str
+    features: np.ndarray
+    critic: np.ndarray
+    mask: np.ndarray
+    action: int
+    logp: float
+    value: float
+    reward: float
+    discount: float
+    next_value: float
+    last: bool
+
+
+class OnPolicyLearner(Learner):
+    """Acting with a masked categorical, collecting records, and handing batches to ``update_group``."""
+
+    config: ActorCriticConfig
+    stat_names: tuple[str, ...] = ("policy_loss", "value_loss", "entropy")
+
+    def __init__(self, specs: Mapping[str, AgentSpec], config: ActorCriticConfig | None = None,
+                 device: str = "cpu") -> None:
+        super().__init__(specs, config, device)
+        self.nets = {g: ActorCritic(self.input_dim(g), self.critic_dim(g), self.config.hidden,
+                                    self.n_actions(g)).to(self.device) for g in self.groups()}
+        self.optimizers = {g: torch.optim.Adam(n.parameters(), lr=self.config.lr, eps=1e-5)
+                           for g, n in self.nets.items()}
+        self.rollout: dict[str, list[Record]] = {g: [] for g in self.groups()}
+        self.updates = 0
+        self.last_stats: dict[str, float] = dict.fromkeys(self.stat_names, float("nan"))
+        self._global: tuple[Mapping[str, Observation], np.ndarray] | None = None
+
+    # ----- critic input -----
+
+    def critic_dim(self, group: str) -> int:
+        if not self.config.centralised_critic:
+            return self.input_dim(group)
+        return sum(flat_dim(s.slots) for s in self.specs.values()) + len(self.agents)
+
+    def critic_features(self, agent: str, observations: Mapping[str, Observation]) -> np.ndarray:
+        if not self.config.centralised_critic:
+            return self.features(agent, observations[agent])
+        if self._global is None or self._global[0] is not observations:  # once per step, not per agent
+            parts = [flatten_one(observations[a]) if a in observations else np.zeros(flat_dim(s.slots), np.float32)
+                     for a, s in self.specs.items()]
+            self._global = (observations, np.concatenate(parts))
+        return np.concatenate([self._global[1], one_hot(self.index[agent], len(self.agents))])
+
+    # ----- acting -----
+
+    def choose(self, group: str, agents: list[str], feats: np.ndarray, masks: np.ndarray,
+               observations: Mapping[str, Observation], explore: bool) -> tuple[np.ndarray, dict[str, np.ndarray]]:
+        net = self.nets[group]
+        with torch.no_grad():
+            dist = MaskedCategorical(net.actor(torch.as_tensor(feats, device=self.device)),
+                                     torch.as_tensor(masks, device=self.device))
+            actions = dist.sample(self.generator) if explore or self.config.sample_eval else dist.mode()
+            if not explore:
+                return actions.cpu().numpy(), {}
+            critic = np.stack([self.critic_features(a, observations) for a in agents])
+            value = net.value(torch.as_tensor(critic, device=self.device))
+        return actions.cpu().numpy(), {"logp": dist.log_prob(actions).cpu().numpy(), "value": value.cpu().numpy(),
+                                       "critic": critic}
+
+    # ----- learning -----
+
+    def learn(self, closed: list[Closed], next_observations: Mapping[str, Observation]) -> None:
+        by_group: dict[str, list[Closed]] = {}
+        for c in closed:
+            by_group.setdefault(self.group[c.agent], []).append(c)
+        for group, items in by_group.items():
+            boot = [c for c in items if c.next_obs is not None]
+            next_values = {}
+            if boot:
+                x = np.stack([self.critic_features(c.agent, next_observations) for c in boot])
+                with torch.no_grad():
+                    v = self.nets[group].value(torch.as_tensor(x, device=self.device)).cpu().numpy()
+                next_values = {c.agent: float(vi) for c, vi in zip(boot, v, strict=True)}
+            for c in items:
+                p = c.pending
+                self.rollout[group].append(Record(
+                    c.agent, p.features, p.extras["critic"], p.mask, p.action, float(p.extras["logp"]),
+                    float(p.extras["value"]), p.reward, c.discount, next_values.get(c.agent, 0.0), c.last))
+        if self.env_steps % self.config.rollout_steps == 0:
+            if self.config.anneal_lr:  # the rate at the start of the rollout, so the last one still learns
+                started = self.env_steps - self.config.rollout_steps
+                lr = self.config.lr * max(0.0, 1.0 - started / self.total_steps)
+                for opt in self.optimizers.values():
+                    for pg in opt.param_groups:
+                        pg["lr"] = lr
+            stats = []
+            for group, records in self.rollout.items():
+                if records:
+                    stats.append(self.update_group(group, self.batch(records)))
+                    self.updates += 1
+                    records.clear()
+            if stats:  # averaged over the networks updated (one per agent when independent)
+                self.last_stats = {k: float(np.mean([s[k] for s in stats])) for k in self.stat_names}
+
+    def batch(self, records: list[Record]) -> dict[str, torch.Tensor]:
+        """Tensors of a rollout, with GAE advantages and the critic's targets (returns)."""
+        lam = self.config.gae_lambda
+        adv = np.zeros(len(records), dtype=np.float32)
+        following: dict[str, float] = {}  # advantage of the agent's next record, walking backwards
+        for i in range(len(records) - 1, -1, -1):
+            r = records[i]
+            delta = r.reward + r.discount * r.next_value - r.value
+            cont = 0.0 if r.last else following.get(r.agent, 0.0)
+            adv[i] = following[r.agent] = delta + r.discount * lam * cont
+        values = np.array([r.value for r in records], dtype=np.float32)
+        out = {"obs": np.stack([r.features for r in records]), "critic": np.stack([r.critic for r in records]),
+               "mask": np.stack([r.mask for r in records]), "action": np.array([r.action for r in records]),
+               "logp": np.array([r.logp for r in records], dtype=np.float32), "value": values,
+               "advantage": adv, "return": adv + values}
+        return {k: torch.as_tensor(v, device=self.device) for k, v in out.items()}
+
+    def evaluate_actions(self, group: str, b: dict[str, torch.Tensor], idx: torch.Tensor | slice = slice(None)
+                         ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        """Log-probabilities of the taken actions, entropies and values under the current networks."""
+        net = self.nets[group]
+        dist = MaskedCategorical(net.actor(b["obs"][idx]), b["mask"][idx])
+        return dist.log_prob(b["action"][idx]), dist.entropy(), net.value(b["critic"][idx])
+
+    def step_optimizer(self, group: str, loss: torch.Tensor) -> None:
+        opt = self.optimizers[group]
+        opt.zero_grad()
+        loss.backward()
+        nn.utils.clip_grad_norm_(self.nets[group].parameters(), self.config.max_grad_norm)
+        opt.step()
+
+    @abstractmethod
+    def update_group(self, group: str, b: dict[str, torch.Tensor]) -> dict[str, float]:
+        """Learn from one group's rollout; returns the values of ``stat_names``."""
+
+    def stats(self) -> dict[str, float]:
+        return {**self.last_stats, "updates": float(self.updates)}
+
+    # ----- checkpoints -----
+
+    def state_dict(self) -> dict[str, Any]:
+        return {"env_steps": self.env_steps, "total_steps": self.total_steps, "updates": self.updates,
+                "nets": {g: n.state_dict() for g, n in self.nets.items()},
+                "optimizers": {g: o.state_dict() for g, o in self.optimizers.items()}}
+
+    def load_state_dict(self, state: dict[str, Any]) -> None:
+        self.env_steps, self.total_steps, self.updates = state["env_steps"], state["total_steps"], state["updates"]
+        for g, s in state["nets"].items():
+            self.nets[g].load_state_dict(s)
+            self.optimizers[g].load_state_dict(state["optimizers"][g])

@@ -1,0 +1,49 @@
+"""Train one learning agent and save its checkpoint and per-episode log.
+
+    python -m experiments.train ddqn --scenario aot2 --lam 0.17 --episodes 50 --out runs/ddqn-aot2
+    python -m experiments.train ppo --episodes 100 --set ppo.centralised_critic=true --out runs/mappo
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import json
+from collections.abc import Sequence
+from contextlib import nullcontext
+from pathlib import Path
+
+from agents import LEARNERS, train
+from agents.training import progress_bar
+from experiments.common import add_env_arguments, add_learner_arguments, learner_config, make_env, set_threads
+
+
+def main(argv: Sequence[str] | None = None) -> None:
+    p = argparse.ArgumentParser(prog="python -m experiments.train", description=__doc__.splitlines()[0])
+    p.add_argument("algo", choices=list(LEARNERS))
+    p.add_argument("--episodes", type=int, default=50, help="training episodes (default 50)")
+    p.add_argument("--out", type=Path, default=None, help="output directory (default runs/<algo>-<scenario>)")
+    add_env_arguments(p)
+    add_learner_arguments(p)
+    args = p.parse_args(argv)
+    set_threads(args.threads)
+    out = args.out or Path("runs") / f"{args.algo}-{Path(args.scenario).stem}"
+    out.mkdir(parents=True, exist_ok=True)
+    config = learner_config(args.algo, seed=args.seed, hidden=args.hidden, overrides=args.overrides)
+    env = make_env(args.scenario, args.lam, args.max_steps, args.reward, args.transport, args.seed)
+    learner = LEARNERS[args.algo].for_env(env, config, args.device)
+    (out / "config.json").write_text(json.dumps({"algo": args.algo, "scenario": args.scenario, "lambda": args.lam,
+                                                 "max_steps": env.max_steps, "reward": args.reward,
+                                                 "episodes": args.episodes, "config": dataclasses.asdict(config)},
+                                                indent=1))
+    progress = progress_bar() if args.progress else None
+    with progress or nullcontext():
+        train(env, learner, args.episodes, seed=args.seed * args.episodes, csv_path=out / "train.csv",
+              progress=progress, label=f"train {args.algo}")
+    env.close()
+    learner.save(out / f"{args.algo}.pt")
+    print(f"wrote {out / 'train.csv'} and {out / f'{args.algo}.pt'}")
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,249 @@
+"""Agents: masks respected, double-DQN targets, semi-MDP transitions, GAE, learning, checkpoints."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import torch
+import torch.nn.functional as F
+
+from agents import BASELINES, DDQN, PPO, A2CConfig, DDQNConfig, PPOConfig, evaluate, load_learner, make_policy, train
+from agents.a2c import A2C
+from agents.common import AgentSpec, MaskedCategorical, flat_dim, flatten_one, masked_argmax
+from agents.ddqn import td_target
+from agents.onpolicy import Record
+from env import ZenohEdgeEnv
+
+# A slow task source beside a fast idle worker over a fast link: offloading is clearly the better choice.
+SLOW_FAST = {
+    "name": "slow_fast",
+    "simulation": {"steps": 100},
+    "workload": {"arrival": {"rate": 0.3},
+                 "tasks": [{"instructions": 5.0e6, "input_bytes": 1.0e5, "output_bytes": 1.0e5, "deadline": 60.0}]},
+    "topology": {"nodes": [{"id": "slow", "client": True, "controller": True, "frequency": 1.0e6, "buffer": 10},
+                           {"id": "fast", "frequency": 2.0e7, "buffer": 20}],
+                 "links": [{"between": ["slow", "fast"], "rate_bps": 1.0e9}]},
+}
+
+
+def mean_response(rows: list[dict]) -> float:
+    return float(np.mean([r["response_time_mean"] for r in rows]))
+
+
+def check_valid(obs: dict, actions: dict) -> int:
+    """Assert every action is allowed by its mask; return how many real choices (>1 valid action) there were."""
+    choices = 0
+    for agent, o in obs.items():
+        mask = o["action_mask"]
+        masks, acts = ([mask], [actions[agent]]) if isinstance(mask, np.ndarray) else (list(mask), actions[agent])
+        assert len(acts) == len(masks), agent
+        for m, a in zip(masks, acts, strict=True):
+            assert m[int(a)] == 1, (agent, a, m)
+        choices += sum(int(m.sum() > 1) for m in masks)
+    return choices
+
+
+# ----- baselines -----
+
+@pytest.mark.parametrize("scenario", ["aot1", "aot2", "aot3", "aot4", "batch"])
+def test_baselines_pick_only_valid_actions(scenario):
+    kwargs = {"mode": "batch", "batch_size": 3} if scenario == "batch" else {}
+    env = ZenohEdgeEnv("aot2" if scenario == "batch" else scenario, transport="inproc", max_steps=25,
+                       arrival_rate=0.6, **kwargs)
+    for name, cls in BASELINES.items():
+        policy = cls(seed=1)
+        obs, _ = env.reset(seed=3)
+        policy.reset(3)
+        choices, offloads = 0, 0
+        while env.agents:
+            actions = policy.act(obs)
+            choices += check_valid(obs, actions)
+            offloads += sum(np.count_nonzero(a) for a in actions.values())
+            obs, *_ = env.step(actions)  # the env raises InvalidActionError on a masked action too
+        assert choices > 0, name
+        if name == "local":
+            assert offloads == 0
+        elif name != "greedy":  # greedy keeps the AoT tasks local: 80 s of transfer beat no queue
+            assert offloads > 0, name
+    env.close()
+
+
+def test_least_queue_and_greedy_choose_as_documented():
+    obs = {"own": np.array([2, 3, 10, 0.004, 0, 1], np.float32),
+           "task": np.array([1, 0.08, 1.0, 1.0, 1, 50, 0], np.float32),
+           # present, queue, occupancy, buffer, capacity, tier, rate, age
+           "neighbours": np.array([[1, 2, 2, 10, 0.1, 1, 8.0, 1],  # same queue as local: tie -> local
+                                   [1, 4, 10, 10, 1.0, 2, 800.0, 1],  # fastest but full
+                                   [1, 5, 5, 20, 0.1, 1, 800.0, 1]], np.float32),
+           "action_mask": np.array([1, 1, 1, 1], np.int8)}
+    assert BASELINES["least_queue"]().act({"a": obs}) == {"a": 0}
+    # greedy: local (2 + 1) * 0.08e9 / 4e6 = 60 s; n1: 2 s transfer + 3 * 0.8 s; n2 full; n3: 0.02 s + 6 * 0.8 s
+    assert BASELINES["greedy"]().act({"a": obs}) == {"a": 1}
+    obs["neighbours"][0, 0] = 0
+    obs["action_mask"] = np.array([1, 0, 1, 1], np.int8)
+    assert BASELINES["greedy"]().act({"a": obs}) == {"a": 3}
+    rr = BASELINES["round_robin"]()
+    assert [rr.act({"a": obs})["a"] for _ in range(4)] == [0, 2, 3, 0]
+
+
+# ----- common pieces -----
+
+def test_masked_distribution_and_argmax_never_pick_masked_actions():
+    logits = torch.tensor([[5.0, 9.0, 1.0], [0.0, 0.0, 0.0]])
+    mask = torch.tensor([[True, False, True], [False, True, False]])
+    assert masked_argmax(logits, mask).tolist() == [0, 1]
+    dist = MaskedCategorical(logits, mask)
+    draws = torch.stack([dist.sample(torch.Generator().manual_seed(s)) for s in range(50)])
+    assert mask.gather(1, draws.T).all()
+    assert torch.isfinite(dist.entropy()).all() and dist.entropy()[1] == 0
+    e4 = float(np.exp(4))
+    assert dist.probs[0].tolist() == pytest.approx([e4 / (1 + e4), 0.0, 1 / (1 + e4)])
+
+
+def test_flatten_has_the_documented_size_and_finite_values():
+    env = ZenohEdgeEnv("aot2", transport="inproc", max_steps=30, uniform_spaces=True, arrival_rate=0.5)
+    obs, _ = env.reset(seed=0)
+    slots = env.observation_space(env.possible_agents[0])["neighbours"].shape[0]
+    for _ in range(30):
+        for o in obs.values():
+            x = flatten_one(o)
+            assert x.shape == (flat_dim(slots),) and np.isfinite(x).all() and np.abs(x).max() < 20
+        obs, *_ = env.step(BASELINES["random"](0).act(obs))
+    env.close()
+
+
+# ----- DDQN -----
+
+def constant_q(net: torch.nn.Sequential, values: list[float]) -> None:
+    """Make a Q-network output ``values`` whatever its input."""
+    with torch.no_grad():
+        net[-1].weight.zero_()
+        net[-1].bias.copy_(torch.tensor(values))
+
+
+def test_ddqn_target_is_double_dqn():
+    ddqn = DDQN({"a": AgentSpec(slots=2, n_actions=3)}, DDQNConfig(hidden=(8,), gamma=0.9, lr=0.0, batch_size=2,
+                                                                  learning_starts=1))
+    net = ddqn.nets["a"]
+    constant_q(net.online, [1.0, 5.0, 3.0])  # the online network prefers action 1, then 2
+    constant_q(net.target, [10.0, 2.0, 7.0])  # the target network values action 0 highest
+    x = torch.zeros(2, flat_dim(2))
+    reward, discount = torch.tensor([1.0, 1.0]), torch.tensor([0.9, 0.9])
+    next_mask = torch.tensor([[True, True, True], [True, False, True]])
+    double = td_target(net.online, net.target, reward, discount, x, next_mask, double=True)
+    vanilla = td_target(net.online, net.target, reward, discount, x, next_mask, double=False)
+    # double: online argmax -> 1 (all valid) and 2 (1 masked); the target network values them 2 and 7
+    assert double.tolist() == pytest.approx([1 + 0.9 * 2.0, 1 + 0.9 * 7.0])
+    # vanilla: max of the target network over the valid actions -> 10 for both
+    assert vanilla.tolist() == pytest.approx([1 + 0.9 * 10.0, 1 + 0.9 * 10.0])
+    # and the learner's update uses the double target: Huber(Q_online(s, a) = 5, y) with lr = 0
+    for m in next_mask.numpy():
+        net.buffer.add(np.zeros(flat_dim(2), np.float32), np.ones(3, bool), 1, 1.0, 0.9, np.zeros(flat_dim(2)), m)
+    ddqn.rng = np.random.default_rng(0)
+    idx = np.random.default_rng(0).integers(2, size=2)
+    expected = F.smooth_l1_loss(torch.full((2,), 5.0), double[torch.as_tensor(idx)]).item()
+    ddqn.update(net)
+    assert ddqn.last_loss == pytest.approx(expected)
+
+
+def obs_of(task: bool, queue: float = 0.0) -> dict:
+    return {"own": np.array([queue, queue, 5, 0.01, 0, 0], np.float32),
+            "task": np.array([1, 0.01, 0.1, 0.1, 1, 30, 0] if task else [0] * 7, np.float32),
+            "neighbours": np.array([[1, 0, 0, 5, 0.02, 1, 100, 1]], np.float32),
+            "action_mask": np.array([1, 1] if task else [1, 0], np.int8)}
+
+
+def test_transitions_span_from_one_decision_to_the_next():
+    """Steps without a task are no-ops: their rewards accrue (discounted) to the open transition."""
+    ddqn = DDQN({"a": AgentSpec(1, 2)}, DDQNConfig(hidden=(8,), gamma=0.5, reward_scale=1.0, learning_starts=100))
+    buf = ddqn.nets["a"].buffer
+    ddqn.explore({"a": obs_of(True)})
+    ddqn.observe({"a": 1.0}, {"a": obs_of(False)}, {"a": False}, {"a": False})
+    assert ddqn.explore({"a": obs_of(False)}) == {"a": 0} and len(buf) == 0
+    ddqn.observe({"a": 2.0}, {"a": obs_of(True, queue=3)}, {"a": False}, {"a": False})
+    assert len(buf) == 1
+    assert buf.reward[0] == pytest.approx(1.0 + 0.5 * 2.0) and buf.discount[0] == pytest.approx(0.25)
+    assert np.array_equal(buf.next_obs[0], flatten_one(obs_of(True, queue=3)))
+    ddqn.explore({"a": obs_of(True, queue=3)})  # truncated with a task in the final observation: bootstrap
+    ddqn.observe({"a": 4.0}, {"a": obs_of(True)}, {"a": False}, {"a": True})
+    assert buf.reward[1] == pytest.approx(4.0) and buf.discount[1] == pytest.approx(0.5)
+    ddqn.explore({"a": obs_of(True)})  # terminated: no bootstrap
+    ddqn.observe({"a": 8.0}, {"a": obs_of(True)}, {"a": True}, {"a": False})
+    assert buf.reward[2] == pytest.approx(8.0) and buf.discount[2] == 0.0 and not ddqn.pending
+
+
+def test_gae_follows_each_agents_own_decisions():
+    a2c = A2C({"a": AgentSpec(1, 2), "b": AgentSpec(1, 2)}, A2CConfig(hidden=(8,), gae_lambda=0.5))
+    z = np.zeros(1, np.float32)
+
+    def rec(agent, value, reward, discount, next_value, last=False):
+        return Record(agent, z, z, np.ones(2, bool), 0, 0.0, value, reward, discount, next_value, last)
+
+    records = [rec("a", 1.0, 1.0, 0.9, 2.0), rec("b", 0.0, 5.0, 0.8, 1.0, last=True), rec("a", 2.0, 0.5, 0.9, 3.0),
+               rec("b", 1.0, 1.0, 0.8, 0.0)]
+    adv = a2c.batch(records)["advantage"].numpy()
+    d_a2 = 0.5 + 0.9 * 3.0 - 2.0
+    d_b2 = 1.0 + 0.8 * 0.0 - 1.0
+    d_b1 = 5.0 + 0.8 * 1.0 - 0.0  # last of its episode: does not continue into b's next record
+    d_a1 = 1.0 + 0.9 * 2.0 - 1.0
+    assert adv.tolist() == pytest.approx([d_a1 + 0.9 * 0.5 * d_a2, d_b1, d_a2, d_b2])
+
+
+def test_shared_parameters_need_uniform_spaces():
+    env = ZenohEdgeEnv("aot1", transport="inproc", max_steps=5)
+    with pytest.raises(ValueError, match="uniform_spaces=True"):
+        PPO.for_env(env)
+    env.close()
+
+
+# ----- learning on a scenario whose best action is known -----
+
+@pytest.fixture(scope="module")
+def slow_fast():
+    env = ZenohEdgeEnv(SLOW_FAST, transport="inproc")
+    yield env
+    env.close()
+
+
+def test_offloading_is_the_better_action_on_slow_fast(slow_fast):
+    local = mean_response(evaluate(slow_fast, BASELINES["local"](), 2))
+    offload = mean_response(evaluate(slow_fast, BASELINES["least_queue"](), 2))  # the idle fast node
+    assert offload < 0.5 * local
+
+
+@pytest.mark.parametrize("algo", ["ddqn", "ppo"])
+def test_learners_beat_random_where_offloading_is_best(slow_fast, algo):
+    torch.set_num_threads(1)
+    common = {"hidden": (32,), "gamma": 0.9, "reward_scale": 1e-2, "seed": 0}
+    config = (DDQNConfig(lr=1e-3, learning_starts=16, batch_size=16, target_update_interval=50, **common)
+              if algo == "ddqn" else PPOConfig(lr=3e-3, rollout_steps=25, **common))
+    learner = make_policy(algo, slow_fast, config)
+    train(slow_fast, learner, 3)  # 300 steps, about 90 decisions
+    random = mean_response(evaluate(slow_fast, BASELINES["random"](0), 3))
+    learnt = mean_response(evaluate(slow_fast, learner, 3))
+    assert learnt < 0.8 * random, (learnt, random)
+
+
+# ----- checkpoints -----
+
+@pytest.mark.parametrize("algo,config", [("ddqn", DDQNConfig(learning_starts=8, batch_size=8)),
+                                         ("a2c", A2CConfig(rollout_steps=8)),
+                                         ("ppo", PPOConfig(rollout_steps=16, centralised_critic=True))])
+def test_checkpoint_round_trip_gives_the_same_actions(tmp_path, algo, config):
+    env = ZenohEdgeEnv("aot1", transport="inproc", max_steps=40, arrival_rate=0.5, uniform_spaces=config.shared)
+    learner = make_policy(algo, env, config)
+    train(env, learner, 1)
+    learner.save(tmp_path / "ckpt.pt")
+    loaded = load_learner(tmp_path / "ckpt.pt")
+    assert type(loaded) is type(learner) and loaded.config == learner.config and loaded.env_steps == 40
+    obs, _ = env.reset(seed=7)
+    compared = 0
+    while env.agents:
+        learner.reset(11)
+        loaded.reset(11)
+        actions = learner.act(obs)
+        assert loaded.act(obs) == actions
+        compared += sum(int(o["task"][0]) for o in obs.values())
+        obs, *_ = env.step(actions)
+    assert compared > 10
+    env.close()
