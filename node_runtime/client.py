@@ -69,7 +69,7 @@ class Client(Role):
             task = Task(self.task_id(), me, t, instructions, in_bytes, out_bytes, cpi, deadline)
             st.generated += 1
             out.emit("created", me, task=task.id, instructions=instructions, input_bytes=in_bytes,
-                     output_bytes=out_bytes, deadline=deadline)
+                     output_bytes=out_bytes, cpi=cpi, deadline=deadline)
             if self.local:
                 out.send(Kind.TASK, role_id("worker", me), task)
                 continue

@@ -11,10 +11,10 @@ from __future__ import annotations
 import traceback
 from collections import defaultdict
 
-from node_runtime.host import EVENT_KINDS, Host
+from node_runtime.host import Host
 from node_runtime.keys import Keys
 from node_runtime.protocol import Batch, Done, Tick
-from node_runtime.transport import Transport
+from node_runtime.transport import Monitored, Transport
 
 
 class HostDriver:
@@ -29,8 +29,9 @@ class HostDriver:
         self.stopped = False
         self.failed: str | None = None
         self.buffer: defaultdict[tuple[int, int], list[Batch]] = defaultdict(list)
-        self.monitors = {(kind, node): transport.monitored(keys.events(kind, node))
-                         for node in host.nodes for kind in EVENT_KINDS}
+        # one detector per node covers every event kind, users' own included; publishers come lazily
+        self.listeners = [transport.monitored(keys.events("*", node)) for node in host.nodes]
+        self.monitors: dict[tuple[str, str], Monitored] = {}
         transport.subscribe(keys.tick(), self.on_tick)
         transport.subscribe(keys.inbox(self.proc), self.on_batch)
         for topic in host.routing.topics_of(self.proc):
@@ -72,7 +73,7 @@ class HostDriver:
 
     def run(self, cmd: Tick) -> None:
         t = cmd.tick
-        self.host.events_on = any(m.listened for m in self.monitors.values())
+        self.host.events_on = any(m.listened for m in self.listeners)
         try:
             out = self.host.run(t, cmd.actions)
         except Exception as exc:  # report, then stop: the orchestrator names this process
@@ -87,8 +88,9 @@ class HostDriver:
         self.transport.publish(self.keys.done(self.proc), out.done)
         for kind, node, fields in out.events:  # best effort: monitors never slow the emulation down
             monitor = self.monitors.get((kind, node))
-            if monitor is None:  # an event kind of a user extension
+            fresh = monitor is None  # a new publisher may not have heard of its subscribers yet
+            if fresh:
                 monitor = self.monitors[(kind, node)] = self.transport.monitored(self.keys.events(kind, node))
-            if monitor.listened:
+            if fresh or monitor.listened:
                 monitor.put({"type": "event", "kind": kind, "node": node, "episode": self.episode, "tick": t,
                              **fields})

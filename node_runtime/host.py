@@ -26,9 +26,6 @@ ROLE_TYPES: dict[str, type[Role]] = {"worker": Worker, "client": Client, "contro
 CARRIES_TASK = (Kind.TASK, Kind.RESULT)
 
 
-EVENT_KINDS = ("created", "completed", "dropped", "offloaded", "overload", "failure")
-
-
 @dataclass(slots=True)
 class Outgoing:
     batches: dict[str, list[Envelope]]  # destination process -> envelopes

@@ -14,19 +14,20 @@ from typing import Any
 from node_runtime.transport import Handler, Monitored, TokenHandler, Transport, TransportError
 
 
-def key_matches(expr: str, key: str) -> bool:
-    """Zenoh key-expression matching for ``*`` (one chunk) and ``**`` (any number of chunks)."""
-    return _match(expr.split("/"), key.split("/"))
+def key_matches(a: str, b: str) -> bool:
+    """Whether two Zenoh key expressions intersect, with ``*`` (one chunk) and ``**`` (any number of
+    chunks) on either side: a subscription and a key, or a wildcard publisher used to detect listeners."""
+    return _intersect(tuple(a.split("/")), tuple(b.split("/")))
 
 
-def _match(e: list[str], k: list[str]) -> bool:
-    if not e:
-        return not k
-    if e[0] == "**":
-        return any(_match(e[1:], k[i:]) for i in range(len(k) + 1))
-    if not k:
-        return False
-    return (e[0] == "*" or e[0] == k[0]) and _match(e[1:], k[1:])
+def _intersect(a: tuple[str, ...], b: tuple[str, ...]) -> bool:
+    if not a or not b:
+        return all(c == "**" for c in a + b)
+    if a[0] == "**":
+        return _intersect(a[1:], b) or _intersect(a, b[1:])
+    if b[0] == "**":
+        return _intersect(a, b[1:]) or _intersect(a[1:], b)
+    return (a[0] == b[0] or a[0] == "*" or b[0] == "*") and _intersect(a[1:], b[1:])
 
 
 class InprocBus:

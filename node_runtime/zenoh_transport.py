@@ -79,8 +79,9 @@ class ZenohTransport(Transport):
         self._closed = False
 
     @classmethod
-    def router(cls, endpoint: str) -> ZenohTransport:
-        return cls(zenoh_config("router", listen=[endpoint]))
+    def router(cls, endpoint: str, connect: list[str] | None = None) -> ZenohTransport:
+        """A router listening on ``endpoint``; ``connect``: other routers to join into one network."""
+        return cls(zenoh_config("router", listen=[endpoint], connect=connect))
 
     @classmethod
     def client(cls, endpoint: str) -> ZenohTransport:
@@ -133,9 +134,9 @@ class ZenohTransport(Transport):
     def serve(self, key: str, handler: Callable[[Any], Any]) -> None:
         """Answer requests on ``key`` with ``handler(message)``. The handler runs in a Zenoh thread."""
 
-        def on_query(query: zenoh.Query) -> None:
+        def on_query(query: zenoh.Query) -> None:  # answer on our own key: a wildcard query learns who answered
             message = codec.decode(query.payload.to_bytes()) if query.payload is not None else None
-            query.reply(query.key_expr, codec.encode(handler(message)))
+            query.reply(key, codec.encode(handler(message)))
 
         self._entities.append(self.session.declare_queryable(key, on_query))
 

@@ -2,6 +2,7 @@
 
     orchestrator launch topologies/aot2.yaml            # run a scenario over Zenoh processes
     orchestrator validate my_scenario.yaml              # check a scenario file
+    orchestrator monitor                                # live dashboard of a running simulation
     orchestrator topology aot2 --png aot2.png           # draw a scenario's network
     orchestrator plot runs/aot2-20261123-101500         # time-series PNGs of a finished run
     orchestrator bench                                  # ticks/s against a bare Zenoh barrier
@@ -28,6 +29,7 @@ from rich.table import Table
 from node_runtime.keys import CHUNK, new_sim_id
 from node_runtime.policies import POLICIES
 from node_runtime.routing import LAYOUTS, Routing
+from orchestrator import monitor
 from orchestrator.clock import ClockError
 from orchestrator.metrics import ConservationError, TickReport
 from orchestrator.placement import load_placement
@@ -87,7 +89,7 @@ def cmd_launch(args: argparse.Namespace) -> int:
 
     t0 = time.perf_counter()
     with Simulation(scenario, transport=args.transport, layout=layout, timeout=args.timeout, listen_host=host,
-                    port=port, sim_id=sim_id, placement=placement, on_waiting=waiting) as sim:
+                    port=port, sim_id=sim_id, placement=placement, on_waiting=waiting, join=args.connect) as sim:
         if args.transport == "zenoh":
             console.print(f"router {sim.endpoint}, simulation id [bold]{sim.keys.sim_id}[/], "
                           f"{len(sim.routing.procs)} processes ready in {sim.startup_s:.2f} s")
@@ -106,8 +108,7 @@ def cmd_launch(args: argparse.Namespace) -> int:
                 Console(highlight=False).print(summary_table(summary))
             console.print(f"results: {where}/summary.json, ticks.csv, nodes.csv")
         if args.serve:
-            console.print("serving until Ctrl-C")
-            sim.server.wait()
+            sim.server.wait(ready=lambda: console.print("serving until Ctrl-C"))
     return EXIT_OK
 
 
@@ -284,6 +285,9 @@ def build_parser() -> argparse.ArgumentParser:
                    help="run the nodes listed in FILE's groups on other hosts with zenohedge-node (see deploy/); "
                         "use with --listen")
     p.add_argument("--sim-id", metavar="ID", help="simulation id (default: random); fix it to script remote hosts")
+    p.add_argument("--connect", action="append", metavar="ENDPOINT",
+                   help="join the router to another Zenoh router (e.g. another simulation's), so that several "
+                        "simulations share one network; repeatable")
     p.add_argument("--tick-rate", type=float, metavar="HZ",
                    help="run at most HZ ticks per second, to watch a run live with `orchestrator monitor`")
     p.set_defaults(func=cmd_launch)
@@ -334,6 +338,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--time-scale", type=float, default=1.0, help="emulated seconds per trace second (default 1)")
     p.add_argument("--limit", type=int, help="keep the earliest N jobs")
     p.set_defaults(func=cmd_trace)
+
+    monitor.add_parser(sub)
 
     p = sub.add_parser("validate", help="check a scenario file",
                        description="Load and validate a scenario. Prints 'N nodes, E links, C controllers, S task "

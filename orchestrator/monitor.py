@@ -37,7 +37,7 @@ from rich.text import Text
 from node_runtime.codec import CodecError
 from node_runtime.keys import CHUNK, DEFAULT_PREFIX, Keys
 from node_runtime.process import ORCHESTRATOR
-from node_runtime.transport import Handler, TransportError
+from node_runtime.transport import Handler, TokenHandler, TransportError
 from node_runtime.zenoh_transport import ZenohTransport
 
 EXIT_OK, EXIT_FAILED, EXIT_USAGE = 0, 1, 2
@@ -109,8 +109,8 @@ class BusMonitor:
         scenario = info.get("scenario") or {}
         return SimInfo(sim_id, scenario.get("name"), scenario.get("dt"))
 
-    def follow(self, sim_id: str, on_metrics: Handler, on_alive: Callable[[str, bool], None],
-               on_offload: Handler | None = None) -> None:
+    def follow(self, sim_id: str, on_metrics: Handler, on_alive: TokenHandler, on_offload: Handler | None = None
+               ) -> None:
         """Subscribe to one simulation; handlers run in ``dispatch``. Offload events are asked for only
         when wanted: node processes build events only while someone subscribes to them."""
         keys = Keys(sim_id, self.prefix)
@@ -351,6 +351,7 @@ class Follower:
             self.live.update(render(self.state, now), refresh=True)
 
     def run(self, bus: BusMonitor) -> None:
+        """Subscribe, wait for the orchestrator's token, then feed the view until done, ended or Ctrl-C."""
         sim = self.info.sim_id
         bus.follow(sim, self.on_metrics, self.on_alive, None if self.as_json else self.on_offload)
         try:  # the token subscription's history says the orchestrator is (still) there

@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import secrets
 import threading
+from collections.abc import Callable
 from typing import Any
 
 from node_runtime.config import Scenario
@@ -51,9 +52,9 @@ class Server:
 
     def _session(self, _: Any) -> dict[str, Any]:
         with self._lock:
-            return {"type": "session", "scenario": self.scenario.to_dict(), "layout": self.layout,
-                    "episode": self.clock.latest, "driver": self.driver, "procs": list(self.supervisor.routing.procs),
-                    "placement": self.placement}
+            return {"type": "session", "sim": self.keys.sim_id, "scenario": self.scenario.to_dict(),
+                    "layout": self.layout, "episode": self.clock.latest, "driver": self.driver,
+                    "procs": list(self.supervisor.routing.procs), "placement": self.placement}
 
     def _control(self, msg: dict[str, Any]) -> dict[str, Any]:
         with self._lock:
@@ -75,11 +76,14 @@ class Server:
             if not alive and name == self.driver:  # the driver died without releasing
                 self.driver = None
 
-    def wait(self, stop: threading.Event | None = None) -> None:
-        """Serve remote drivers until ``stop`` is set (or Ctrl-C), noticing dead processes meanwhile."""
+    def wait(self, stop: threading.Event | None = None, ready: Callable[[], None] | None = None) -> None:
+        """Serve remote drivers until ``stop`` is set (or Ctrl-C), noticing dead processes meanwhile.
+        ``ready`` runs once drivers can claim the clock (to announce it)."""
         stop = stop or threading.Event()
         with self._lock:
             self.serving = True
+        if ready is not None:
+            ready()
         try:
             self.transport.dispatch(until=stop.is_set, idle=self.supervisor.check)
         finally:

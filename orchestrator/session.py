@@ -40,13 +40,15 @@ TransportName = Literal["zenoh", "inproc"]
 ROUTER_ATTEMPTS = 5
 
 
-def open_router(host: str = "127.0.0.1", port: int | None = None) -> tuple[ZenohTransport, str]:
-    """A router session listening on a free port (retrying if another process takes it first)."""
+def open_router(host: str = "127.0.0.1", port: int | None = None,
+                join: list[str] | None = None) -> tuple[ZenohTransport, str]:
+    """A router session listening on a free port (retrying if another process takes it first).
+    ``join``: other routers' endpoints to connect to, making one Zenoh network."""
     last: Exception | None = None
     for _ in range(1 if port else ROUTER_ATTEMPTS):
         endpoint = f"tcp/{host}:{port or free_port(host)}"
         try:
-            return ZenohTransport.router(endpoint), endpoint
+            return ZenohTransport.router(endpoint, join), endpoint
         except Exception as exc:  # zenoh raises ZError when the port is taken
             last = exc
     raise RuntimeError(f"could not open a Zenoh router on {host}: {last}")
@@ -57,7 +59,8 @@ class Simulation:
                  sim_id: str | None = None, prefix: str = DEFAULT_PREFIX, timeout: float = 30.0,
                  listen_host: str = "127.0.0.1", port: int | None = None,
                  placement: dict[str, list[str]] | None = None, join_timeout: float = 600.0,
-                 on_waiting: Callable[[dict[str, list[str]]], None] | None = None) -> None:
+                 on_waiting: Callable[[dict[str, list[str]]], None] | None = None,
+                 join: list[str] | None = None) -> None:
         """``placement`` (group -> processes) leaves those processes to ``zenohedge-node`` on other hosts;
         their start is awaited up to ``join_timeout`` seconds, after calling ``on_waiting(placement)``."""
         if transport not in ("zenoh", "inproc"):
@@ -88,7 +91,7 @@ class Simulation:
             self.live = self.transport.monitored(self.keys.metrics())
         else:
             self.drivers = []
-            router, self.endpoint = open_router(listen_host, port)
+            router, self.endpoint = open_router(listen_host, port, join)
             self.transport = router
             try:
                 self.supervisor = Supervisor(router, self.keys, self.routing)

@@ -41,3 +41,15 @@ def test_tick_and_done_roundtrip():
 def test_decoded_task_path_is_a_tuple():
     env = codec.decode(codec.encode(Batch(0, 1, "p", [Envelope(Kind.TASK, "x", "y", 1, 1, 2, task())])))
     assert isinstance(env.envelopes[0].body.path, tuple)
+
+
+def test_in_process_key_expressions_intersect_like_zenoh():
+    from node_runtime.inproc import key_matches
+
+    assert key_matches("z/s/events/offloaded/*", "z/s/events/*/n1")  # wildcard on both sides
+    assert key_matches("z/s/events/**", "z/s/events/dropped/n1")
+    assert key_matches("z/**", "z")
+    assert key_matches("z/s/node/n1/state", "z/s/node/n1/state")
+    assert not key_matches("z/s/events/dropped/*", "z/s/events/created/n1")
+    assert not key_matches("z/s/*/state", "z/s/node/n1/state")
+    assert not key_matches("z/a/alive/*", "z/a/alive/driver/x")

@@ -1,0 +1,434 @@
+"""`orchestrator monitor`, the bus contract of docs/bus.md, and examples/subscriber.py.
+
+What matters most: a monitor attaches and detaches at any time without changing the run, receives
+every tick while attached, and sees nothing of another simulation on the same Zenoh network.
+Every wait is on a message, a liveliness token or a printed line, with a timeout that fails loudly.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import queue
+import re
+import shutil
+import signal
+import subprocess
+import sys
+import threading
+import time
+from collections import Counter
+from typing import Any
+
+import numpy as np
+import pytest
+import zenoh
+from rich.console import Console
+
+from node_runtime import codec
+from node_runtime.keys import Keys
+from node_runtime.process import ORCHESTRATOR
+from node_runtime.zenoh_transport import ZenohTransport, free_port, zenoh_config
+from orchestrator.monitor import WINDOW_TICKS, BusMonitor, DashboardState, main, queue_bar, render
+from orchestrator.scenario import load_scenario
+from orchestrator.session import Simulation
+from tests.conftest import ROOT, model_part, run_summary
+from tests.launcher import Launch, assert_all_gone, served
+
+TIMEOUT = 120.0  # seconds any single wait may take on a loaded machine before the test fails
+
+
+class Output:
+    """A subprocess whose stdout and stderr lines are read in the background and waited for by content."""
+
+    def __init__(self, *args: str) -> None:
+        self.proc = subprocess.Popen(args, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=ROOT,
+                                     env={**os.environ, "COLUMNS": "120"})
+        self.out: queue.SimpleQueue[str] = queue.SimpleQueue()
+        self.err: queue.SimpleQueue[str] = queue.SimpleQueue()
+        self.readers = [threading.Thread(target=self._pump, args=(stream, q.put), daemon=True)
+                        for stream, q in ((self.proc.stdout, self.out), (self.proc.stderr, self.err))]
+        for reader in self.readers:
+            reader.start()
+
+    @staticmethod
+    def _pump(stream: Any, put: Any) -> None:
+        for line in stream:
+            put(line.rstrip("\n"))
+
+    @staticmethod
+    def _next(q: queue.SimpleQueue[str], what: str, timeout: float) -> str:
+        try:
+            return q.get(timeout=timeout)
+        except queue.Empty:
+            raise AssertionError(f"no {what} line within {timeout} s") from None
+
+    def line(self, timeout: float = TIMEOUT) -> str:
+        """The next line on stdout."""
+        return self._next(self.out, "stdout", timeout)
+
+    def wait_err(self, text: str, timeout: float = TIMEOUT) -> list[str]:
+        """stderr lines up to the first that contains ``text``."""
+        seen = [self._next(self.err, "stderr", timeout)]
+        while text not in seen[-1]:
+            seen.append(self._next(self.err, "stderr", timeout))
+        return seen
+
+    def finish(self, sig: int | None = None, timeout: float = 60.0) -> tuple[int, list[str], list[str]]:
+        """Signal (optionally) and wait for the exit: (status, unread stdout lines, unread stderr lines)."""
+        if sig is not None:
+            self.proc.send_signal(sig)
+        try:
+            status = self.proc.wait(timeout)
+        finally:
+            if self.proc.poll() is None:
+                self.proc.kill()
+        for reader in self.readers:
+            reader.join(timeout)
+        return status, drain(self.out), drain(self.err)
+
+
+def drain(q: queue.SimpleQueue[str]) -> list[str]:
+    lines = []
+    while not q.empty():
+        lines.append(q.get())
+    return lines
+
+
+def monitor_cli(*args: str) -> Output:
+    return Output(sys.executable, "-m", "orchestrator.monitor", *args)
+
+
+def stop_server(run: Launch, children: list) -> None:
+    run.proc.send_signal(signal.SIGTERM)
+    assert run.finish(30) == 130
+    assert_all_gone(children)
+
+
+# ----- the dashboard, from recorded messages (no Zenoh) -----
+
+@pytest.fixture(scope="module")
+def recorded() -> tuple[list[dict], list[dict]]:
+    """Metrics records and offload events of 150 ticks, as they go on the wire (encoded, decoded).
+
+    The in-process bus carries the same messages a Zenoh run publishes; subscribing to it switches
+    them on exactly as a monitor's subscription does."""
+    records, offloads = [], []
+    with Simulation(load_scenario(ROOT / "topologies" / "examples" / "failures.yaml")) as sim:
+        sim.transport.subscribe(sim.keys.metrics(), lambda key, m: records.append(codec.decode(codec.encode(m))))
+        sim.transport.subscribe(sim.keys.events("offloaded"),
+                                lambda key, e: offloads.append(codec.decode(codec.encode(e))))
+        sim.run(150)
+    assert [r["tick"] for r in records] == list(range(150))
+    return records, offloads
+
+
+def replay(records: list[dict], offloads: list[dict], ticks_per_s: float = 20.0) -> DashboardState:
+    """Feed the messages in their tick order, as if they arrived at ``ticks_per_s``."""
+    state = DashboardState("5ca1ab1e", "failures")
+    by_tick: dict[int, list[dict]] = {}
+    for e in offloads:
+        by_tick.setdefault(e["tick"], []).append(e)
+    for i, rec in enumerate(records):
+        for e in by_tick.get(rec["tick"], []):
+            state.add_offload(e)
+        state.add_metrics(rec, now=i / ticks_per_s)
+    return state
+
+
+def screen(state: DashboardState, now: float) -> str:
+    console = Console(record=True, width=120, file=open(os.devnull, "w"))  # noqa: SIM115 (closed with console)
+    console.print(render(state, now))
+    console.file.close()
+    return console.export_text()
+
+
+def test_dashboard_renders_recorded_messages(recorded, tmp_path):
+    records, offloads = recorded
+    state = replay(records, offloads)
+    last = records[-1]
+    text = screen(state, now=(len(records) - 1) / 20.0)
+    (tmp_path / "dashboard.txt").write_text(text)  # what a terminal shows, for whoever debugs this
+
+    assert "5ca1ab1e" in text and "failures" in text
+    assert f"tick           {last['tick']} ({last['time_s']:.3g} s simulated), episode 0 · 20.0 ticks/s" in text
+    window = records[-WINDOW_TICKS:]
+    dt = last["time_s"] / last["tick"]
+    gen = sum(r["delta"]["generated"] for r in window) / (len(window) * dt)
+    done = sum(r["delta"]["completed"] for r in window) / (len(window) * dt)
+    drop = sum(r["delta"]["dropped"] for r in window) / (len(window) * dt)
+    assert f"generated {gen:.2f}  completed {done:.2f}  dropped {drop:.2f}  (last {WINDOW_TICKS} ticks)" in text
+    times = [t for r in records for t in r["response_times"]][-1000:]
+    p50, p95 = np.percentile(times, [50, 95])
+    assert f"p50 {p50:.2f} s  p95 {p95:.2f} s  (last {len(times)} completions)" in text
+    dropped = last["totals"]["dropped"]
+    assert f"dropped        {sum(dropped.values())} = queue full {dropped['queue_full']} + expired " in text
+
+    nodes = last["nodes"]
+    for i, nid in enumerate(nodes["id"]):  # one row per node: its queue bar, occupancy and counters
+        occ, buf = nodes["queue"][i] + nodes["undecided"][i], nodes["buffer"][i]
+        bar = queue_bar(occ, buf).plain
+        assert len(bar) == 16 and bar.count("█") == round(16 * occ / buf)
+        row = next(line for line in text.splitlines() if line.strip().startswith(nid + " "))
+        assert bar in row and f"{occ}/{buf}" in row and str(nodes["dropped"][i]) in row
+
+    flows = Counter((e["node"], e["to"]) for e in offloads if e["tick"] > last["tick"] - WINDOW_TICKS)
+    assert flows, "the scenario's least_queue policy offloads"
+    (src, dst), n = min(flows.items(), key=lambda kv: (-kv[1], kv[0]))  # the busiest pair is listed first
+    assert any(line.split() == [src, "→", dst, str(n)] for line in text.splitlines())
+
+
+def test_dashboard_marks_overload_idle_and_gaps(recorded):
+    records, _ = recorded
+    state = replay(records[:50], [])
+    assert "OVERLOAD" not in screen(state, now=49 / 20.0)
+    hot = json.loads(json.dumps(records[52]))
+    hot["nodes"]["overloaded"][2] = 1
+    hot["totals"]["overloaded_nodes"] = 1
+    state.add_metrics(hot, now=52 / 20.0)  # ticks 50 and 51 never arrived
+    text = screen(state, now=60.0)
+    row = next(line for line in text.splitlines() if line.strip().startswith(hot["nodes"]["id"][2] + " "))
+    assert "OVERLOAD" in row
+    assert "1 of 5 nodes overloaded" in text
+    assert "missed         2 tick(s) lost on the way" in text
+    assert "no tick for 57 s: episode over or paused" in text
+    empty = screen(DashboardState("5ca1ab1e"), now=0.0)
+    assert "waiting for the first tick" in empty
+
+
+def test_new_episode_restarts_the_windows(recorded):
+    records, _ = recorded
+    state = replay(records[:30], [])
+    again = dict(records[0], episode=1)
+    state.add_metrics(again, now=10.0)
+    assert state.missed == 0 and len(state.deltas) == 1 and state.tick_rate() is None
+
+
+# ----- command-line errors -----
+
+def test_user_errors_are_one_line_exit_2(capsys):
+    dead = f"tcp/127.0.0.1:{free_port()}"
+    assert main(["--connect", dead]) == 2
+    assert main(["--connect", "localhost"]) == 2
+    assert main(["--sim", "a/b"]) == 2
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    router = ZenohTransport.router(endpoint)  # a Zenoh network with no simulation on it
+    try:
+        assert main(["--connect", endpoint]) == 2
+        assert main(["--connect", endpoint, "--sim", "nope"]) == 2
+    finally:
+        router.close()
+    assert capsys.readouterr().err.splitlines() == [
+        f"monitor: cannot reach {dead}: no Zenoh router answers there",
+        "monitor: --connect: expected an endpoint such as tcp/127.0.0.1:7447, not 'localhost'",
+        "monitor: --sim: expected letters, digits, '_', '.' or '-', not 'a/b'",
+        f"monitor: no simulation running at {endpoint}; start one with `orchestrator launch SCENARIO --serve`, "
+        "or check --connect and --prefix",
+        f"monitor: no simulation 'nope' at {endpoint} (running: none)",
+    ]
+
+
+# ----- against real runs -----
+
+@pytest.mark.zenoh
+@pytest.mark.slow
+def test_attach_mid_run_sees_every_tick_and_changes_nothing(tmp_path):
+    run = Launch("aot1", "--serve", "--episodes", "1", "--steps", "3000", "--out", str(tmp_path))
+    run.wait_for("processes ready")
+    children = run.descendants()
+    endpoint, sim = served(run)
+
+    def attach(until: Any) -> tuple[list[dict], list[dict]]:
+        """Attach, receive until ``until(ticks)``, detach. Also asks for every event, which switches the
+        node processes' event publishing on: that must not change the run either."""
+        ticks: list[dict] = []
+        events: list[dict] = []
+        bus = BusMonitor(endpoint)
+        try:
+            assert [i.label() for i in bus.discover()] == [f"{sim} (aot1)"]
+            bus.follow(sim, lambda key, m: ticks.append(m), lambda key, alive: None)
+            bus.transport.subscribe(Keys(sim).events(), lambda key, e: events.append(e))
+            bus.dispatch(until=lambda: bool(ticks) and until(ticks), timeout=TIMEOUT)
+        finally:
+            bus.close()
+        return ticks, events
+
+    first, _ = attach(lambda ticks: len(ticks) >= 20)
+    second, events = attach(lambda ticks: ticks[-1]["tick"] >= min(ticks[0]["tick"] + 300, 2999))
+    numbers = [m["tick"] for m in second]
+    assert numbers[0] > first[-1]["tick"], "the second attach happens mid-run, after the first detached"
+    assert numbers == list(range(numbers[0], numbers[-1] + 1)), "a tick was missed while attached"
+    assert {(m["type"], m["sim"], m["episode"]) for m in first + second} == {("metrics", sim, 0)}
+    assert {e["kind"] for e in events} >= {"created", "dropped"} and {e["episode"] for e in events} == {0}
+
+    run.wait_for("serving until Ctrl-C", timeout=600)
+    watched = json.loads((tmp_path / "summary.json").read_text())
+    alone = run_summary(load_scenario("aot1"), 3000)  # the same emulation with nobody watching
+    assert model_part(watched) == model_part(alone)
+    stop_server(run, children)
+
+
+@pytest.mark.zenoh
+def test_two_simulations_on_one_network_stay_apart(tmp_path):
+    """Two simulations with different ids on ONE Zenoh network; a monitor of one sees nothing of the other.
+
+    `orchestrator launch` always opens its own router and cannot join another one, so two launches are
+    two networks. A Zenoh router of the test's own, connected to both, links them into one network:
+    routers forward by key expression across router links, so every session of either simulation
+    (its node processes, a driver, a monitor) now reaches the other's keys. A spy subscribed to
+    `zedge/*/metrics/tick` through B's router sees both simulations' ticks; the monitor attached to A
+    through A's router discovers both, and receives A's ticks only. Both are driven tick by tick from
+    here (`Simulation.attach`), so what each subscriber must have seen is known exactly.
+    """
+    runs = [Launch("aot1", "--serve", "--episodes", "0", "--layout", "single", "--out", str(tmp_path / n))
+            for n in "ab"]
+    for run in runs:
+        run.wait_for("serving until Ctrl-C")
+    children = [c for run in runs for c in run.descendants()]
+    (end_a, sim_a), (end_b, sim_b) = (served(run) for run in runs)
+    hub = zenoh.open(zenoh_config("router", listen=[f"tcp/127.0.0.1:{free_port()}"], connect=[end_a, end_b]))
+    spy = ZenohTransport.client(end_b)
+    bus = BusMonitor(end_a)
+    try:
+        orchestrators: set[str] = set()
+        spy.watch_tokens(f"zedge/*/alive/{ORCHESTRATOR}", lambda key, alive: alive and orchestrators.add(key))
+        spy.dispatch(until=lambda: len(orchestrators) == 2, timeout=TIMEOUT)  # the hub has linked them
+
+        assert sorted(i.label() for i in bus.discover()) == sorted([f"{sim_a} (aot1)", f"{sim_b} (aot1)"])
+        status, _, [line] = monitor_cli("--connect", end_a).finish()
+        assert status == 2
+        assert line.startswith(f"monitor: 2 simulations at {end_a}: ") and line.endswith("; choose one with --sim ID")
+        assert f"{sim_a} (aot1)" in line and f"{sim_b} (aot1)" in line
+
+        seen_by_spy: list[tuple[str, int]] = []
+        seen_by_monitor: list[dict] = []
+        spy.subscribe("zedge/*/metrics/tick", lambda key, m: seen_by_spy.append((m["sim"], m["tick"])))
+        bus.follow(sim_a, lambda key, m: seen_by_monitor.append(m), lambda key, alive: None)
+        for endpoint, sim in ((end_b, sim_b), (end_a, sim_a)):  # B first: the monitor of A is listening
+            with Simulation.attach(endpoint, sim) as driver:
+                driver.transport.dispatch(until=lambda d=driver: d.live.listened, timeout=TIMEOUT)
+                driver.run(20)
+            spy.dispatch(until=lambda s=sim: sum(k == s for k, _ in seen_by_spy) == 20, timeout=TIMEOUT)
+        bus.dispatch(until=lambda: len(seen_by_monitor) >= 20, timeout=TIMEOUT)
+
+        assert sorted(seen_by_spy) == sorted((s, t) for s in (sim_a, sim_b) for t in range(20))
+        assert [(m["sim"], m["tick"]) for m in seen_by_monitor] == [(sim_a, t) for t in range(20)]
+    finally:
+        bus.close()
+        spy.close()
+        hub.close()
+    for run in runs:
+        run.proc.send_signal(signal.SIGTERM)
+    assert [run.finish(30) for run in runs] == [130, 130]
+    assert_all_gone(children)
+
+
+@pytest.mark.zenoh
+def test_monitor_leaves_cleanly_when_the_simulation_ends(tmp_path):
+    run = Launch("aot1", "--serve", "--episodes", "0", "--layout", "single", "--out", str(tmp_path))
+    run.wait_for("serving until Ctrl-C")
+    children = run.descendants()
+    endpoint, sim = served(run)
+    mon = monitor_cli("--connect", endpoint)
+    mon.wait_err("attached to")
+    stop_server(run, children)
+    status, out, err = mon.finish()
+    assert (status, err) == (0, [f"monitor: simulation {sim} ended: its orchestrator left"])
+    assert any("waiting for the first tick" in line for line in out)  # the last frame (no terminal: only that)
+
+
+@pytest.fixture(scope="module")
+def ticking(tmp_path_factory) -> tuple[str, str]:
+    """A served aot1 run paced at 20 ticks/s, long enough to outlast the tests that watch it."""
+    run = Launch("aot1", "--serve", "--tick-rate", "20", "--steps", "100000", "--layout", "per-node", "--out",
+                 str(tmp_path_factory.mktemp("ticking")))
+    run.wait_for("processes ready")
+    children = run.descendants()
+    yield served(run)
+    stop_server(run, children)
+
+
+@pytest.mark.zenoh
+def test_example_subscriber_as_documented(ticking):
+    endpoint, sim = ticking
+    sub = Output(sys.executable, "examples/subscriber.py", endpoint, sim)
+    ticks, drops = [], []
+    while len(ticks) < 3 or not drops:
+        line = sub.line()
+        if line.startswith("tick "):
+            ticks.append(int(line.split()[1].rstrip(":")))
+            assert " generated " in line and " completed " in line and " in system " in line
+        else:
+            assert line.startswith("  dropped task ") and line.rstrip().endswith(": queue_full"), line
+            drops.append(line)
+    assert ticks == list(range(ticks[0], ticks[0] + len(ticks)))
+    assert sub.finish(signal.SIGINT)[::2] == (0, [])
+
+
+@pytest.mark.zenoh
+def test_monitor_json_prints_every_tick(ticking):
+    endpoint, sim = ticking
+    mon = monitor_cli("--connect", endpoint, "--json")
+    records = [json.loads(mon.line()) for _ in range(5)]
+    assert [r["tick"] for r in records] == list(range(records[0]["tick"], records[0]["tick"] + 5))
+    assert {(r["v"], r["type"], r["sim"]) for r in records} == {(1, "metrics", sim)}
+    assert records[0]["nodes"]["id"] == [n.id for n in load_scenario("aot1").nodes]
+    assert mon.finish(signal.SIGINT)[::2] == (0, [f"monitor: attached to {sim} (aot1) at {endpoint} (Ctrl-C to "
+                                                  "detach)", f"monitor: detached from {sim}"])
+
+    status, out, _ = monitor_cli("--connect", endpoint, "--sim", sim, "--json", "--once").finish()
+    assert status == 0 and [json.loads(line)["sim"] for line in out] == [sim]
+
+
+@pytest.mark.zenoh
+@pytest.mark.skipif(shutil.which("tmux") is None, reason="needs tmux")
+def test_dashboard_in_a_terminal(ticking, tmp_path):
+    """The real dashboard in a real terminal (tmux): the screen shows nodes, queue bars and the tick rate."""
+    endpoint, sim = ticking
+    name = f"zedge-monitor-{os.getpid()}"
+    fifo = tmp_path / "pane"
+    os.mkfifo(fifo)
+    command = (f"read go; stty size; {sys.executable} -m orchestrator.monitor --connect {endpoint}; "
+               "echo monitor-exit=$?; read done")
+    tmux = ["tmux", "-L", name, "-f", os.devnull]  # a server of our own, without anybody's configuration
+    subprocess.run([*tmux, "new-session", "-d", "-s", name, "-x", "100", "-y", "50", "-c", str(ROOT), command],
+                   check=True)
+    try:
+        subprocess.run([*tmux, "pipe-pane", "-t", name, "-o", f"cat > {fifo}"], check=True)
+        stream = bytearray()
+        chunks: queue.SimpleQueue[bytes] = queue.SimpleQueue()
+
+        def pump() -> None:
+            with open(fifo, "rb") as fh:
+                while chunk := fh.read1(65536):
+                    chunks.put(chunk)
+
+        threading.Thread(target=pump, daemon=True).start()
+
+        def wait_for(pattern: bytes) -> None:
+            """Until the terminal output matches ``pattern`` (what tmux hands the pane, escapes included)."""
+            deadline = time.monotonic() + TIMEOUT
+            while not re.search(pattern, stream):
+                left = deadline - time.monotonic()
+                assert left > 0, f"{pattern!r} not shown within {TIMEOUT} s: {bytes(stream[-2000:])!r}"
+                try:
+                    stream.extend(chunks.get(timeout=left))
+                except queue.Empty:
+                    continue
+
+        subprocess.run([*tmux, "send-keys", "-t", name, "Enter"], check=True)
+        wait_for(rb"\d+ \d+")
+        assert b"50 100" in stream, f"the pane is not 100x50: {bytes(stream)!r}"
+        wait_for(rb"(?s)\d ticks/s.*offl")  # a whole frame with a measured tick rate is on the screen
+        shown = subprocess.run([*tmux, "capture-pane", "-p", "-t", name], check=True, capture_output=True,
+                               text=True).stdout
+        (tmp_path / "screen.txt").write_text(shown)
+        assert f"sim {sim} · aot1" in shown and re.search(r"\d+\.\d ticks/s", shown), shown
+        for node in load_scenario("aot1").nodes:
+            assert any(line.strip().startswith(node.id + " ") and "/" in line for line in shown.splitlines()), shown
+        assert "█" in shown or "░" in shown
+        subprocess.run([*tmux, "send-keys", "-t", name, "C-c"], check=True)
+        wait_for(b"monitor-exit=0")
+        assert f"monitor: detached from {sim}".encode() in stream and b"Traceback" not in stream
+    finally:
+        subprocess.run([*tmux, "kill-server"], check=False)
