@@ -73,6 +73,8 @@ class Controller(Role):
     # ----- the tick -----
 
     def tick(self, t: int, inbox: list[Envelope], out: Outbox, action: Action | None = None) -> None:
+        if not inbox and not self.asked and not self.external and not self.undecided:
+            return  # nothing heard, nothing to place, nothing to observe
         for env in inbox:
             if env.kind == Kind.STATE:
                 self.states[env.body.node] = env.body

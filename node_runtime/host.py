@@ -24,6 +24,7 @@ from node_runtime.worker import Worker
 
 ROLE_TYPES: dict[str, type[Role]] = {"worker": Worker, "client": Client, "controller": Controller}
 CARRIES_TASK = (Kind.TASK, Kind.RESULT)
+NO_MAIL: tuple[Envelope, ...] = ()
 
 
 @dataclass(slots=True)
@@ -105,7 +106,7 @@ class Host:
         mail = self.mail
         events: list[tuple[str, str, dict]] = []
         for role in self.roles:
-            inbox = mail[role.id].pop(t, [])
+            inbox = mail[role.id].pop(t, NO_MAIL)
             if len(inbox) > 1:
                 inbox.sort(key=Envelope.order)
             out = self.outboxes[role.id]
@@ -130,6 +131,7 @@ class Host:
                 if env.kind in CARRIES_TASK:
                     arrivals[env.arrive] += 1
                     self.flying[rid] += 1
+                    self.by_id[rid].stats.in_flight = self.flying[rid]
                 dst = env.dst
                 if dst in self.mail:
                     self.mail[dst][env.arrive].append(env)
@@ -161,10 +163,11 @@ class Host:
         for role in self.roles:
             rid = role.id
             arrivals = self.arrivals[rid]
+            st = role.stats
             if t in arrivals:  # arrivals happen in order: at most this tick's are due
                 self.flying[rid] -= arrivals.pop(t)
-            st = role.stats
-            values = (*read_stats(st), self.flying[rid])
+                st.in_flight = self.flying[rid]
+            values = read_stats(st)
             if reported.get(rid) != values:
                 reported[rid] = stats[index[rid]] = values
             if st.response_times:

@@ -53,7 +53,7 @@ class Done:
     episode: int
     tick: int
     sent: dict[int, int]  # destination process index -> publications
-    stats: dict[int, tuple]  # role index -> values of STAT_FIELDS, then in_flight (changed roles only)
+    stats: dict[int, tuple]  # role index -> values of STAT_FIELDS (changed roles only)
     response_times: dict[int, list[float]] = field(default_factory=dict)  # client role index -> this tick's
     obs: dict[int, Observation] = field(default_factory=dict)  # externally driven controller index -> its view
     error: str | None = None  # set when the process failed; it exits after sending this

@@ -45,6 +45,7 @@ class Counters:
     queue: int = 0
     undecided: int = 0
     overloaded: int = 0  # 1 if the buffer was full at the start of this tick
+    in_flight: int = 0  # tasks and results this role sent that have not arrived yet (kept by the host)
     # completions this tick: response times in seconds (drained by the host every tick)
     response_times: list[float] = field(default_factory=list)
 

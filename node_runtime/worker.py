@@ -46,6 +46,7 @@ class Worker(Role):
         self.controller = role_id("controller", node.id) if node.controller else ""
         self.topic = state_topic(node.id)
         self.budget = node.capacity * scenario.dt
+        self.idle_w = node.idle_power_w
         self.reset(scenario.seed)
 
     def reset(self, seed: int) -> None:
@@ -98,6 +99,13 @@ class Worker(Role):
 
     def tick(self, t: int, inbox: list[Envelope], out: Outbox) -> None:
         st = self.stats
+        if not inbox and not self.queue and not self.undecided and not self.outages and not self.idle_w:
+            # idle: nothing held, nothing arriving, nothing that can fail; only the levels are refreshed
+            if st.overloaded:
+                out.emit("overload", self.node.id, overloaded=False, occupancy=0)
+            st.overloaded = 0
+            self.publish(t, out)
+            return
         failed = self.down(t)
         if failed != self.failed:
             out.emit("failure", self.node.id, down=failed)
@@ -138,7 +146,8 @@ class Worker(Role):
             self.admit(t, arrivals, out)
         if self.queue:
             self.serve(t, out)
-        st.energy_idle += idle_energy(self.node.idle_power_w, self.dt)
+        if self.idle_w:
+            st.energy_idle += idle_energy(self.idle_w, self.dt)
         self.publish(t, out)
 
     def expire(self, t: int, out: Outbox) -> None:

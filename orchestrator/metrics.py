@@ -23,7 +23,7 @@ from node_runtime.protocol import Done
 from node_runtime.role import DROP_CAUSES, STAT_FIELDS
 from node_runtime.routing import Routing, role_node
 
-FIELDS = (*STAT_FIELDS, "in_flight")
+FIELDS = STAT_FIELDS  # in_flight is one of them
 F = {name: i for i, name in enumerate(FIELDS)}
 COUNTS = ("generated", "completed", *DROP_CAUSES, "offloaded", "decisions", "stale_decisions")
 ENERGY = ("energy_compute", "energy_idle", "energy_transmit")
