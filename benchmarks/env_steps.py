@@ -5,13 +5,15 @@
 
 Only env.step() is timed: choosing the random actions (from each agent's action mask) happens outside
 the timed region, so the figure is the environment's cost, not the agent's. The bare barrier (see
-`orchestrator bench`) is measured in the same run, so the ratio holds when the machine's speed drifts.
+`orchestrator bench`) runs beside it and both are timed in alternating chunks; the ratio is the median
+of the per-chunk ratios, so it holds when the machine's speed drifts.
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+import statistics
 import time
 from pathlib import Path
 
@@ -20,27 +22,47 @@ from rich.console import Console
 from rich.table import Table
 
 from env import ZenohEdgeEnv
-from orchestrator.bench import bare_barrier
+from orchestrator.bench import BareBarrier
 
 CONFIGS = ("inproc:single", "zenoh:per-role", "zenoh:per-node")
 
 
-def env_rate(scenario: str, transport: str, layout: str, steps: int, warmup: int = 50) -> tuple[int, float]:
-    env = ZenohEdgeEnv(scenario, transport=transport, layout=layout, max_steps=steps + warmup + 1)
+def measure(scenario: str, transport: str, layout: str, steps: int, rounds: int) -> dict:
+    env = ZenohEdgeEnv(scenario, transport=transport, layout=layout, max_steps=10**9)
+    barrier = None
     try:
         obs, _ = env.reset(seed=0)
         rng = np.random.default_rng(0)
-        spent = 0.0
-        for i in range(steps + warmup):
-            actions = {a: int(rng.choice(np.flatnonzero(obs[a]["action_mask"]))) for a in env.agents}
-            t0 = time.perf_counter()
-            obs, *_ = env.step(actions)
-            if i >= warmup:
+
+        def run(n: int) -> float:
+            nonlocal obs
+            spent = 0.0
+            for _ in range(n):
+                actions = {a: int(rng.choice(np.flatnonzero(obs[a]["action_mask"]))) for a in env.agents}
+                t0 = time.perf_counter()
+                obs, *_ = env.step(actions)
                 spent += time.perf_counter() - t0
+            return n / spent
+
+        run(50)  # warm-up
         processes = len(env.sim.routing.procs) if transport == "zenoh" else 1
-        return processes, steps / spent
+        barrier = BareBarrier(processes) if transport == "zenoh" else None
+        chunk = max(1, steps // rounds)
+        own, base = [], []
+        for _ in range(rounds):
+            own.append(run(chunk))
+            if barrier is not None:
+                base.append(barrier.rate(chunk))
     finally:
+        if barrier is not None:
+            barrier.close()
         env.close()
+    row = {"scenario": scenario, "transport": transport, "layout": layout, "processes": processes,
+           "steps_per_s": round(statistics.median(own), 1), "barrier_ticks_per_s": None, "ratio": None}
+    if base:
+        row["barrier_ticks_per_s"] = round(statistics.median(base), 1)
+        row["ratio"] = round(statistics.median([a / b for a, b in zip(own, base, strict=True)]), 3)
+    return row
 
 
 def main() -> None:
@@ -48,26 +70,19 @@ def main() -> None:
     parser.add_argument("scenarios", nargs="*", default=["aot1", "aot2", "aot3", "aot4"])
     parser.add_argument("--steps", type=int, default=1000, help="timed steps per configuration (default 1000)")
     parser.add_argument("--configs", nargs="+", default=list(CONFIGS), help="transport:layout pairs")
+    parser.add_argument("--rounds", type=int, default=5, help="alternating chunks; medians are reported (default 5)")
     parser.add_argument("--out", metavar="FILE", help="also write the rows as JSON")
     args = parser.parse_args()
     console = Console(stderr=True)
-    rows, barrier = [], {}
+    rows = []
     with console.status("") as status:
         for scenario in args.scenarios:
             for config in args.configs:
                 transport, layout = config.split(":")
                 status.update(f"{scenario} {config}")
-                procs, rate = env_rate(scenario, transport, layout, args.steps)
-                base = None
-                if transport == "zenoh":
-                    if procs not in barrier:
-                        status.update(f"bare barrier, {procs} processes")
-                        barrier[procs] = bare_barrier(procs, args.steps)
-                    base = barrier[procs]
-                rows.append({"scenario": scenario, "transport": transport, "layout": layout, "processes": procs,
-                             "steps_per_s": round(rate, 1), "barrier_ticks_per_s": base and round(base, 1),
-                             "ratio": base and round(rate / base, 3)})
-    table = Table(title=f"env.step() steps/s over {args.steps} steps, random masked actions", title_justify="left")
+                rows.append(measure(scenario, transport, layout, args.steps, args.rounds))
+    table = Table(title=f"env.step() steps/s, medians of {args.rounds} alternating chunks of "
+                        f"{args.steps // args.rounds} steps, random masked actions", title_justify="left")
     for col in ("scenario", "transport", "layout", "processes", "steps/s", "barrier ticks/s", "ratio"):
         table.add_column(col, justify="left" if col in ("scenario", "transport", "layout") else "right")
     for r in rows:

@@ -8,9 +8,11 @@ drifts. Timing excludes start-up; every number is ticks per second of wall time.
 
 from __future__ import annotations
 
+import contextlib
 import json
 import os
 import queue
+import statistics
 import time
 from dataclasses import asdict, dataclass
 from pathlib import Path
@@ -56,73 +58,87 @@ def barrier_peer(endpoint: str, root: str, index: int) -> None:
     os._exit(0)
 
 
-def bare_barrier(processes: int, ticks: int) -> float:
-    """Ticks per second of the bare barrier with ``processes`` participants."""
-    router, endpoint = open_router()
-    root = Keys(new_sim_id(), "zbench").root
-    forks = ForkServer.shared()
-    pids = []
-    try:
-        ready: set[str] = set()
-        router.watch_tokens(f"{root}/alive/*", lambda key, alive: alive and ready.add(key))
-        # raw bytes straight from the session: no codec on the hot path
-        replies: queue.SimpleQueue[int] = queue.SimpleQueue()
-        sub = router.session.declare_subscriber(f"{root}/done/*", lambda s: replies.put(1))
-        for i in range(processes):
-            pids.append(forks.start(f"barrier-{i}", barrier_peer, endpoint, root, i))
-        router.dispatch(until=lambda: len(ready) == processes, timeout=60)
-        pub = router.put_publisher(f"{root}/tick")
+class BareBarrier:
+    """N idle participants around a router of its own; ``rate(ticks)`` drives that many barrier rounds."""
 
-        def one(t: int) -> None:
-            pub.put(str(t).encode())
-            for _ in range(processes):
-                replies.get(timeout=30)
+    def __init__(self, processes: int) -> None:
+        self.n = processes
+        self.router, endpoint = open_router()
+        self.root = Keys(new_sim_id(), "zbench").root
+        self.forks = ForkServer.shared()
+        self.pids: list[int] = []
+        self.replies: queue.SimpleQueue[int] = queue.SimpleQueue()
+        try:
+            ready: set[str] = set()
+            self.router.watch_tokens(f"{self.root}/alive/*", lambda key, alive: alive and ready.add(key))
+            # raw bytes straight from the session: no codec on the hot path
+            self.sub = self.router.session.declare_subscriber(f"{self.root}/done/*", lambda s: self.replies.put(1))
+            for i in range(processes):
+                self.pids.append(self.forks.start(f"barrier-{i}", barrier_peer, endpoint, self.root, i))
+            self.router.dispatch(until=lambda: len(ready) == processes, timeout=60)
+            self.pub = self.router.put_publisher(f"{self.root}/tick")
+            self.rate(50)  # warm-up
+        except BaseException:
+            self.close()
+            raise
 
-        for t in range(min(50, ticks)):  # warm-up
-            one(t)
+    def rate(self, ticks: int) -> float:
         t0 = time.perf_counter()
         for t in range(ticks):
-            one(t)
-        rate = ticks / (time.perf_counter() - t0)
-        pub.put(b"stop")
-        sub.undeclare()
-        return rate
-    finally:
-        forks.wait(pids, 10.0)
-        router.close()
+            self.pub.put(str(t).encode())
+            for _ in range(self.n):
+                self.replies.get(timeout=30)
+        return ticks / (time.perf_counter() - t0)
+
+    def close(self) -> None:
+        with contextlib.suppress(Exception):
+            self.pub.put(b"stop")
+        self.forks.wait(self.pids, 10.0)
+        self.router.close()
 
 
-def emulator(name: str, transport: str, layout: str, ticks: int) -> tuple[int, float]:
+def measure(name: str, transport: str, layout: str, ticks: int, rounds: int) -> tuple[int, float, float | None,
+                                                                                         float | None]:
+    """(processes, emulator ticks/s, barrier ticks/s, ratio): medians over ``rounds`` alternating chunks.
+
+    Both sets of processes stay up together (idle ones cost nothing) and the two are timed in turn, so a
+    drift of the machine's speed hits both alike; the ratio is the median of the per-round ratios.
+    """
     scenario = load_scenario(name)
+    chunk = max(1, ticks // rounds)
     with Simulation(scenario, transport=transport, layout=layout) as sim:
         sim.reset(policy="random")
         for _ in range(min(50, ticks)):  # warm-up
             sim.step()
-        t0 = time.perf_counter()
-        for _ in range(ticks):
-            sim.step()
-        rate = ticks / (time.perf_counter() - t0)
-        return len(sim.routing.procs), rate
+        procs = len(sim.routing.procs)
+        barrier = BareBarrier(procs) if transport == "zenoh" else None
+        try:
+            own, base = [], []
+            for _ in range(rounds):
+                t0 = time.perf_counter()
+                for _ in range(chunk):
+                    sim.step()
+                own.append(chunk / (time.perf_counter() - t0))
+                if barrier is not None:
+                    base.append(barrier.rate(chunk))
+        finally:
+            if barrier is not None:
+                barrier.close()
+    if barrier is None:
+        return 1, statistics.median(own), None, None
+    return procs, statistics.median(own), statistics.median(base), statistics.median(
+        [a / b for a, b in zip(own, base, strict=True)])
 
 
-def run(scenarios: list[str], ticks: int, configs=CONFIGS, progress=None) -> list[Row]:
+def run(scenarios: list[str], ticks: int, configs=CONFIGS, rounds: int = 5, progress=None) -> list[Row]:
     rows: list[Row] = []
-    barrier: dict[int, float] = {}
     for name in scenarios:
         for transport, layout in configs:
             if progress:
                 progress(f"{name} {transport} {layout}")
-            procs, rate = emulator(name, transport, layout, ticks)
-            base = None
-            if transport == "zenoh":
-                if procs not in barrier:
-                    if progress:
-                        progress(f"bare barrier, {procs} processes")
-                    barrier[procs] = bare_barrier(procs, ticks)
-                base = barrier[procs]
-            rows.append(Row(name, transport, layout, procs if transport == "zenoh" else 1, round(rate, 1),
-                            None if base is None else round(base, 1),
-                            None if base is None else round(rate / base, 3)))
+            procs, rate, base, ratio = measure(name, transport, layout, ticks, rounds)
+            rows.append(Row(name, transport, layout, procs, round(rate, 1),
+                            None if base is None else round(base, 1), None if ratio is None else round(ratio, 3)))
     return rows
 
 

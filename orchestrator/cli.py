@@ -185,9 +185,10 @@ def cmd_bench(args: argparse.Namespace) -> int:
     console = Console(stderr=True, highlight=False)
     configs = [c for c in bench.CONFIGS if c[0] in args.transports]
     with console.status("") as status:
-        rows = bench.run(args.scenarios, args.ticks, configs, progress=lambda what: status.update(f"measuring {what}"))
-    table = Table(title=f"ticks/s over {args.ticks} ticks (random policy); barrier = bare Zenoh barrier, "
-                        "same process count", title_justify="left")
+        rows = bench.run(args.scenarios, args.ticks, configs, args.rounds,
+                         progress=lambda what: status.update(f"measuring {what}"))
+    table = Table(title=f"ticks/s, medians of {args.rounds} alternating chunks of {args.ticks // args.rounds} ticks "
+                        "(random policy); barrier = bare Zenoh barrier, same process count", title_justify="left")
     for col in ("scenario", "transport", "layout", "processes", "ticks/s", "barrier ticks/s", "ratio"):
         table.add_column(col, justify="left" if col in ("scenario", "transport", "layout") else "right")
     for r in rows:
@@ -299,6 +300,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("scenarios", nargs="*", default=["aot1", "aot2", "aot3", "aot4"],
                    help="scenario files or bundled names (default: aot1 aot2 aot3 aot4)")
     p.add_argument("--ticks", type=int, default=500, help="ticks measured per configuration (default 500)")
+    p.add_argument("--rounds", type=int, default=5,
+                   help="alternating chunks of emulator and barrier ticks; medians are reported (default 5)")
     p.add_argument("--transports", nargs="+", choices=("inproc", "zenoh"), default=["inproc", "zenoh"])
     p.add_argument("--out", metavar="FILE", help="also write the rows as JSON")
     p.set_defaults(func=cmd_bench)
