@@ -65,24 +65,8 @@ class Simulation:
         their start is awaited up to ``join_timeout`` seconds, after calling ``on_waiting(placement)``."""
         if transport not in ("zenoh", "inproc"):
             raise ValueError(f"transport must be 'zenoh' or 'inproc', not {transport!r}")
-        self.scenario = scenario
-        self.transport_name = transport
-        self.layout: Layout = layout or ("single" if transport == "inproc" else "per-role")
-        self.routing = Routing(scenario, self.layout)
-        self.keys = Keys(sim_id or new_sim_id(), prefix)
-        self.metrics = Metrics(self.routing)
-        self.supervisor: Supervisor | None = None
-        self.server: Server | None = None  # answers …/session and …/control (Zenoh only)
-        self.attached: str | None = None  # our driver name, when attached to a served simulation
-        self.live = None  # publisher of …/metrics/tick, for monitors
-        self.endpoint: str | None = None
-        self.startup_s = 0.0
-        self.seed = scenario.seed
-        self.policy: str | None = None
-        self.last: list[Done] = []
-        self._closed = False
-        self._run_started = 0.0
-        self._ticks_run = 0
+        self._common(scenario, transport, layout or ("single" if transport == "inproc" else "per-role"),
+                     Keys(sim_id or new_sim_id(), prefix))
         if transport == "inproc":
             bus = InprocBus()
             self.drivers = [HostDriver(Host(p, self.routing), bus.endpoint(), self.keys) for p in self.routing.procs]
@@ -90,7 +74,6 @@ class Simulation:
             self.clock = Clock(self.transport, self.keys, self.routing, timeout)
             self.live = self.transport.monitored(self.keys.metrics())
         else:
-            self.drivers = []
             router, self.endpoint = open_router(listen_host, port, join)
             self.transport = router
             try:
@@ -108,6 +91,28 @@ class Simulation:
                 self.close()
                 raise
 
+    def _common(self, scenario: Scenario, transport: TransportName, layout: Layout, keys: Keys) -> None:
+        """What every simulation has, however it was opened."""
+        self.scenario = scenario
+        self.transport_name = transport
+        self.layout = layout
+        self.routing = Routing(scenario, layout)
+        self.keys = keys
+        self.metrics = Metrics(self.routing)
+        self.supervisor: Supervisor | None = None
+        self.server: Server | None = None  # answers …/session and …/control (Zenoh only)
+        self.attached: str | None = None  # our driver name, when attached to a served simulation
+        self.live = None  # publisher of …/metrics/tick, for monitors
+        self.endpoint: str | None = None
+        self.drivers: list[HostDriver] = []  # the in-process hosts
+        self.startup_s = 0.0
+        self.seed = scenario.seed
+        self.policy: str | None = None
+        self.last: list[Done] = []
+        self._closed = False
+        self._run_started = 0.0
+        self._ticks_run = 0
+
     @classmethod
     def attach(cls, endpoint: str, sim_id: str, prefix: str = DEFAULT_PREFIX, timeout: float = 30.0) -> Simulation:
         """Drive a simulation served by ``orchestrator launch --serve`` (possibly on another host).
@@ -122,24 +127,11 @@ class Simulation:
         except BaseException:
             transport.close()
             raise
-        self.scenario = Scenario.from_dict(info["scenario"])
-        self.transport_name = "zenoh"
-        self.layout = info["layout"]
-        self.routing = Routing(self.scenario, self.layout)
-        self.keys = keys
-        self.metrics = Metrics(self.routing)
+        self._common(Scenario.from_dict(info["scenario"]), "zenoh", info["layout"], keys)
         self.endpoint = endpoint
-        self.startup_s = 0.0
-        self.seed = self.scenario.seed
-        self.policy = None
-        self.last = []
-        self._closed = False
         self._run_started = time.perf_counter()
-        self._ticks_run = 0
-        self.drivers = []
         self.transport = transport
         self.attached = driver
-        self.server = None
         try:
             self.supervisor = Supervisor(transport, keys, self.routing, token=driver)
             self.supervisor.wait_ready(timeout)
