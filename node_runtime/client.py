@@ -77,3 +77,9 @@ class Client(Role):
             if len(self.targets) > 1:
                 target = self.targets[int(self.target_rng.integers(len(self.targets)))]
             self.transmit(t, Kind.TASK, target, role_id("worker", target), task, in_bytes * 8.0, out)
+
+    def wake(self, t: int) -> float:
+        """At its next arrival: results come by mail, and nothing else happens in between."""
+        if self.outages:  # a failed client draws nothing, so its draws depend on the failure schedule
+            return t + 1
+        return self.source.next_arrival(t)

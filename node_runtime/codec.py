@@ -80,7 +80,7 @@ def to_wire(msg: Any) -> dict[str, Any]:
                 "actions": msg.actions, "seed": msg.seed, "external": msg.external, "policy": msg.policy}
     if isinstance(msg, Done):
         return {"type": "done", "proc": msg.proc, "e": msg.episode, "t": msg.tick, "sent": msg.sent,
-                "stats": msg.stats, "rt": msg.response_times,
+                "stats": msg.stats, "rt": msg.response_times, "fl": msg.flights, "wake": msg.wake,
                 "obs": {k: o.to_wire() for k, o in msg.obs.items()}, "error": msg.error}
     if isinstance(msg, dict):
         if "type" not in msg:
@@ -96,7 +96,7 @@ def from_wire(d: dict[str, Any]) -> Any:
     if kind == "tick":
         return Tick(d["e"], d["t"], d["cmd"], d["expect"], d["actions"], d["seed"], d["external"], d["policy"])
     if kind == "done":
-        return Done(d["proc"], d["e"], d["t"], d["sent"], d["stats"], d["rt"],
+        return Done(d["proc"], d["e"], d["t"], d["sent"], d["stats"], d["rt"], d["fl"], d["wake"],
                     {k: Observation.from_wire(o) for k, o in d["obs"].items()}, d["error"])
     return d
 

@@ -15,6 +15,7 @@ undecided tasks, oldest first.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
 
 from node_runtime.config import NodeSpec, Scenario
@@ -100,6 +101,16 @@ class Controller(Role):
             self.asked = [task.id for task in obs.tasks]
             if not self.external and self.asked:
                 self.pending = self.policy.decide(obs)
+
+    def wake(self, t: int) -> float:
+        """Next tick while an agent drives it or an answer is to be placed; at the next decision
+        epoch while undecided tasks wait; otherwise only mail (a report, a state) wakes it."""
+        if self.external or self.asked or self.outages:
+            return t + 1
+        if self.has_candidates():
+            interval = self.scenario.decision_interval
+            return t + interval - t % interval
+        return math.inf
 
     def has_candidates(self) -> bool:
         decided = self.decided

@@ -1,7 +1,8 @@
 """A host's side of the clock protocol (DESIGN §4), over any transport.
 
-Per tick t: wait for ``Tick(t)``; wait until the publications sent to this process in tick t - 1
-number ``expect[self]``; deliver them; run the roles; publish the outgoing batches, then ``Done``.
+Per tick t it takes part in: wait for ``Tick(t)``; wait until the publications sent to this process
+in tick t - 1 number ``expect[self]``; deliver them; run the roles; publish the outgoing batches, then
+``Done``. Ticks in which it has neither mail nor work due never reach it.
 Publications can overtake the tick that announces them, or belong to an episode this process has
 not started yet, so they are buffered by (episode, sent tick) until their turn.
 """
@@ -33,6 +34,7 @@ class HostDriver:
         self.listeners = [transport.monitored(keys.events("*", node)) for node in host.nodes]
         self.monitors: dict[tuple[str, str], Monitored] = {}
         transport.subscribe(keys.tick(), self.on_tick)
+        transport.subscribe(keys.tick(self.proc), self.on_tick)
         transport.subscribe(keys.inbox(self.proc), self.on_batch)
         for topic in host.routing.topics_of(self.proc):
             transport.subscribe(keys.topic(topic), self.on_batch)

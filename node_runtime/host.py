@@ -8,6 +8,7 @@ delivered at its arrival tick, applied in canonical order (arrive, sender role, 
 
 from __future__ import annotations
 
+import math
 from collections import defaultdict
 from dataclasses import dataclass
 
@@ -83,9 +84,7 @@ class Host:
             else:
                 role.reset(seed)
         self.mail: dict[str, defaultdict[int, list[Envelope]]] = {r.id: defaultdict(list) for r in self.roles}
-        # tasks and results each role has on the way: by arrival tick, and in total
-        self.arrivals: dict[str, defaultdict[int, int]] = {r.id: defaultdict(int) for r in self.roles}
-        self.flying: dict[str, int] = dict.fromkeys(self.by_id, 0)
+        self.due: dict[str, float] = dict.fromkeys(self.by_id, 0)  # the next tick each role must run
         self.reported: dict[str, tuple] = {}  # what each role's stats were at the last report
         for out in self.outboxes.values():
             out.reset()
@@ -101,37 +100,56 @@ class Host:
                 mail[env.dst][env.arrive].append(env)
 
     def run(self, t: int, actions: dict[str, Action] | None = None) -> Outgoing:
-        """One tick of every role, in canonical order; mail out; the report."""
+        """One tick of every role with mail or work due, in canonical order; mail out; the report.
+
+        A role with neither is skipped: by the contract of ``Role.wake`` its tick would change nothing.
+        """
         actions = actions or {}
         mail = self.mail
+        due = self.due
         events: list[tuple[str, str, dict]] = []
+        ran: list[Role] = []
         for role in self.roles:
-            inbox = mail[role.id].pop(t, NO_MAIL)
+            rid = role.id
+            inbox = mail[rid].pop(t, NO_MAIL)
+            if not inbox and due[rid] > t:
+                continue
             if len(inbox) > 1:
                 inbox.sort(key=Envelope.order)
-            out = self.outboxes[role.id]
+            out = self.outboxes[rid]
             out.tick = t
             out.events = events if self.events_on else None
-            if role.id in self.external:
-                role.tick(t, inbox, out, actions.get(role.id))
+            if rid in self.external:
+                role.tick(t, inbox, out, actions.get(rid))
             else:
                 role.tick(t, inbox, out)
-        return self._route(t, events)
+            due[rid] = role.wake(t)
+            ran.append(role)
+        return self._route(t, ran, events)
 
-    def _route(self, t: int, events: list[tuple[str, str, dict]]) -> Outgoing:
+    def wake(self) -> int | None:
+        """The next tick at which a role here has work or mail, or None if only new mail can wake one."""
+        nxt = min(self.due.values(), default=math.inf)
+        for box in self.mail.values():
+            if box:
+                nxt = min(nxt, min(box))
+        return None if nxt == math.inf else int(nxt)
+
+    def _route(self, t: int, ran: list[Role], events: list[tuple[str, str, dict]]) -> Outgoing:
         proc_of = self.routing.proc_of
+        role_index = self.routing.role_index
         batches: dict[str, list[Envelope]] = {}
         topics: dict[str, list[Envelope]] = {}
         sent: dict[int, int] = {}
-        for rid, out in self.outboxes.items():
+        flights: dict[int, dict[int, int]] = {}
+        for role in ran:
+            out = self.outboxes[role.id]
             if not out.envelopes and not out.broadcasts:
                 continue
-            arrivals = self.arrivals[rid]
             for env in out.envelopes:
                 if env.kind in CARRIES_TASK:
-                    arrivals[env.arrive] += 1
-                    self.flying[rid] += 1
-                    self.by_id[rid].stats.in_flight = self.flying[rid]
+                    landing = flights.setdefault(role_index[role.id], {})
+                    landing[env.arrive] = landing.get(env.arrive, 0) + 1
                 dst = env.dst
                 if dst in self.mail:
                     self.mail[dst][env.arrive].append(env)
@@ -150,23 +168,20 @@ class Host:
         for topic in topics:
             for p in self.remote_subs[topic]:
                 sent[index[p]] = sent.get(index[p], 0) + 1
-        return Outgoing(batches, topics, self.report(t, sent), events)
+        return Outgoing(batches, topics, self.report(t, ran, sent, flights), events)
 
-    def report(self, t: int, sent: dict[int, int]) -> Done:
+    def report(self, t: int, ran: list[Role], sent: dict[int, int], flights: dict[int, dict[int, int]]) -> Done:
         """The Done of tick t. Its stats hold only the roles whose counters changed since the last
-        report (all of them after a reset): the orchestrator keeps the others' last values."""
+        report (all of them after a reset): the orchestrator keeps the others' last values. Roles
+        that did not run this tick cannot have changed."""
         stats: dict[int, tuple] = {}
         rts: dict[int, list[float]] = {}
         obs: dict[int, Observation] = {}
         reported = self.reported
         index = self.routing.role_index
-        for role in self.roles:
+        for role in ran:
             rid = role.id
-            arrivals = self.arrivals[rid]
             st = role.stats
-            if t in arrivals:  # arrivals happen in order: at most this tick's are due
-                self.flying[rid] -= arrivals.pop(t)
-                st.in_flight = self.flying[rid]
             values = read_stats(st)
             if reported.get(rid) != values:
                 reported[rid] = stats[index[rid]] = values
@@ -175,4 +190,4 @@ class Host:
                 st.response_times = []
             if rid in self.external and role.last is not None and role.last.tick == t:
                 obs[index[rid]] = role.last
-        return Done(self.proc, self.episode, t, sent, stats, rts, obs)
+        return Done(self.proc, self.episode, t, sent, stats, rts, flights, self.wake(), obs)

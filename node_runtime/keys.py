@@ -23,8 +23,9 @@ class Keys:
     def root(self) -> str:
         return f"{self.prefix}/{self.sim_id}"
 
-    def tick(self) -> str:
-        return f"{self.root}/clock/tick"
+    def tick(self, proc: str | None = None) -> str:
+        """The tick for every process (reset, stop, or a tick all take part in), or for one."""
+        return f"{self.root}/clock/tick" if proc is None else f"{self.root}/clock/tick/{proc}"
 
     def done(self, proc: str = "*") -> str:
         return f"{self.root}/clock/done/{proc}"

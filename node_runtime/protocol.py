@@ -1,13 +1,15 @@
 """Messages of the clock protocol (DESIGN §4), as opposed to the model's messages.
 
-- ``Tick``: the orchestrator opens tick t, telling each process how many publications sent in
-  tick t - 1 it must have received first, and carrying the agents' actions;
+- ``Tick``: the orchestrator opens tick t for a process (or for all of them), telling it how many
+  publications sent in tick t - 1 it must have received first, and carrying the agents' actions;
+- ``Batch``: one process's mail of one tick for one destination process (or one broadcast topic);
+- ``Done``: a process finished tick t: what it sent to whom, its roles' accounting, and the next
+  tick at which it has work of its own. Only processes with mail or work due get a tick: the others
+  sleep, which is what makes a mostly idle network cheap.
 
 Processes and roles are named by their canonical index (``Routing.procs`` / ``Routing.roles``
 order): every participant derives the same indices from the scenario and the layout, and small ints
 decode faster than strings in dozens of processes every tick.
-- ``Batch``: one process's mail of one tick for one destination process (or one broadcast topic);
-- ``Done``: a process finished tick t: what it sent to whom, and its roles' accounting.
 
 Every message names its episode, so mail from a previous episode that is still on the wire after
 a reset is recognised and ignored.
@@ -21,7 +23,7 @@ from typing import Any, Literal
 from node_runtime.messages import Envelope
 from node_runtime.observation import Observation
 
-SCHEMA_VERSION = 1
+SCHEMA_VERSION = 2
 Command = Literal["run", "reset", "stop"]
 
 
@@ -55,5 +57,7 @@ class Done:
     sent: dict[int, int]  # destination process index -> publications
     stats: dict[int, tuple]  # role index -> values of STAT_FIELDS (changed roles only)
     response_times: dict[int, list[float]] = field(default_factory=dict)  # client role index -> this tick's
+    flights: dict[int, dict[int, int]] = field(default_factory=dict)  # role index -> {arrival tick: tasks/results sent}
+    wake: int | None = None  # the next tick this process must run without mail; None: only mail wakes it
     obs: dict[int, Observation] = field(default_factory=dict)  # externally driven controller index -> its view
     error: str | None = None  # set when the process failed; it exits after sending this

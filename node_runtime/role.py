@@ -24,7 +24,8 @@ class Counters:
     """Cumulative per-role accounting since the last reset, plus a few current levels.
 
     Conservation is checked over the sum of these across all roles: every task a client generated
-    is completed, dropped (by exactly one cause), or held by some role or link.
+    is completed, dropped (by exactly one cause), or held by some role or link (the tasks and results
+    on links are counted by the orchestrator, from the arrival ticks that ``Done`` reports).
     """
 
     generated: int = 0
@@ -45,7 +46,6 @@ class Counters:
     queue: int = 0
     undecided: int = 0
     overloaded: int = 0  # 1 if the buffer was full at the start of this tick
-    in_flight: int = 0  # tasks and results this role sent that have not arrived yet (kept by the host)
     # completions this tick: response times in seconds (drained by the host every tick)
     response_times: list[float] = field(default_factory=list)
 
@@ -99,10 +99,18 @@ class Outbox:
 
 
 class Role:
-    """Base of worker, client and controller. Subclasses implement ``reset`` and ``tick``."""
+    """Base of worker, client and controller. Subclasses implement ``reset`` and ``tick``, and may
+    implement ``wake`` to let their process sleep through ticks in which they have nothing to do."""
 
     kind: ClassVar[str]
     radio: Radio | None = None  # set by the role that owns the node's links
+
+    def __init_subclass__(cls, **kwargs: object) -> None:
+        """A class that redefines ``tick`` but not ``wake`` may act in ticks its parent's ``wake``
+        skips: it runs every tick, so its results cannot depend on the process layout."""
+        super().__init_subclass__(**kwargs)
+        if "tick" in cls.__dict__ and "wake" not in cls.__dict__:
+            cls.wake = Role.wake
 
     def __init__(self, node: NodeSpec, scenario: Scenario) -> None:
         self.node = node
@@ -139,3 +147,9 @@ class Role:
 
     def tick(self, t: int, inbox: list[Envelope], out: Outbox) -> None:
         raise NotImplementedError
+
+    def wake(self, t: int) -> float:
+        """After tick ``t``: the next tick at which this role must run even if no mail arrives for it
+        (``math.inf``: only mail wakes it). Its ``tick`` with an empty inbox at any tick before that
+        must change nothing, so a process may skip it (DESIGN §6); the default runs every tick."""
+        return t + 1

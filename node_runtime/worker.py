@@ -150,6 +150,18 @@ class Worker(Role):
             st.energy_idle += idle_energy(self.idle_w, self.dt)
         self.publish(t, out)
 
+    def wake(self, t: int) -> float:
+        """Every tick while the CPU works, the buffer is (or just stopped being) full, or anything
+        can change without mail (failures, idle power); otherwise at the next expiry of an undecided
+        task, or the next broadcast slot of a state that changed in between."""
+        if self.queue or self.outages or self.idle_w or self.stats.overloaded or self.occupancy >= self.node.buffer:
+            return t + 1
+        wake = self.next_expiry if self.undecided else math.inf
+        if (self.stats.queue, self.occupancy) != self._last_state and not self.failed:
+            interval = self.scenario.state_interval
+            wake = min(wake, t + interval - t % interval)
+        return wake
+
     def expire(self, t: int, out: Outbox) -> None:
         """Drop every held task past its deadline; then find when the next one expires."""
         dt = self.dt

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import bisect
 import math
 from collections import defaultdict
 
@@ -10,6 +11,7 @@ import numpy as np
 from node_runtime.config import Arrival, Scenario, TaskType, TraceRow
 
 BLOCK = 256  # ticks of arrival counts drawn at once (a constant: part of the stream's definition)
+LOOKAHEAD = BLOCK  # ticks ``next_arrival`` searches ahead before giving up
 
 
 def rate_at(arrival: Arrival, seconds: float, horizon: float) -> float:
@@ -28,6 +30,10 @@ def rate_at(arrival: Arrival, seconds: float, horizon: float) -> float:
 
 def trace_tick(row: TraceRow, dt: float) -> int:
     return math.floor(row.time / dt + 1e-9)
+
+
+def _every_tick(source: TaskSource, after: int) -> int:
+    return after + 1
 
 
 class TaskSource:
@@ -50,14 +56,20 @@ class TaskSource:
         self.fixed_rate = dict(scenario.workload.client_rates).get(node)
         if self.fixed_rate is None and self.arrival.kind == "uniform":
             self.fixed_rate = float(counts_rng.uniform(self.arrival.low, self.arrival.high))
-        self._block_start = -1
-        self._block: np.ndarray = np.zeros(0, dtype=np.int64)
+        self._blocks: dict[int, np.ndarray] = {}  # block start tick -> counts
         self.trace: dict[int, list[TraceRow]] | None = None
         if scenario.workload.trace is not None:
             self.trace = defaultdict(list)
             for row in scenario.workload.trace:
                 if row.client == node:
                     self.trace[trace_tick(row, self.dt)].append(row)
+            self.trace_ticks = sorted(self.trace)
+
+    def __init_subclass__(cls, **kwargs: object) -> None:
+        """A source that redefines ``draws`` but not ``next_arrival`` is asked every tick."""
+        super().__init_subclass__(**kwargs)
+        if "draws" in cls.__dict__ and "next_arrival" not in cls.__dict__:
+            cls.next_arrival = _every_tick
 
     def rate(self, tick: int) -> float:
         if self.fixed_rate is not None:
@@ -66,11 +78,12 @@ class TaskSource:
 
     def count(self, tick: int) -> int:
         start = tick - tick % BLOCK
-        if start != self._block_start:
+        block = self._blocks.get(start)
+        if block is None:  # ticks are asked in order, so blocks are drawn in order
             lam = np.array([self.rate(s) * self.dt for s in range(start, start + BLOCK)])
-            self._block = self.counts_rng.poisson(lam)
-            self._block_start = start
-        return int(self._block[tick - start])
+            block = self._blocks[start] = self.counts_rng.poisson(lam)
+            self._blocks.pop(start - 2 * BLOCK, None)  # the current tick is at most one block behind
+        return int(block[tick - start])
 
     def draws(self, tick: int) -> list[tuple[float, float, float, float, float]]:
         """(instructions, input_bytes, output_bytes, cpi, deadline) of every task created at ``tick``."""
@@ -85,3 +98,17 @@ class TaskSource:
         else:
             picks = [self.types[i] for i in self.types_rng.choice(len(self.types), size=n, p=self.probs)]
         return [(t.instructions, t.input_bytes, t.output_bytes, t.cpi, t.deadline) for t in picks]
+
+    def next_arrival(self, after: int) -> int:
+        """The first tick after ``after`` with a task, or the end of the search window.
+
+        Counts are drawn a block at a time from their own stream, so looking ahead draws exactly
+        the numbers that asking tick by tick would."""
+        if self.trace is not None:
+            i = bisect.bisect_right(self.trace_ticks, after)
+            return self.trace_ticks[i] if i < len(self.trace_ticks) else after + LOOKAHEAD
+        for tick in range(after + 1, after + LOOKAHEAD):
+            if self.count(tick):
+                return tick
+        return after + LOOKAHEAD
+

@@ -1,14 +1,16 @@
 """The simulated clock: the orchestrator's side of the barrier protocol (DESIGN §4).
 
 ``step`` opens tick t with ``Tick(t, expect)``, where ``expect[p]`` is the number of publications
-the processes reported sending to ``p`` in tick t - 1, and returns once every process has reported
-``Done(t)``. A process that reports an error, dies, or stays silent past the timeout ends the run
-with an error that names it and the nodes it hosted.
+the processes reported sending to ``p`` in tick t - 1, and returns once every process it opened the
+tick for has reported ``Done(t)``. It opens it only for the processes that have mail from tick t - 1
+or said in their last ``Done`` that they have work at t: the others sleep, and their last reports
+stand. A reset opens tick 0 for all. A process that reports an error, dies, or stays silent past the
+timeout ends the run with an error that names it and the nodes it hosted.
 """
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from typing import Any
 
 from node_runtime.keys import Keys
@@ -42,6 +44,8 @@ class Clock:
         self.latest = -1  # the highest episode run or seen on the bus (another driver may have run some)
         self.tick = -1
         self.expect: dict[int, int] = {}  # process index -> publications to wait for
+        self.wake: list[int | None] = [None] * len(self.procs)  # process index -> next tick with work of its own
+        self.actors = {role: routing.proc_index[routing.proc_of[role]] for role in routing.roles}
         self.dones: dict[str, Done] = {}
         transport.subscribe(keys.done(), self.on_done)
 
@@ -59,12 +63,29 @@ class Clock:
         self.episode = max(self.episode, self.latest) + 1
         self.latest = self.episode
         self.tick = 0
-        return self._run(Tick(self.episode, 0, "reset", seed=seed, external=list(external or ()), policy=policy))
+        self.dones = {}
+        self.transport.publish(self.keys.tick(), Tick(self.episode, 0, "reset", seed=seed,
+                                                      external=list(external or ()), policy=policy))
+        return self._collect(range(len(self.procs)))
 
     def step(self, actions: dict[str, Any] | None = None) -> list[Done]:
         """Run the next tick; ``actions`` go to externally driven controllers."""
         self.tick += 1
-        return self._run(Tick(self.episode, self.tick, "run", expect=self.expect, actions=actions or {}))
+        t = self.tick
+        mine: dict[int, dict[str, Any]] = {}  # process index -> actions for its controllers
+        for role, action in (actions or {}).items():
+            mine.setdefault(self.actors[role], {})[role] = action
+        expect = self.expect
+        opened = [i for i, wake in enumerate(self.wake)
+                  if i in expect or i in mine or (wake is not None and wake <= t)]
+        self.dones = {}
+        if len(opened) == len(self.procs):  # one publication reaches them all
+            self.transport.publish(self.keys.tick(), Tick(self.episode, t, "run", expect, actions or {}))
+        else:
+            for i in opened:
+                self.transport.publish(self.keys.tick(self.procs[i]), Tick(
+                    self.episode, t, "run", {i: expect[i]} if i in expect else {}, mine.get(i, {})))
+        return self._collect(opened)
 
     def catch_up(self, episode: int) -> None:
         """Another driver ran episodes up to ``episode``: number ours after them."""
@@ -73,21 +94,21 @@ class Clock:
     def stop(self) -> None:
         self.transport.publish(self.keys.tick(), Tick(self.episode, self.tick + 1, "stop"))
 
-    def _run(self, cmd: Tick) -> list[Done]:
-        self.dones = {}
-        self.transport.publish(self.keys.tick(), cmd)
-        n = len(self.procs)
+    def _collect(self, opened: Sequence[int]) -> list[Done]:
+        """Wait for the Done of every process the tick was opened for, in canonical order."""
+        n = len(opened)
         try:
             self.transport.dispatch(until=lambda: len(self.dones) == n, timeout=self.timeout, idle=self.health)
         except TimeoutError:
-            silent = [p for p in self.procs if p not in self.dones]
+            silent = [self.procs[i] for i in opened if self.procs[i] not in self.dones]
             nodes = sorted({nd for p in silent for nd in self.routing.node_of_proc(p)})
-            raise ClockError(f"tick {cmd.tick}: no report within {self.timeout:.0f} s from "
+            raise ClockError(f"tick {self.tick}: no report within {self.timeout:.0f} s from "
                              f"{', '.join(silent[:8])}{' ...' if len(silent) > 8 else ''} "
                              f"(nodes {', '.join(nodes[:8])})") from None
-        dones = [self.dones[p] for p in self.procs]
+        dones = [self.dones[self.procs[i]] for i in opened]
         expect: dict[int, int] = {}
-        for d in dones:
+        for i, d in zip(opened, dones, strict=True):
+            self.wake[i] = d.wake
             for p, count in d.sent.items():
                 expect[p] = expect.get(p, 0) + count
         self.expect = expect

@@ -1,8 +1,9 @@
 """Per-tick and per-episode metrics from the processes' reports, and the conservation invariant.
 
-Each ``Done`` carries cumulative counters per role. Per tick they are stacked in canonical role
-order (so float sums do not depend on which process reported first), summed per node and in
-total, and checked:
+Each ``Done`` carries cumulative counters per role, and the arrival ticks of the tasks and results
+its roles put on links; a process that sleeps through a tick keeps its last counters. Per tick they
+are stacked in canonical role order (so float sums do not depend on which process reported first),
+summed per node and in total, and checked:
 
     generated = completed + dropped + (queued + undecided + in flight)
 
@@ -23,8 +24,10 @@ from node_runtime.protocol import Done
 from node_runtime.role import DROP_CAUSES, STAT_FIELDS
 from node_runtime.routing import Routing, role_node
 
-FIELDS = STAT_FIELDS  # in_flight is one of them
+FIELDS = (*STAT_FIELDS, "in_flight")  # in_flight: tasks and results a role sent that have not arrived yet
 F = {name: i for i, name in enumerate(FIELDS)}
+IN_FLIGHT = F["in_flight"]
+N_STATS = len(STAT_FIELDS)
 COUNTS = ("generated", "completed", *DROP_CAUSES, "offloaded", "decisions", "stale_decisions")
 ENERGY = ("energy_compute", "energy_idle", "energy_transmit")
 
@@ -117,13 +120,21 @@ class Metrics:
         self._prev_totals = np.zeros(len(FIELDS))
         self._prev_nodes = np.zeros((len(self.node_ids), len(FIELDS)))
         self._matrix = np.zeros((len(self.roles), len(FIELDS)))
+        self._landing: dict[int, list[tuple[int, int]]] = {}  # arrival tick -> [(role, tasks and results)]
 
     def add(self, tick: int, dones: list[Done]) -> TickReport:
         m = self._matrix
         rts: list[float] = []
+        landing = self._landing
         for d in dones:  # roles are named by their canonical index, which is their row
             for role, values in d.stats.items():
-                m[role] = values
+                m[role, :N_STATS] = values
+            for role, arrivals in d.flights.items():
+                for arrive, n in arrivals.items():
+                    m[role, IN_FLIGHT] += n
+                    landing.setdefault(arrive, []).append((role, n))
+        for role, n in landing.pop(tick, ()):  # delivered in this tick: held or accounted by the receiver
+            m[role, IN_FLIGHT] -= n
         for d in dones:  # completions, in canonical role order within each process
             for role, times in d.response_times.items():
                 rts.extend(times)

@@ -371,7 +371,7 @@ def test_monitor_json_prints_every_tick(ticking):
     mon = monitor_cli("--connect", endpoint, "--json")
     records = [json.loads(mon.line()) for _ in range(5)]
     assert [r["tick"] for r in records] == list(range(records[0]["tick"], records[0]["tick"] + 5))
-    assert {(r["v"], r["type"], r["sim"]) for r in records} == {(1, "metrics", sim)}
+    assert {(r["v"], r["type"], r["sim"]) for r in records} == {(2, "metrics", sim)}
     assert records[0]["nodes"]["id"] == [n.id for n in load_scenario("aot1").nodes]
     assert mon.finish(signal.SIGINT)[::2] == (0, [f"monitor: attached to {sim} (aot1) at {endpoint} (Ctrl-C to "
                                                   "detach)", f"monitor: detached from {sim}"])

@@ -1,0 +1,128 @@
+"""Processes sleep through ticks in which none of their roles has mail or work due (docs/protocol.md),
+and that is invisible in the results."""
+
+from __future__ import annotations
+
+import sys
+
+import numpy as np
+import pytest
+
+from node_runtime.role import Role
+from node_runtime.worker import Worker
+from node_runtime.workload import TaskSource
+from orchestrator.scenario import load_scenario
+from orchestrator.session import Simulation
+from tests.conftest import ROOT, model_part, run_summary, write_scenario
+from tests.test_determinism import outputs
+
+HEADER = "time,client,instructions,input_bytes,output_bytes,cpi,deadline\n"
+
+
+def tricky(tmp_path):
+    """Every timing rule that decides when a role wakes: sparse broadcasts, long epochs, batches,
+    multi-hop results, full buffers, deadlines that expire while tasks wait for a decision."""
+    return load_scenario(write_scenario(tmp_path, {
+        "simulation": {"steps": 200, "policy": "round_robin", "mode": "batch", "batch_size": 2,
+                       "decision_interval": 3, "state_interval": 4, "max_hops": 2},
+        "workload": {"arrival": {"rate": 0.5}, "tasks": [{"instructions": 3e6, "input_bytes": 2e5,
+                                                          "output_bytes": 2e5, "deadline": 12}]},
+        "topology": {"nodes": [{"id": "a", "frequency": 1e6, "buffer": 4, "client": True, "controller": True},
+                               {"id": "b", "frequency": 1e6, "buffer": 4, "client": True, "controller": True},
+                               {"id": "c", "frequency": 2e6, "buffer": 6, "controller": True},
+                               {"id": "d", "client": True, "worker": False}],
+                     "links": [["a", "b"], ["b", "c"], ["d", "a"]]},
+    }))
+
+
+def test_layouts_agree_on_every_wake_rule(tmp_path):
+    scenario = tricky(tmp_path)
+    ref = outputs(tmp_path, scenario, "single", seed=5)
+    assert ref[0]["totals"]["dropped"]["expired"] > 0 and ref[0]["totals"]["dropped"]["queue_full"] > 0
+    assert ref[0]["totals"]["offloaded"] > 0
+    for layout in ("per-role", "per-node"):
+        assert outputs(tmp_path, scenario, layout, seed=5, layout=layout) == ref, layout
+
+
+@pytest.mark.zenoh
+def test_zenoh_agrees_on_every_wake_rule(tmp_path):
+    scenario = tricky(tmp_path)
+    ref = outputs(tmp_path, scenario, "inproc", seed=9)
+    assert outputs(tmp_path, scenario, "zenoh", seed=9, transport="zenoh", layout="per-role") == ref
+
+
+def test_an_idle_network_wakes_nobody(tmp_path):
+    (tmp_path / "trace.csv").write_text(HEADER + "5,a,1e6,1000,1000,1,100\n")
+    scenario = load_scenario(write_scenario(tmp_path, {
+        "simulation": {"steps": 30, "policy": "local"},
+        "workload": {"trace": "trace.csv"},
+        "topology": {"nodes": [{"id": "a", "frequency": 1e6, "client": True, "controller": True},
+                               {"id": "b", "frequency": 1e6}], "links": [["a", "b"]]},
+    }))
+    with Simulation(scenario, transport="inproc", layout="per-role") as sim:
+        sim.reset()
+        assert len(sim.last) == len(sim.routing.procs)  # a reset runs everyone
+        woken = []
+        for _ in range(30):
+            sim.step()
+            woken.append(sorted(d.proc for d in sim.last))
+    # 1: the controller hears the workers' first state broadcasts (sent at the reset's tick 0);
+    # 5: the client creates the task; 6: its worker holds it undecided, reports it, broadcasts;
+    # 7: the controller observes and decides; 8: it sends the decision; 9: the worker queues the task
+    # and serves it (1e6 instructions on 1e6 instructions/s: one tick), the result leaves;
+    # 10: the client completes it, the controller hears the new state; then nothing, ever
+    assert woken[:10] == [["controller-a"], [], [], [], ["client-a"], ["worker-a"], ["controller-a"],
+                          ["controller-a"], ["worker-a"], ["client-a", "controller-a"]]
+    assert woken[10:] == [[]] * 20
+    assert sim.metrics.summary()["totals"]["completed"] == 1
+
+
+def test_looking_ahead_draws_what_asking_every_tick_draws(aot1):
+    node = next(n.id for n in aot1.nodes if n.client)
+
+    def source():
+        return TaskSource(aot1, node, np.random.default_rng(3), np.random.default_rng(4))
+
+    every = source()
+    expected = [(t, every.draws(t)) for t in range(1, 900)]
+    expected = [(t, d) for t, d in expected if d]
+    ahead, got, t = source(), [], 0
+    while True:
+        t = ahead.next_arrival(t)
+        if t >= 900:
+            break
+        if draws := ahead.draws(t):
+            got.append((t, draws))
+    assert got == expected and len(got) > 50  # ~0.17 per tick over three and a half count blocks
+
+
+def test_a_class_that_redefines_tick_runs_every_tick():
+    sys.path.insert(0, str(ROOT / "examples"))
+    try:
+        from battery_worker import BatteryWorker
+        from diurnal_source import DiurnalSource
+    finally:
+        sys.path.remove(str(ROOT / "examples"))
+
+    class FasterServe(Worker):
+        def serve(self, t, out):
+            super().serve(t, out)
+
+    class Replay(TaskSource):
+        def draws(self, tick):
+            return []
+
+    assert BatteryWorker.wake is Role.wake  # its battery recharges every tick
+    assert FasterServe.wake is Worker.wake  # serve only runs when Worker.wake says so
+    assert DiurnalSource.next_arrival is TaskSource.next_arrival  # a rate schedule is looked ahead
+    assert Replay.next_arrival(None, 7) == 8
+
+
+def test_the_battery_example_agrees_across_layouts(tmp_path):
+    sys.path.insert(0, str(ROOT / "examples"))
+    try:
+        scenario = load_scenario(ROOT / "examples" / "battery.yaml")
+        ref = model_part(run_summary(scenario, ticks=300, seed=2))
+        assert model_part(run_summary(scenario, ticks=300, seed=2, layout="per-role")) == ref
+    finally:
+        sys.path.remove(str(ROOT / "examples"))
