@@ -33,6 +33,10 @@ class HostDriver:
         # one detector per node covers every event kind, users' own included; publishers come lazily
         self.listeners = [transport.monitored(keys.events("*", node)) for node in host.nodes]
         self.monitors: dict[tuple[str, str], Monitored] = {}
+        # the keys this process publishes on, built once rather than every tick
+        self.done_key = keys.done(self.proc)
+        self.inbox_keys = {p: keys.inbox(p) for p in host.routing.destinations(self.proc)}
+        self.topic_keys = {topic: keys.topic(topic) for topic in host.published_topics()}
         transport.subscribe(keys.tick(), self.on_tick)
         transport.subscribe(keys.tick(self.proc), self.on_tick)
         transport.subscribe(keys.inbox(self.proc), self.on_batch)
@@ -80,14 +84,13 @@ class HostDriver:
             out = self.host.run(t, cmd.actions)
         except Exception as exc:  # report, then stop: the orchestrator names this process
             self.failed = f"{type(exc).__name__}: {exc}\n{traceback.format_exc()}"
-            self.transport.publish(self.keys.done(self.proc),
-                                   Done(self.proc, self.episode, t, {}, {}, error=self.failed))
+            self.transport.publish(self.done_key, Done(self.proc, self.episode, t, {}, {}, error=self.failed))
             return
         for proc, envelopes in out.batches.items():
-            self.transport.publish(self.keys.inbox(proc), Batch(self.episode, t, self.proc, envelopes))
+            self.transport.publish(self.inbox_keys[proc], Batch(self.episode, t, self.proc, envelopes))
         for topic, envelopes in out.topics.items():
-            self.transport.publish(self.keys.topic(topic), Batch(self.episode, t, self.proc, envelopes))
-        self.transport.publish(self.keys.done(self.proc), out.done)
+            self.transport.publish(self.topic_keys[topic], Batch(self.episode, t, self.proc, envelopes))
+        self.transport.publish(self.done_key, out.done)
         for kind, node, fields in out.events:  # best effort: monitors never slow the emulation down
             monitor = self.monitors.get((kind, node))
             fresh = monitor is None  # a new publisher may not have heard of its subscribers yet

@@ -74,9 +74,7 @@ def run(spec: ProcSpec) -> int:
             orchestrator["seen" if alive else "gone"] = True
 
         transport.watch_tokens(spec.keys.alive(ORCHESTRATOR), on_orchestrator)
-        publishes = [spec.keys.inbox(p) for p in routing.destinations(spec.proc)]
-        publishes += [spec.keys.topic(t) for t in host.published_topics()]
-        publishes.append(spec.keys.done(spec.proc))
+        publishes = [*driver.inbox_keys.values(), *driver.topic_keys.values(), driver.done_key]
         transport.wait_matching(publishes, READY_TIMEOUT)
         transport.declare_token(spec.keys.alive(spec.proc))
         transport.dispatch(until=lambda: driver.stopped or driver.failed is not None or orchestrator["gone"])

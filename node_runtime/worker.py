@@ -157,7 +157,7 @@ class Worker(Role):
         if self.queue or self.outages or self.idle_w or self.stats.overloaded or self.occupancy >= self.node.buffer:
             return t + 1
         wake = self.next_expiry if self.undecided else math.inf
-        if (self.stats.queue, self.occupancy) != self._last_state and not self.failed:
+        if (self.stats.queue, self.occupancy) != self._last_state:
             interval = self.scenario.state_interval
             wake = min(wake, t + interval - t % interval)
         return wake

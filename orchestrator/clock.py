@@ -46,6 +46,7 @@ class Clock:
         self.expect: dict[int, int] = {}  # process index -> publications to wait for
         self.wake: list[int | None] = [None] * len(self.procs)  # process index -> next tick with work of its own
         self.actors = {role: routing.proc_index[routing.proc_of[role]] for role in routing.roles}
+        self.tick_keys = [keys.tick(p) for p in self.procs]  # process index -> its own tick key
         self.dones: dict[str, Done] = {}
         transport.subscribe(keys.done(), self.on_done)
 
@@ -83,7 +84,7 @@ class Clock:
             self.transport.publish(self.keys.tick(), Tick(self.episode, t, "run", expect, actions or {}))
         else:
             for i in opened:
-                self.transport.publish(self.keys.tick(self.procs[i]), Tick(
+                self.transport.publish(self.tick_keys[i], Tick(
                     self.episode, t, "run", {i: expect[i]} if i in expect else {}, mine.get(i, {})))
         return self._collect(opened)
 
