@@ -22,7 +22,7 @@ from rich.console import Console
 from rich.table import Table
 
 from env import ZenohEdgeEnv
-from orchestrator.bench import BareBarrier
+from orchestrator.viewers.bench import BareBarrier
 
 CONFIGS = ("inproc:single", "zenoh:per-role", "zenoh:per-node")
 
@@ -45,7 +45,7 @@ def measure(scenario: str, transport: str, layout: str, steps: int, rounds: int)
             return n / spent
 
         run(50)  # warm-up
-        processes = len(env.sim.routing.procs) if transport == "zenoh" else 1
+        processes = len(env.sim.plan.procs) if transport == "zenoh" else 1
         barrier = BareBarrier(processes) if transport == "zenoh" else None
         chunk = max(1, steps // rounds)
         own, base = [], []

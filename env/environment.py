@@ -27,10 +27,11 @@ from pettingzoo import ParallelEnv
 
 from env.observations import DictObservation, ObservationBuilder, ObservationLayout
 from env.reward import PaperWeights, RewardContext, RewardFn, RewardTerms, paper_terms, resolve_reward, shaped
-from node_runtime.config import Arrival, Scenario
-from node_runtime.observation import Observation
-from node_runtime.plugins import load
-from node_runtime.routing import Layout, role_id
+from node_runtime.model.plugins import load
+from node_runtime.model.role import role_id
+from node_runtime.model.spec import Arrival, Scenario
+from node_runtime.model.view import Observation
+from node_runtime.runtime.layout import Layout
 from orchestrator.metrics import DROP_CAUSES, ENERGY, F
 from orchestrator.scenario import load_scenario
 from orchestrator.session import Simulation

@@ -1,4 +1,4 @@
-"""From a controller's raw view (``node_runtime.observation.Observation``) to fixed-shape arrays.
+"""From a controller's raw view (``node_runtime.model.view.Observation``) to fixed-shape arrays.
 
 Every agent observes a ``Dict`` of float32 arrays in units that keep magnitudes near 1 (documented
 in docs/env.md):
@@ -25,7 +25,7 @@ from typing import Any
 import numpy as np
 from gymnasium import spaces
 
-from node_runtime.observation import Observation
+from node_runtime.model.view import Observation
 
 OWN_FIELDS = ("queue", "occupancy", "buffer", "capacity_gcps", "tier", "undecided")
 TASK_FIELDS = ("present", "instructions_g", "input_mb", "output_mb", "cpi", "time_left_s", "waited_ticks")

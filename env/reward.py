@@ -25,8 +25,8 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
-from node_runtime.observation import Observation, TaskView
-from node_runtime.plugins import is_import_path, load
+from node_runtime.model.plugins import is_import_path, load
+from node_runtime.model.view import Observation, TaskView
 
 
 @dataclass(frozen=True)

@@ -5,7 +5,7 @@ profile with ``params``: battery_j (capacity, starts full), harvest_w (recharge)
 the CPU works), reserve_j (below it, new tasks are refused).
 """
 
-from node_runtime.worker import Worker
+from node_runtime import Worker
 
 
 class BatteryWorker(Worker):

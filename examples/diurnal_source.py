@@ -7,7 +7,7 @@ lambda(t) = base * (1 + amplitude * sin(2 pi (t + phase) / period)), drawn as Po
 
 import math
 
-from node_runtime.workload import TaskSource
+from node_runtime import TaskSource
 
 
 class DiurnalSource(TaskSource):

@@ -26,15 +26,15 @@ from rich.console import Console
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
 from rich.table import Table
 
-from node_runtime.keys import CHUNK, new_sim_id
-from node_runtime.policies import POLICIES
-from node_runtime.routing import LAYOUTS, Routing
-from orchestrator import monitor
+from node_runtime.model.policies import POLICIES
+from node_runtime.runtime.keys import CHUNK, new_sim_id
+from node_runtime.runtime.layout import LAYOUTS, ProcessLayout
 from orchestrator.clock import ClockError
 from orchestrator.metrics import ConservationError, TickReport
 from orchestrator.placement import load_placement
 from orchestrator.scenario import ScenarioError, load_scenario
 from orchestrator.session import Simulation
+from orchestrator.viewers import monitor
 
 EXIT_OK, EXIT_FAILED, EXIT_USAGE, EXIT_INTERRUPTED = 0, 1, 2, 130
 
@@ -73,7 +73,7 @@ def cmd_launch(args: argparse.Namespace) -> int:
     if args.placement:
         if args.transport != "zenoh":
             raise UsageError("--placement needs --transport zenoh")
-        placement = load_placement(args.placement, Routing(scenario, layout))
+        placement = load_placement(args.placement, ProcessLayout(scenario, layout))
     sim_id = args.sim_id or new_sim_id()
     console = Console(stderr=True, highlight=False, quiet=args.quiet)
     seed = args.seed if args.seed is not None else scenario.seed
@@ -92,7 +92,7 @@ def cmd_launch(args: argparse.Namespace) -> int:
                     port=port, sim_id=sim_id, placement=placement, on_waiting=waiting, join=args.connect) as sim:
         if args.transport == "zenoh":
             console.print(f"router {sim.endpoint}, simulation id [bold]{sim.keys.sim_id}[/], "
-                          f"{len(sim.routing.procs)} processes ready in {sim.startup_s:.2f} s")
+                          f"{len(sim.plan.procs)} processes ready in {sim.startup_s:.2f} s")
         if args.serve:
             console.print(f"serving: monitor with `orchestrator monitor --connect {sim.endpoint} --sim "
                           f"{sim.keys.sim_id}`; attach an environment with ZenohEdgeEnv(connect=\"{sim.endpoint}\", "
@@ -180,7 +180,7 @@ def summary_table(s: dict[str, Any]) -> Table:
 # ----- bench -----
 
 def cmd_bench(args: argparse.Namespace) -> int:
-    from orchestrator import bench
+    from orchestrator.viewers import bench
 
     console = Console(stderr=True, highlight=False)
     configs = [c for c in bench.CONFIGS if c[0] in args.transports]
@@ -205,13 +205,13 @@ def cmd_bench(args: argparse.Namespace) -> int:
 # ----- topology, plot (matplotlib is imported only when they run) -----
 
 def cmd_topology(args: argparse.Namespace) -> int:
-    from orchestrator import draw
+    from orchestrator.viewers import draw
 
     return draw.cmd_topology(args)
 
 
 def cmd_plot(args: argparse.Namespace) -> int:
-    from orchestrator import plots
+    from orchestrator.viewers import plots
 
     return plots.cmd_plot(args)
 

@@ -13,10 +13,10 @@ from __future__ import annotations
 from collections.abc import Callable, Sequence
 from typing import Any
 
-from node_runtime.keys import Keys
-from node_runtime.protocol import Done, Tick
-from node_runtime.routing import Routing
-from node_runtime.transport import Transport
+from node_runtime.runtime.keys import Keys
+from node_runtime.runtime.layout import ProcessLayout
+from node_runtime.runtime.protocol import Done, Tick
+from node_runtime.runtime.transport import Transport
 
 
 class ClockError(RuntimeError):
@@ -32,12 +32,12 @@ class ProcessFailed(ClockError):
 
 
 class Clock:
-    def __init__(self, transport: Transport, keys: Keys, routing: Routing, timeout: float = 30.0,
+    def __init__(self, transport: Transport, keys: Keys, plan: ProcessLayout, timeout: float = 30.0,
                  health: Callable[[], None] | None = None) -> None:
         self.transport = transport
         self.keys = keys
-        self.routing = routing
-        self.procs = routing.procs
+        self.plan = plan
+        self.procs = plan.procs
         self.timeout = timeout
         self.health = health
         self.episode = -1
@@ -45,7 +45,7 @@ class Clock:
         self.tick = -1
         self.expect: dict[int, int] = {}  # process index -> publications to wait for
         self.wake: list[int | None] = [None] * len(self.procs)  # process index -> next tick with work of its own
-        self.actors = {role: routing.proc_index[routing.proc_of[role]] for role in routing.roles}
+        self.actors = {role: plan.proc_index[plan.proc_of[role]] for role in plan.roles}
         self.tick_keys = [keys.tick(p) for p in self.procs]  # process index -> its own tick key
         self.dones: dict[str, Done] = {}
         transport.subscribe(keys.done(), self.on_done)
@@ -54,7 +54,7 @@ class Clock:
         self.latest = max(self.latest, done.episode)
         if done.error is not None:
             first = done.error.strip().splitlines()[0]
-            raise ProcessFailed(done.proc, self.routing.node_of_proc(done.proc), f"failed in tick {done.tick}: {first}"
+            raise ProcessFailed(done.proc, self.plan.node_of_proc(done.proc), f"failed in tick {done.tick}: {first}"
                                 ) from RuntimeError(done.error)
         if done.episode == self.episode and done.tick == self.tick:
             self.dones[done.proc] = done
@@ -102,7 +102,7 @@ class Clock:
             self.transport.dispatch(until=lambda: len(self.dones) == n, timeout=self.timeout, idle=self.health)
         except TimeoutError:
             silent = [self.procs[i] for i in opened if self.procs[i] not in self.dones]
-            nodes = sorted({nd for p in silent for nd in self.routing.node_of_proc(p)})
+            nodes = sorted({nd for p in silent for nd in self.plan.node_of_proc(p)})
             raise ClockError(f"tick {self.tick}: no report within {self.timeout:.0f} s from "
                              f"{', '.join(silent[:8])}{' ...' if len(silent) > 8 else ''} "
                              f"(nodes {', '.join(nodes[:8])})") from None

@@ -20,9 +20,9 @@ from typing import Any
 
 import numpy as np
 
-from node_runtime.protocol import Done
-from node_runtime.role import DROP_CAUSES, STAT_FIELDS
-from node_runtime.routing import Routing, role_node
+from node_runtime.model.role import DROP_CAUSES, STAT_FIELDS, role_node
+from node_runtime.runtime.layout import ProcessLayout
+from node_runtime.runtime.protocol import Done
 
 FIELDS = (*STAT_FIELDS, "in_flight")  # in_flight: tasks and results a role sent that have not arrived yet
 F = {name: i for i, name in enumerate(FIELDS)}
@@ -99,10 +99,10 @@ def bus_record(report: TickReport, metrics: Metrics, sim_id: str, episode: int) 
 
 
 class Metrics:
-    def __init__(self, routing: Routing) -> None:
-        sc = routing.scenario
+    def __init__(self, plan: ProcessLayout) -> None:
+        sc = plan.scenario
         self.scenario = sc
-        self.roles = routing.roles
+        self.roles = plan.roles
         self.node_ids = tuple(n.id for n in sc.nodes)
         incidence = np.zeros((len(self.node_ids), len(self.roles)))
         for i, r in enumerate(self.roles):

@@ -14,12 +14,12 @@ from pathlib import Path
 
 import yaml
 
-from node_runtime.keys import CHUNK
-from node_runtime.routing import Routing
+from node_runtime.runtime.keys import CHUNK
+from node_runtime.runtime.layout import ProcessLayout
 from orchestrator.scenario import ScenarioError
 
 
-def load_placement(path: str | Path, routing: Routing) -> dict[str, list[str]]:
+def load_placement(path: str | Path, plan: ProcessLayout) -> dict[str, list[str]]:
     """Group name -> the processes it runs. Raises ScenarioError with one line per problem."""
     label = str(path)
     try:
@@ -30,12 +30,12 @@ def load_placement(path: str | Path, routing: Routing) -> dict[str, list[str]]:
         raise ScenarioError([f"{label}: invalid YAML: {exc}".splitlines()[0]]) from None
     if not isinstance(data, dict) or not isinstance(data.get("groups"), dict) or set(data) != {"groups"}:
         raise ScenarioError([f"{label}: expected a mapping with one key, 'groups': {{group: [node, ...]}}"])
-    if routing.layout == "single":
+    if plan.layout == "single":
         raise ScenarioError([f"{label}: the 'single' layout has one process; use per-role or per-node"])
     errors: list[str] = []
     owner: dict[str, str] = {}
     procs_of_node: dict[str, list[str]] = {}
-    for role, proc in routing.proc_of.items():
+    for role, proc in plan.proc_of.items():
         procs_of_node.setdefault(role.split(":", 1)[1], [])
         if proc not in procs_of_node[role.split(":", 1)[1]]:
             procs_of_node[role.split(":", 1)[1]].append(proc)
@@ -51,7 +51,7 @@ def load_placement(path: str | Path, routing: Routing) -> dict[str, list[str]]:
         placement[group] = []
         for i, node in enumerate(nodes):
             if node not in procs_of_node:
-                errors.append(f"{label}: {where}[{i}]: unknown node {node!r} in scenario {routing.scenario.name}")
+                errors.append(f"{label}: {where}[{i}]: unknown node {node!r} in scenario {plan.scenario.name}")
             elif node in owner:
                 errors.append(f"{label}: {where}[{i}]: node {node!r} is already placed in group {owner[node]!r}")
             else:

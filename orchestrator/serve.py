@@ -20,9 +20,9 @@ import threading
 from collections.abc import Callable
 from typing import Any
 
-from node_runtime.config import Scenario
-from node_runtime.keys import DEFAULT_PREFIX, Keys
-from node_runtime.zenoh_transport import ZenohTransport
+from node_runtime.model.spec import Scenario
+from node_runtime.runtime.keys import DEFAULT_PREFIX, Keys
+from node_runtime.runtime.zenoh_bus import ZenohTransport
 from orchestrator.clock import Clock, ClockError
 from orchestrator.supervisor import Supervisor
 
@@ -54,7 +54,7 @@ class Server:
         with self._lock:
             return {"type": "session", "sim": self.keys.sim_id, "scenario": self.scenario.to_dict(),
                     "layout": self.layout, "episode": self.clock.latest, "driver": self.driver,
-                    "procs": list(self.supervisor.routing.procs), "placement": self.placement}
+                    "procs": list(self.supervisor.plan.procs), "placement": self.placement}
 
     def _control(self, msg: dict[str, Any]) -> dict[str, Any]:
         with self._lock:

@@ -20,17 +20,17 @@ import time
 from collections.abc import Callable
 from typing import Any, Literal
 
-from node_runtime.config import Scenario
-from node_runtime.controller import Action
-from node_runtime.driver import HostDriver
-from node_runtime.host import Host
-from node_runtime.inproc import InprocBus
-from node_runtime.keys import DEFAULT_PREFIX, Keys, new_sim_id
-from node_runtime.observation import Observation
-from node_runtime.protocol import Done
-from node_runtime.routing import Layout, Routing
-from node_runtime.transport import Transport
-from node_runtime.zenoh_transport import ZenohTransport, free_port
+from node_runtime.model.controller import Action
+from node_runtime.model.spec import Scenario
+from node_runtime.model.view import Observation
+from node_runtime.runtime.driver import HostDriver
+from node_runtime.runtime.host import Host
+from node_runtime.runtime.inproc import InprocBus
+from node_runtime.runtime.keys import DEFAULT_PREFIX, Keys, new_sim_id
+from node_runtime.runtime.layout import Layout, ProcessLayout
+from node_runtime.runtime.protocol import Done
+from node_runtime.runtime.transport import Transport
+from node_runtime.runtime.zenoh_bus import ZenohTransport, free_port
 from orchestrator.clock import Clock
 from orchestrator.metrics import Metrics, TickReport, bus_record
 from orchestrator.serve import Server, claim, release
@@ -69,20 +69,20 @@ class Simulation:
                      Keys(sim_id or new_sim_id(), prefix))
         if transport == "inproc":
             bus = InprocBus()
-            self.drivers = [HostDriver(Host(p, self.routing), bus.endpoint(), self.keys) for p in self.routing.procs]
+            self.drivers = [HostDriver(Host(p, self.plan), bus.endpoint(), self.keys) for p in self.plan.procs]
             self.transport: Transport = bus.endpoint()
-            self.clock = Clock(self.transport, self.keys, self.routing, timeout)
+            self.clock = Clock(self.transport, self.keys, self.plan, timeout)
             self.live = self.transport.monitored(self.keys.metrics())
         else:
             router, self.endpoint = open_router(listen_host, port, join)
             self.transport = router
             try:
-                self.supervisor = Supervisor(router, self.keys, self.routing)
-                self.clock = Clock(router, self.keys, self.routing, timeout, health=self.supervisor.check)
+                self.supervisor = Supervisor(router, self.keys, self.plan)
+                self.clock = Clock(router, self.keys, self.plan, timeout, health=self.supervisor.check)
                 self.live = router.monitored(self.keys.metrics())
                 self.server = Server(router, self.keys, scenario, self.layout, self.clock, self.supervisor, placement)
                 remote = {p for procs in (placement or {}).values() for p in procs}
-                local = tuple(p for p in self.routing.procs if p not in remote)
+                local = tuple(p for p in self.plan.procs if p not in remote)
                 if remote and on_waiting is not None:
                     on_waiting(placement)
                 self.startup_s = self.supervisor.start(scenario, self.layout, self.endpoint, local,
@@ -96,9 +96,9 @@ class Simulation:
         self.scenario = scenario
         self.transport_name = transport
         self.layout = layout
-        self.routing = Routing(scenario, layout)
+        self.plan = ProcessLayout(scenario, layout)
         self.keys = keys
-        self.metrics = Metrics(self.routing)
+        self.metrics = Metrics(self.plan)
         self.supervisor: Supervisor | None = None
         self.server: Server | None = None  # answers …/session and …/control (Zenoh only)
         self.attached: str | None = None  # our driver name, when attached to a served simulation
@@ -133,9 +133,9 @@ class Simulation:
         self.transport = transport
         self.attached = driver
         try:
-            self.supervisor = Supervisor(transport, keys, self.routing, token=driver)
+            self.supervisor = Supervisor(transport, keys, self.plan, token=driver)
             self.supervisor.wait_ready(timeout)
-            self.clock = Clock(transport, keys, self.routing, timeout, health=self.supervisor.check)
+            self.clock = Clock(transport, keys, self.plan, timeout, health=self.supervisor.check)
             self.clock.catch_up(info["episode"])
             self.live = transport.monitored(keys.metrics())
         except BaseException:
@@ -177,7 +177,7 @@ class Simulation:
 
     def observations(self) -> dict[str, Observation]:
         """Observations the externally driven controllers produced in the last tick, by role."""
-        roles = self.routing.roles
+        roles = self.plan.roles
         return {roles[i]: obs for d in self.last for i, obs in d.obs.items()}
 
     def run(self, ticks: int | None = None, seed: int | None = None, policy: str | None = None,
@@ -201,7 +201,7 @@ class Simulation:
         s["run"] = {
             "transport": self.transport_name,
             "layout": self.layout,
-            "processes": len(self.routing.procs) if self.transport_name == "zenoh" else 1,
+            "processes": len(self.plan.procs) if self.transport_name == "zenoh" else 1,
             "sim_id": self.keys.sim_id,
             "startup_s": round(self.startup_s, 3),
             "wall_time_s": round(wall, 3),

@@ -14,13 +14,13 @@ import signal
 import sys
 import time
 
-from node_runtime import process as node_process
-from node_runtime.config import Scenario
-from node_runtime.forkserver import ForkServer
-from node_runtime.keys import Keys
-from node_runtime.process import ORCHESTRATOR, ProcSpec
-from node_runtime.routing import Layout, Routing
-from node_runtime.transport import Transport
+from node_runtime.model.spec import Scenario
+from node_runtime.runtime import process as node_process
+from node_runtime.runtime.forkserver import ForkServer
+from node_runtime.runtime.keys import Keys
+from node_runtime.runtime.layout import Layout, ProcessLayout
+from node_runtime.runtime.process import ORCHESTRATOR, ProcSpec
+from node_runtime.runtime.transport import Transport
 from orchestrator.clock import ProcessFailed
 
 
@@ -31,10 +31,10 @@ class Supervisor:
     vanishes), or a remote driver's when it attaches to a served simulation.
     """
 
-    def __init__(self, transport: Transport, keys: Keys, routing: Routing, token: str = ORCHESTRATOR) -> None:
+    def __init__(self, transport: Transport, keys: Keys, plan: ProcessLayout, token: str = ORCHESTRATOR) -> None:
         self.transport = transport
         self.keys = keys
-        self.routing = routing
+        self.plan = plan
         self.children: dict[str, int] = {}  # process name -> pid
         self.forks: ForkServer | None = None
         self.ready: set[str] = set()
@@ -43,11 +43,11 @@ class Supervisor:
         transport.watch_tokens(keys.alive(), self.on_token)
 
     def nodes(self, proc: str) -> tuple[str, ...]:
-        return self.routing.node_of_proc(proc)
+        return self.plan.node_of_proc(proc)
 
     def on_token(self, key: str, alive: bool) -> None:
         proc = key.rsplit("/", 1)[-1]
-        if proc not in self.routing.roles_of:  # the orchestrator, a driver, a monitor
+        if proc not in self.plan.roles_of:  # the orchestrator, a driver, a monitor
             return
         if alive:
             self.ready.add(proc)
@@ -73,7 +73,7 @@ class Supervisor:
         """
         t0 = time.perf_counter()
         self.forks = ForkServer.shared()
-        for proc in procs if procs is not None else self.routing.procs:
+        for proc in procs if procs is not None else self.plan.procs:
             spec = ProcSpec(proc, scenario, layout, endpoint, self.keys, tuple(sys.path))
             self.children[proc] = self.forks.start(proc, node_process.main, spec)
         self.wait_ready(timeout)
@@ -81,7 +81,7 @@ class Supervisor:
 
     def wait_ready(self, timeout: float) -> None:
         """Wait until every process of the layout has announced itself."""
-        want = set(self.routing.procs)
+        want = set(self.plan.procs)
         try:
             self.transport.dispatch(until=lambda: want <= self.ready, timeout=timeout, idle=self.check)
         except TimeoutError:

@@ -2,10 +2,10 @@
 
 from __future__ import annotations
 
-from node_runtime import codec
-from node_runtime.messages import Decision, Envelope, Kind, NodeState, Pending, Result, Task
-from node_runtime.observation import NodeView, Observation, TaskView
-from node_runtime.protocol import Batch, Done, Tick
+from node_runtime.model.messages import Decision, Envelope, Kind, NodeState, Pending, Result, Task
+from node_runtime.model.view import NodeView, Observation, TaskView
+from node_runtime.runtime import codec
+from node_runtime.runtime.protocol import Batch, Done, Tick
 
 
 def task(**kw):
@@ -43,7 +43,7 @@ def test_decoded_task_path_is_a_tuple():
 
 
 def test_in_process_key_expressions_intersect_like_zenoh():
-    from node_runtime.inproc import key_matches
+    from node_runtime.runtime.inproc import key_matches
 
     assert key_matches("z/s/events/offloaded/*", "z/s/events/*/n1")  # wildcard on both sides
     assert key_matches("z/s/events/**", "z/s/events/dropped/n1")

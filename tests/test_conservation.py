@@ -9,7 +9,7 @@ from __future__ import annotations
 import csv
 import dataclasses
 
-from node_runtime.config import Arrival, Failure
+from node_runtime.model.spec import Arrival, Failure
 from orchestrator.scenario import load_scenario
 from tests.conftest import ROOT, run_summary
 

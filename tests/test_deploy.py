@@ -51,7 +51,7 @@ def test_two_hosts_give_the_same_emulation(tmp_path, hosts):
     groups = []
     for i, (ns, group) in enumerate(zip(hosts, ["cluster-a", "cluster-b"], strict=True), start=1):
         groups.append(subprocess.Popen(
-            ["ip", "netns", "exec", ns, sys.executable, "-m", "node_runtime.remote", "--connect",
+            ["ip", "netns", "exec", ns, sys.executable, "-m", "node_runtime.runtime.remote", "--connect",
              f"tcp/10.77.{i}.1:{port}", "--sim", "deploytest", "--group", group],
             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True))
     run.wait_for("processes ready")

@@ -11,13 +11,13 @@ import matplotlib.image
 import numpy as np
 import pytest
 
-from orchestrator import plots
 from orchestrator.cli import build_parser
 from orchestrator.cli import main as cli_main
-from orchestrator.draw import draw_topology
-from orchestrator.plots import PlotError, load_run, plot_run
 from orchestrator.scenario import load_scenario
 from orchestrator.session import Simulation
+from orchestrator.viewers import plots
+from orchestrator.viewers.draw import draw_topology
+from orchestrator.viewers.plots import PlotError, load_run, plot_run
 from tests.conftest import ROOT, write_scenario
 
 PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"

@@ -17,7 +17,7 @@ from orchestrator.scenario import load_scenario
 from tests.conftest import ROOT, model_part, run_summary, write_scenario
 
 SLOW_WORKER = '''
-from node_runtime.worker import Worker
+from node_runtime.model.worker import Worker
 
 class HalfSpeedWorker(Worker):
     """Serves with half its budget: a custom serving discipline."""
@@ -77,7 +77,7 @@ def test_per_node_roles_and_params(tmp_path, user_module):
 
 def test_custom_policy_by_import_path(tmp_path, monkeypatch):
     (tmp_path / "mylab_policy.py").write_text(textwrap.dedent('''
-        from node_runtime.policies import Policy
+        from node_runtime.model.policies import Policy
 
         class LastNeighbour(Policy):
             """Always the last valid target."""
@@ -94,9 +94,9 @@ BAD = [
     ({"roles": {"worker": "no_such_module_xyz:Worker"}}, "roles.worker: cannot import module 'no_such_module_xyz'"),
     ({"roles": {"worker": "json:NoSuchClass"}}, "roles.worker: module 'json' has no 'NoSuchClass'"),
     ({"roles": {"worker": "json:JSONDecoder"}},
-     "roles.worker: json:JSONDecoder is not a subclass of node_runtime.worker.Worker"),
-    ({"roles": {"client": "node_runtime.worker:Worker"}},
-     "roles.client: node_runtime.worker:Worker is not a subclass of node_runtime.client.Client"),
+     "roles.worker: json:JSONDecoder is not a subclass of node_runtime.model.worker.Worker"),
+    ({"roles": {"client": "node_runtime.model.worker:Worker"}},
+     "roles.client: node_runtime.model.worker:Worker is not a subclass of node_runtime.model.client.Client"),
     ({"simulation": {"policy": "json:dumps"}}, "simulation.policy: json:dumps is not a subclass of"),
     ({"workload": {"source": "json:JSONDecoder"}}, "workload.source: json:JSONDecoder is not a subclass of"),
     ({"reward": "math:pi"}, "reward: math:pi is not callable"),
@@ -179,7 +179,7 @@ def test_reward_and_observation_builder_from_the_scenario(tmp_path, monkeypatch)
 
 def test_a_role_that_loses_tasks_silently_stops_the_run(tmp_path, monkeypatch):
     (tmp_path / "mylab_leaky.py").write_text(textwrap.dedent('''
-        from node_runtime.worker import Worker
+        from node_runtime.model.worker import Worker
 
         class LeakyWorker(Worker):
             """Forgets arrivals without accounting for them: a bug conservation must catch."""

@@ -6,9 +6,9 @@ import math
 
 import pytest
 
-from node_runtime.comm import LinkTransmitter, dbm_to_watts, log_distance_gain_db, shannon_rate
-from node_runtime.energy import compute_energy, idle_energy, transmit_energy
-from node_runtime.messages import Task
+from node_runtime.model.energy import compute_energy, idle_energy, transmit_energy
+from node_runtime.model.messages import Task
+from node_runtime.model.radio import LinkTransmitter, dbm_to_watts, log_distance_gain_db, shannon_rate
 
 
 def test_shannon_rate_hand_computed():
@@ -112,7 +112,7 @@ def test_noise_follows_the_bandwidth(tmp_path):
 def test_a_task_that_would_expire_in_the_link_queue_is_never_sent():
     import numpy as np
 
-    from node_runtime.comm import Radio
+    from node_runtime.model.radio import Radio
 
     radio = Radio({"b": (8e6, 0.0)}, dt=1.0)  # 1 MB/s
     radio.reset(np.random.default_rng(0))

@@ -25,13 +25,13 @@ import pytest
 import zenoh
 from rich.console import Console
 
-from node_runtime import codec
-from node_runtime.keys import Keys
-from node_runtime.process import ORCHESTRATOR
-from node_runtime.zenoh_transport import ZenohTransport, free_port, zenoh_config
-from orchestrator.monitor import WINDOW_TICKS, BusMonitor, DashboardState, main, queue_bar, render
+from node_runtime.runtime import codec
+from node_runtime.runtime.keys import Keys
+from node_runtime.runtime.process import ORCHESTRATOR
+from node_runtime.runtime.zenoh_bus import ZenohTransport, free_port, zenoh_config
 from orchestrator.scenario import load_scenario
 from orchestrator.session import Simulation
+from orchestrator.viewers.monitor import WINDOW_TICKS, BusMonitor, DashboardState, main, queue_bar, render
 from tests.conftest import ROOT, model_part, run_summary
 from tests.launcher import Launch, assert_all_gone, served
 
@@ -96,7 +96,7 @@ def drain(q: queue.SimpleQueue[str]) -> list[str]:
 
 
 def monitor_cli(*args: str) -> Output:
-    return Output(sys.executable, "-m", "orchestrator.monitor", *args)
+    return Output(sys.executable, "-m", "orchestrator.viewers.monitor", *args)
 
 
 def stop_server(run: Launch, children: list) -> None:
@@ -388,7 +388,7 @@ def test_dashboard_in_a_terminal(ticking, tmp_path):
     name = f"zedge-monitor-{os.getpid()}"
     fifo = tmp_path / "pane"
     os.mkfifo(fifo)
-    command = (f"read go; stty size; {sys.executable} -m orchestrator.monitor --connect {endpoint}; "
+    command = (f"read go; stty size; {sys.executable} -m orchestrator.viewers.monitor --connect {endpoint}; "
                "echo monitor-exit=$?; read done")
     tmux = ["tmux", "-L", name, "-f", os.devnull]  # a server of our own, without anybody's configuration
     subprocess.run([*tmux, "new-session", "-d", "-s", name, "-x", "100", "-y", "50", "-c", str(ROOT), command],

@@ -8,9 +8,9 @@ import sys
 import numpy as np
 import pytest
 
-from node_runtime.role import Role
-from node_runtime.worker import Worker
-from node_runtime.workload import TaskSource
+from node_runtime.model.role import Role
+from node_runtime.model.worker import Worker
+from node_runtime.model.workload import TaskSource
 from orchestrator.scenario import load_scenario
 from orchestrator.session import Simulation
 from tests.conftest import ROOT, model_part, run_summary, write_scenario
@@ -61,7 +61,7 @@ def test_an_idle_network_wakes_nobody(tmp_path):
     }))
     with Simulation(scenario, transport="inproc", layout="per-role") as sim:
         sim.reset()
-        assert len(sim.last) == len(sim.routing.procs)  # a reset runs everyone
+        assert len(sim.last) == len(sim.plan.procs)  # a reset runs everyone
         woken = []
         for _ in range(30):
             sim.step()

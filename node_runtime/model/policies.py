@@ -12,8 +12,8 @@ from typing import ClassVar
 
 import numpy as np
 
-from node_runtime.observation import NodeView, Observation, TaskView
-from node_runtime.plugins import is_import_path, load
+from node_runtime.model.plugins import is_import_path, load
+from node_runtime.model.view import NodeView, Observation, TaskView
 
 
 class Policy:

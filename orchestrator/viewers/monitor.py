@@ -34,11 +34,11 @@ from rich.live import Live
 from rich.table import Table
 from rich.text import Text
 
-from node_runtime.codec import CodecError
-from node_runtime.keys import CHUNK, DEFAULT_PREFIX, Keys
-from node_runtime.process import ORCHESTRATOR
-from node_runtime.transport import Handler, TokenHandler, TransportError
-from node_runtime.zenoh_transport import ZenohTransport
+from node_runtime.runtime.codec import CodecError
+from node_runtime.runtime.keys import CHUNK, DEFAULT_PREFIX, Keys
+from node_runtime.runtime.process import ORCHESTRATOR
+from node_runtime.runtime.transport import Handler, TokenHandler, TransportError
+from node_runtime.runtime.zenoh_bus import ZenohTransport
 
 EXIT_OK, EXIT_FAILED, EXIT_USAGE = 0, 1, 2
 DEFAULT_ENDPOINT = "tcp/127.0.0.1:7447"  # Zenoh's usual port, e.g. `launch --listen 0.0.0.0:7447`
@@ -429,7 +429,7 @@ def add_parser(sub: Any) -> argparse.ArgumentParser:
 
 
 def main(argv: list[str] | None = None) -> int:
-    """``python -m orchestrator.monitor``: the same command outside ``orchestrator``."""
+    """``python -m orchestrator.viewers.monitor``: the same command outside ``orchestrator``."""
     parser = argparse.ArgumentParser(prog="orchestrator")  # usage reads `orchestrator monitor ...`
     add_parser(parser.add_subparsers(dest="command", required=True))
     args = parser.parse_args(["monitor", *(sys.argv[1:] if argv is None else argv)])

@@ -6,7 +6,7 @@ import math
 
 import numpy as np
 
-from node_runtime.config import Scenario
+from node_runtime.model.spec import Scenario
 
 
 def dbm_to_watts(dbm: float) -> float:

@@ -1,13 +1,8 @@
-"""Scenario files: YAML in, a validated ``node_runtime.config.Scenario`` out (format: docs/scenario.md).
+"""The second pass: from a structurally valid file to a resolved ``Scenario``.
 
-Validation happens in two passes, and every problem becomes one line naming the file, the key path
-and what was expected:
-
-1. structure (pydantic): types, ranges, required and unknown keys;
-2. meaning: references between nodes, links, failures and traces; connectivity; roles.
-
-Defaults follow the paper's parameter table (λ = 0.17, α = 150 MiB, ρ = 8e7, ξ = 1, δ = 100 s,
-B = 2 MHz, P = 20 dBm, 1000 steps).
+It resolves references between nodes, links, failures and traces, applies profiles in order of
+precedence, derives link rates, checks connectivity and roles, and imports user extensions once so
+that a typo fails with its key path, not inside a node process.
 """
 
 from __future__ import annotations
@@ -18,370 +13,26 @@ import inspect
 import math
 import sys
 from pathlib import Path
-from typing import Annotated, Any, Literal
+from typing import Any
 
 import networkx as nx
-import yaml
-from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator, validate_call
+from pydantic import ValidationError, validate_call
 
-from node_runtime.comm import log_distance_gain_db, shannon_rate
-from node_runtime.config import Arrival, Failure, LinkSpec, NodeSpec, Scenario, TaskType, TraceRow, Workload
-from node_runtime.keys import CHUNK
-from node_runtime.plugins import PluginError, is_import_path, load
-from node_runtime.policies import POLICIES
-from topologies import scenario_path
+from node_runtime.model.plugins import PluginError, is_import_path, load
+from node_runtime.model.radio import log_distance_gain_db, shannon_rate
+from node_runtime.model.spec import Arrival, Failure, LinkSpec, NodeSpec, Scenario, TaskType, TraceRow, Workload
+from orchestrator.scenario.errors import ScenarioError, describe, key_path
+from orchestrator.scenario.schema import BUILTIN_PROFILES, NODE_DEFAULTS, ScenarioFile
 from topologies.draft import Draft, DraftLink, DraftNode
 from topologies.ether import EtherError, load_ether
 from topologies.generators import GENERATORS, GeneratorError
-
-MIB = 1024 * 1024
-Pos = Annotated[float, Field(gt=0)]
-NonNeg = Annotated[float, Field(ge=0)]
-Prob = Annotated[float, Field(ge=0, le=1)]
-Count = Annotated[int, Field(ge=1)]
-
-
-class ScenarioError(ValueError):
-    """A scenario the user must fix; ``errors`` holds one line per problem."""
-
-    def __init__(self, errors: list[str]) -> None:
-        super().__init__("\n".join(errors))
-        self.errors = errors
-
-
-class Strict(BaseModel):
-    model_config = ConfigDict(extra="forbid", frozen=True)
-
-
-# ----- the file format -----
-
-class SimulationCfg(Strict):
-    dt: Pos = 1.0
-    steps: Count = 1000
-    seed: int = 0
-    mode: Literal["binary", "batch"] = "binary"
-    decision_interval: Count = 1
-    max_hops: Annotated[int, Field(ge=0)] = 1
-    batch_size: Count = 4
-    state_interval: Count = 1
-    policy: str = "local"
-
-    @field_validator("policy")
-    @classmethod
-    def known_policy(cls, v: str) -> str:
-        if v not in POLICIES and not is_import_path(v):
-            raise ValueError(f"expected one of {', '.join(POLICIES)}, or an import path 'module:Class'")
-        return v
-
-
-class PathLossCfg(Strict):
-    ref_loss_db: float = 40.0
-    ref_distance_m: Pos = 1.0
-    exponent: Pos = 3.0
-
-
-class NetworkCfg(Strict):
-    bandwidth_hz: Pos = 2.0e6
-    tx_power_dbm: float = 20.0
-    noise_dbm: float | None = None  # default: thermal noise over the bandwidth, -174 + 10 log10(B) dBm
-    path_loss: PathLossCfg = PathLossCfg()
-    loss: Prob = 0.0
-
-
-class ArrivalCfg(Strict):
-    kind: Literal["constant", "linear", "zigzag", "uniform"] = "constant"
-    rate: NonNeg = 0.17
-    start: NonNeg = 0.0
-    end: NonNeg = 0.0
-    low: NonNeg = 0.0
-    high: NonNeg = 0.0
-    period: Pos = 100.0
-
-    @model_validator(mode="after")
-    def ordered(self) -> ArrivalCfg:
-        uses = {"constant": {"rate"}, "linear": {"start", "end"}, "zigzag": {"low", "high", "period"},
-                "uniform": {"low", "high"}}[self.kind]
-        stray = sorted(self.model_fields_set - uses - {"kind"})
-        if stray:
-            raise ValueError(f"{', '.join(stray)} {'is' if len(stray) == 1 else 'are'} not used by kind "
-                             f"{self.kind!r}, which takes {', '.join(sorted(uses))}")
-        missing = sorted(uses - self.model_fields_set) if self.kind != "constant" else []
-        if missing:
-            raise ValueError(f"kind {self.kind!r} needs {', '.join(missing)}")
-        if self.kind in ("zigzag", "uniform") and self.high < self.low:
-            raise ValueError("high must be >= low")
-        return self
-
-
-class TaskCfg(Strict):
-    name: str = "task"
-    weight: Pos = 1.0
-    instructions: Pos = 8.0e7
-    input_bytes: Pos = 150 * MIB
-    output_bytes: Pos = 150 * MIB
-    cpi: Pos = 1.0
-    deadline: Pos = 100.0
-
-
-class WorkloadCfg(Strict):
-    arrival: ArrivalCfg = ArrivalCfg()
-    rates: dict[str, NonNeg] = {}
-    targets: dict[str, list[str]] = {}
-    tasks: Annotated[list[TaskCfg], Field(min_length=1)] = [TaskCfg()]
-    trace: str | None = None
-    source: str | None = None  # import path of a TaskSource subclass
-
-    @model_validator(mode="after")
-    def one_workload(self) -> WorkloadCfg:
-        if self.trace is not None:
-            ignored = sorted({"arrival", "rates", "source"} & self.model_fields_set)
-            if ignored:
-                raise ValueError(f"a trace gives every task itself: remove {', '.join(ignored)} "
-                                 "(task sizes come from the trace too; 'tasks' only sizes Ether buffers)")
-        return self
-
-
-class EnergyCfg(Strict):
-    kappa: NonNeg = 1.0e-27
-    idle_power_w: NonNeg = 0.0
-
-
-class RolesCfg(Strict):
-    """User subclasses of the roles, by import path ("package.module:Class")."""
-
-    worker: str | None = None
-    client: str | None = None
-    controller: str | None = None
-
-
-class ProfileCfg(Strict):
-    cores: Count | None = None
-    frequency: Pos | None = None
-    buffer: Count | None = None
-    tier: Annotated[int, Field(ge=0)] | None = None
-    worker: bool | None = None
-    controller: bool | None = None
-    client: bool | None = None
-    policy: str | None = None
-    tx_power_dbm: float | None = None
-    idle_power_w: NonNeg | None = None
-    kappa: NonNeg | None = None
-
-    roles: RolesCfg | None = None
-    params: dict[str, float | int | bool | str] | None = None  # free parameters for user extensions
-
-    @field_validator("policy")
-    @classmethod
-    def known_policy(cls, v: str | None) -> str | None:
-        if v is not None and v not in POLICIES and not is_import_path(v):
-            raise ValueError(f"expected one of {', '.join(POLICIES)}, or an import path 'module:Class'")
-        return v
-
-
-class NodeCfg(ProfileCfg):
-    id: str
-    profile: str | None = None
-    position: tuple[float, float] = (0.0, 0.0)
-
-    @field_validator("id")
-    @classmethod
-    def chunk(cls, v: str) -> str:
-        if not CHUNK.match(v):
-            raise ValueError("expected a name of letters, digits, '_', '.' or '-'")
-        return v
-
-
-class LinkCfg(Strict):
-    between: tuple[str, str]
-    rate_bps: Pos | None = None
-    gain_db: float | None = None
-    loss: Prob | None = None
-
-    @model_validator(mode="before")
-    @classmethod
-    def pair(cls, v: Any) -> Any:
-        return {"between": v} if isinstance(v, (list, tuple)) else v
-
-
-class GeneratorCfg(BaseModel):
-    model_config = ConfigDict(extra="allow", frozen=True)
-    kind: str
-
-    @field_validator("kind")
-    @classmethod
-    def known(cls, v: str) -> str:
-        if v not in GENERATORS:
-            raise ValueError(f"expected one of {', '.join(GENERATORS)}")
-        return v
-
-
-class TopologyCfg(Strict):
-    ether: str | None = None
-    link_rates: Literal["wireless", "ether"] = "wireless"
-    generator: GeneratorCfg | None = None
-    nodes: list[NodeCfg] = []
-    links: list[LinkCfg] = []
-
-    @model_validator(mode="after")
-    def one_source(self) -> TopologyCfg:
-        sources = [s for s in ("ether", "generator") if getattr(self, s) is not None]
-        if len(sources) > 1:
-            raise ValueError("give either 'ether' or 'generator', not both")
-        if "link_rates" in self.model_fields_set and self.ether is None:
-            raise ValueError("link_rates only applies to an Ether import ('ether: FILE')")
-        if not sources and not self.nodes:
-            raise ValueError("expected one of 'ether', 'generator' or 'nodes'")
-        return self
-
-
-class FailureCfg(Strict):
-    node: str
-    at: Annotated[int, Field(ge=0)]
-    duration: Count
-
-
-class ScenarioFile(Strict):
-    name: str | None = None
-    description: str = ""
-    roles: RolesCfg = RolesCfg()
-    reward: str | None = None  # for the environment: "paper", "sparse", or an import path of a callable
-    observation: str | None = None  # for the environment: import path of an observation builder class
-    simulation: SimulationCfg = SimulationCfg()
-    network: NetworkCfg = NetworkCfg()
-    workload: WorkloadCfg = WorkloadCfg()
-    energy: EnergyCfg = EnergyCfg()
-    profiles: dict[str, ProfileCfg] = {}
-    topology: TopologyCfg
-    failures: list[FailureCfg] = []
-
-
-# Built-in hardware profiles: the AoT devices (Ether data, reference mapping) and the paper's tiers.
-BUILTIN_PROFILES: dict[str, dict[str, Any]] = {
-    "rpi3": {"cores": 1, "frequency": 4.0e6, "buffer": 3, "tier": 0, "controller": True, "client": True},
-    "tx2": {"cores": 1, "frequency": 4.0e6, "buffer": 26, "tier": 1},
-    "nuc": {"cores": 1, "frequency": 3.2e7, "buffer": 54, "tier": 1, "controller": True},
-    "server": {"cores": 1, "frequency": 8.8e7, "buffer": 597, "tier": 2, "controller": True},
-    "tier0": {"cores": 1, "frequency": 4.0e7, "buffer": 20, "tier": 0, "controller": True, "client": True},
-    "tier1": {"cores": 1, "frequency": 2.0e7, "buffer": 10, "tier": 1, "controller": True},
-    "tier2": {"cores": 2, "frequency": 8.0e7, "buffer": 100, "tier": 2, "controller": True},
-}
-NODE_DEFAULTS: dict[str, Any] = {"cores": 1, "frequency": 4.0e7, "buffer": 20, "tier": 0, "worker": True,
-                                 "controller": False, "client": False}
-
-
-# ----- error formatting -----
-
-def key_path(loc: tuple[Any, ...]) -> str:
-    out = ""
-    for part in loc:
-        if isinstance(part, int):
-            out += f"[{part}]"
-        else:
-            out += ("." if out else "") + str(part)
-    return out or "(top level)"
-
-
-_EXPECT = {
-    "missing": "required key is missing",
-    "int_type": "expected an integer",
-    "int_parsing": "expected an integer",
-    "int_from_float": "expected an integer",
-    "float_type": "expected a number",
-    "float_parsing": "expected a number",
-    "bool_type": "expected true or false",
-    "bool_parsing": "expected true or false",
-    "string_type": "expected a string",
-    "dict_type": "expected a mapping",
-    "model_type": "expected a mapping",
-    "model_attributes_type": "expected a mapping",
-    "list_type": "expected a list",
-    "tuple_type": "expected a list",
-}
-
-
-def _describe(err: dict[str, Any], model: type[BaseModel]) -> str:
-    kind = err["type"]
-    ctx = err.get("ctx", {})
-    got = err.get("input")
-    if kind == "extra_forbidden":
-        field = str(err["loc"][-1])
-        known = _fields_at(model, err["loc"][:-1])
-        hint = difflib.get_close_matches(field, known, n=1)
-        return "unknown key" + (f" (did you mean '{hint[0]}'?)" if hint else
-                                f"; expected one of: {', '.join(sorted(known))}" if known else "")
-    if kind in ("greater_than", "greater_than_equal", "less_than_equal", "less_than"):
-        op = {"greater_than": ">", "greater_than_equal": ">=", "less_than_equal": "<=", "less_than": "<"}[kind]
-        bound = next(iter(ctx.values()))
-        return f"expected a number {op} {bound:g} (got {got!r})"
-    if kind == "literal_error":
-        return f"expected {ctx.get('expected')} (got {got!r})"
-    if kind == "too_short":
-        return f"expected at least {ctx.get('min_length')} item(s)"
-    if kind in ("too_long", "tuple_length"):
-        return f"expected {ctx.get('max_length', 2)} items (got {got!r})"
-    if kind == "value_error":
-        return str(ctx.get("error", err["msg"]))
-    if kind in _EXPECT:
-        return _EXPECT[kind] + ("" if kind == "missing" else f" (got {got!r})")
-    return err["msg"][0].lower() + err["msg"][1:]
-
-
-def _fields_at(model: type[BaseModel], loc: tuple[Any, ...]) -> list[str]:
-    """Field names of the model found at ``loc`` (for 'did you mean' hints). Parts that are not
-    fields are mapping keys (a profile's name) and keep the current model."""
-    current: Any = model
-    for part in loc:
-        fields = getattr(current, "model_fields", {})
-        if isinstance(part, str) and part in fields:
-            current = _inner_model(fields[part].annotation)
-    return list(getattr(current, "model_fields", {}))
-
-
-def _inner_model(annotation: Any) -> Any:
-    if isinstance(annotation, type) and issubclass(annotation, BaseModel):
-        return annotation
-    for arg in getattr(annotation, "__args__", ()):
-        found = _inner_model(arg)
-        if found is not None:
-            return found
-    return None
-
-
-# ----- loading -----
-
-def load_scenario(source: str | Path | dict[str, Any], *, name_hint: str = "") -> Scenario:
-    """A scenario from a bundled name ("aot2"), a YAML path, or a dict. Raises ``ScenarioError``."""
-    if isinstance(source, dict):
-        return resolve(source, Path.cwd(), name_hint or "scenario", "<dict>")
-    path = Path(source)
-    if not path.exists() and not path.suffix and scenario_path(str(source)).exists():
-        path = scenario_path(str(source))
-    label = str(source)
-    try:
-        text = path.read_text()
-    except FileNotFoundError:
-        raise ScenarioError([f"{label}: file not found"]) from None
-    except (IsADirectoryError, PermissionError, UnicodeDecodeError) as exc:
-        raise ScenarioError([f"{label}: cannot read: {exc}"]) from None
-    try:
-        data = yaml.safe_load(text)
-    except yaml.YAMLError as exc:
-        mark = getattr(exc, "problem_mark", None)
-        where = f":{mark.line + 1}:{mark.column + 1}" if mark else ""
-        problem = getattr(exc, "problem", None) or str(exc).splitlines()[0]
-        raise ScenarioError([f"{label}{where}: invalid YAML: {problem}"]) from None
-    if data is None:
-        raise ScenarioError([f"{label}: the file is empty; expected a scenario mapping with at least 'topology'"])
-    if not isinstance(data, dict):
-        raise ScenarioError([f"{label}: expected a mapping at the top level, got {type(data).__name__}"])
-    return resolve(data, path.parent, path.stem, label)
 
 
 def resolve(data: dict[str, Any], base: Path, default_name: str, label: str) -> Scenario:
     try:
         cfg = ScenarioFile.model_validate(data)
     except ValidationError as exc:
-        raise ScenarioError([f"{label}: {key_path(e['loc'])}: {_describe(e, ScenarioFile)}"
+        raise ScenarioError([f"{label}: {key_path(e['loc'])}: {describe(e, ScenarioFile)}"
                              for e in exc.errors()]) from None
     return _Resolver(cfg, base, label).scenario(cfg.name or default_name)
 
@@ -449,11 +100,11 @@ class _Resolver:
 
         Modules next to the scenario file are importable (its directory joins sys.path, which node
         processes inherit)."""
-        from node_runtime.client import Client
-        from node_runtime.controller import Controller
-        from node_runtime.policies import Policy
-        from node_runtime.worker import Worker
-        from node_runtime.workload import TaskSource
+        from node_runtime.model.client import Client
+        from node_runtime.model.controller import Controller
+        from node_runtime.model.policies import Policy
+        from node_runtime.model.worker import Worker
+        from node_runtime.model.workload import TaskSource
 
         cfg = self.cfg
         checks: dict[tuple[str, str], tuple[type | None, bool]] = {}
@@ -520,7 +171,7 @@ class _Resolver:
                     elif e["type"] == "missing_argument":
                         self.error(f"topology.generator.{arg}", f"{topo.generator.kind} needs this parameter")
                     else:
-                        self.error(f"topology.generator.{key_path(e['loc'])}", _describe(e, ScenarioFile))
+                        self.error(f"topology.generator.{key_path(e['loc'])}", describe(e, ScenarioFile))
                 return Draft([], [])
             except GeneratorError as exc:
                 self.error("topology.generator", str(exc))
@@ -742,3 +393,4 @@ class _Resolver:
             self.error(where, f"file not found: {path}")
             return None
         return tuple(sorted(rows, key=lambda r: (r.time, r.client)))
+

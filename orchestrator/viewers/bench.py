@@ -17,10 +17,10 @@ import time
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
-from node_runtime.forkserver import ForkServer
-from node_runtime.keys import Keys, new_sim_id
-from node_runtime.process import PR_SET_NAME, _prctl
-from node_runtime.zenoh_transport import close_session, use_lean_runtime, zenoh_config
+from node_runtime.runtime.forkserver import ForkServer
+from node_runtime.runtime.keys import Keys, new_sim_id
+from node_runtime.runtime.process import PR_SET_NAME, _prctl
+from node_runtime.runtime.zenoh_bus import close_session, use_lean_runtime, zenoh_config
 from orchestrator.scenario import load_scenario
 from orchestrator.session import Simulation, open_router
 
@@ -110,7 +110,7 @@ def measure(name: str, transport: str, layout: str, ticks: int, rounds: int) -> 
         sim.reset(policy="random")
         for _ in range(min(50, ticks)):  # warm-up
             sim.step()
-        procs = len(sim.routing.procs)
+        procs = len(sim.plan.procs)
         barrier = BareBarrier(procs) if transport == "zenoh" else None
         try:
             own, base = [], []

@@ -12,16 +12,16 @@ import math
 from collections import defaultdict
 from dataclasses import dataclass
 
-from node_runtime.client import Client
-from node_runtime.config import Scenario
-from node_runtime.controller import Action, Controller
-from node_runtime.messages import Envelope, Kind
-from node_runtime.observation import Observation
-from node_runtime.plugins import load
-from node_runtime.protocol import Done
-from node_runtime.role import Outbox, Role, read_stats
-from node_runtime.routing import Routing, role_kind, role_node, state_topic
-from node_runtime.worker import Worker
+from node_runtime.model.client import Client
+from node_runtime.model.controller import Action, Controller
+from node_runtime.model.messages import Envelope, Kind
+from node_runtime.model.plugins import load
+from node_runtime.model.role import Outbox, Role, read_stats, role_kind, role_node, state_topic
+from node_runtime.model.spec import Scenario
+from node_runtime.model.view import Observation
+from node_runtime.model.worker import Worker
+from node_runtime.runtime.layout import ProcessLayout
+from node_runtime.runtime.protocol import Done
 
 ROLE_TYPES: dict[str, type[Role]] = {"worker": Worker, "client": Client, "controller": Controller}
 CARRIES_TASK = (Kind.TASK, Kind.RESULT)
@@ -46,23 +46,23 @@ def make_role(role: str, scenario: Scenario) -> Role:
 
 
 class Host:
-    def __init__(self, proc: str, routing: Routing) -> None:
+    def __init__(self, proc: str, plan: ProcessLayout) -> None:
         self.proc = proc
-        self.routing = routing
-        self.roles: list[Role] = [make_role(r, routing.scenario) for r in routing.roles_of[proc]]
+        self.plan = plan
+        self.roles: list[Role] = [make_role(r, plan.scenario) for r in plan.roles_of[proc]]
         self.by_id = {r.id: r for r in self.roles}
         self.outboxes = {r.id: Outbox(r.id) for r in self.roles}
         # For each topic: local subscribers, and remote processes that subscribe.
         self.local_subs: dict[str, list[str]] = {}
         self.remote_subs: dict[str, list[str]] = {}
-        for topic, subs in routing.subscribers.items():
+        for topic, subs in plan.subscribers.items():
             self.local_subs[topic] = [r for r in subs if r in self.by_id]
             self.remote_subs[topic] = list(dict.fromkeys(
-                routing.proc_of[r] for r in subs if routing.proc_of[r] != proc))
+                plan.proc_of[r] for r in subs if plan.proc_of[r] != proc))
         self.external: set[str] = set()
         self.events_on = False  # set by the driver while a monitor subscribes to events
         self.episode = 0
-        self.reset(0, routing.scenario.seed)
+        self.reset(0, plan.scenario.seed)
 
     @property
     def nodes(self) -> list[str]:
@@ -136,8 +136,8 @@ class Host:
         return None if nxt == math.inf else int(nxt)
 
     def _route(self, t: int, ran: list[Role], events: list[tuple[str, str, dict]]) -> Outgoing:
-        proc_of = self.routing.proc_of
-        role_index = self.routing.role_index
+        proc_of = self.plan.proc_of
+        role_index = self.plan.role_index
         batches: dict[str, list[Envelope]] = {}
         topics: dict[str, list[Envelope]] = {}
         sent: dict[int, int] = {}
@@ -162,7 +162,7 @@ class Host:
                     topics.setdefault(env.dst, []).append(env)
             out.envelopes.clear()
             out.broadcasts.clear()
-        index = self.routing.proc_index
+        index = self.plan.proc_index
         for p in batches:
             sent[index[p]] = 1
         for topic in topics:
@@ -178,7 +178,7 @@ class Host:
         rts: dict[int, list[float]] = {}
         obs: dict[int, Observation] = {}
         reported = self.reported
-        index = self.routing.role_index
+        index = self.plan.role_index
         for role in ran:
             rid = role.id
             st = role.stats

@@ -29,7 +29,7 @@ from matplotlib.colors import BoundaryNorm, ListedColormap, PowerNorm
 from matplotlib.figure import Figure
 from matplotlib.ticker import MaxNLocator
 
-from orchestrator.draw import TIER_COLOURS
+from orchestrator.viewers.draw import TIER_COLOURS
 
 DPI = 130
 HINT = "is this a directory written by `orchestrator launch`?"

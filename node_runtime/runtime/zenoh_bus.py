@@ -20,8 +20,8 @@ from typing import Any, Literal
 
 import zenoh
 
-from node_runtime import codec
-from node_runtime.transport import Handler, Monitored, TokenHandler, Transport, TransportError
+from node_runtime.runtime import codec
+from node_runtime.runtime.transport import Handler, Monitored, TokenHandler, Transport, TransportError
 
 Mode = Literal["router", "client", "peer"]
 IDLE_SLICE = 0.1  # seconds between idle checks while dispatching

@@ -18,13 +18,12 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 
-from node_runtime.config import NodeSpec, Scenario
-from node_runtime.messages import Decision, Envelope, Kind, NodeState, Pending
-from node_runtime.observation import NodeView, Observation, TaskView
-from node_runtime.policies import Policy, make_policy
-from node_runtime.rng import CONTROLLER, stream
-from node_runtime.role import Outbox, Role
-from node_runtime.routing import role_id
+from node_runtime.model.messages import Decision, Envelope, Kind, NodeState, Pending
+from node_runtime.model.policies import Policy, make_policy
+from node_runtime.model.rng import CONTROLLER, stream
+from node_runtime.model.role import Outbox, Role, role_id
+from node_runtime.model.spec import NodeSpec, Scenario
+from node_runtime.model.view import NodeView, Observation, TaskView
 
 Action = int | Sequence[int]
 

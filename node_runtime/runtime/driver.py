@@ -12,10 +12,10 @@ from __future__ import annotations
 import traceback
 from collections import defaultdict
 
-from node_runtime.host import Host
-from node_runtime.keys import Keys
-from node_runtime.protocol import Batch, Done, Tick
-from node_runtime.transport import Monitored, Transport
+from node_runtime.runtime.host import Host
+from node_runtime.runtime.keys import Keys
+from node_runtime.runtime.protocol import Batch, Done, Tick
+from node_runtime.runtime.transport import Monitored, Transport
 
 
 class HostDriver:
@@ -24,7 +24,7 @@ class HostDriver:
         self.transport = transport
         self.keys = keys
         self.proc = host.proc
-        self.proc_index = host.routing.proc_index[host.proc]
+        self.proc_index = host.plan.proc_index[host.proc]
         self.episode = -1
         self.pending: Tick | None = None
         self.stopped = False
@@ -35,12 +35,12 @@ class HostDriver:
         self.monitors: dict[tuple[str, str], Monitored] = {}
         # the keys this process publishes on, built once rather than every tick
         self.done_key = keys.done(self.proc)
-        self.inbox_keys = {p: keys.inbox(p) for p in host.routing.destinations(self.proc)}
+        self.inbox_keys = {p: keys.inbox(p) for p in host.plan.destinations(self.proc)}
         self.topic_keys = {topic: keys.topic(topic) for topic in host.published_topics()}
         transport.subscribe(keys.tick(), self.on_tick)
         transport.subscribe(keys.tick(self.proc), self.on_tick)
         transport.subscribe(keys.inbox(self.proc), self.on_batch)
-        for topic in host.routing.topics_of(self.proc):
+        for topic in host.plan.topics_of(self.proc):
             transport.subscribe(keys.topic(topic), self.on_batch)
 
     def on_tick(self, key: str, cmd: Tick) -> None:

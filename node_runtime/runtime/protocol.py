@@ -7,7 +7,7 @@
   tick at which it has work of its own. Only processes with mail or work due get a tick: the others
   sleep, which is what makes a mostly idle network cheap.
 
-Processes and roles are named by their canonical index (``Routing.procs`` / ``Routing.roles``
+Processes and roles are named by their canonical index (``ProcessLayout.procs`` / ``ProcessLayout.roles``
 order): every participant derives the same indices from the scenario and the layout, and small ints
 decode faster than strings in dozens of processes every tick.
 
@@ -20,8 +20,8 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from typing import Any, Literal
 
-from node_runtime.messages import Envelope
-from node_runtime.observation import Observation
+from node_runtime.model.messages import Envelope
+from node_runtime.model.view import Observation
 
 SCHEMA_VERSION = 2
 Command = Literal["run", "reset", "stop"]

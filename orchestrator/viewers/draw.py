@@ -24,7 +24,7 @@ from matplotlib.axes import Axes
 from matplotlib.legend import Legend
 from matplotlib.lines import Line2D
 
-from node_runtime.config import NodeSpec, Scenario
+from node_runtime.model.spec import NodeSpec, Scenario
 
 DPI = 150
 FIGSIZE = (12.0, 8.5)

@@ -11,9 +11,9 @@ from typing import Any
 
 import msgpack
 
-from node_runtime.messages import Decision, Envelope, Kind, NodeState, Pending, Result, Task
-from node_runtime.observation import Observation
-from node_runtime.protocol import SCHEMA_VERSION, Batch, Done, Tick
+from node_runtime.model.messages import Decision, Envelope, Kind, NodeState, Pending, Result, Task
+from node_runtime.model.view import Observation
+from node_runtime.runtime.protocol import SCHEMA_VERSION, Batch, Done, Tick
 
 
 class CodecError(ValueError):

@@ -8,7 +8,7 @@ from collections import defaultdict
 
 import numpy as np
 
-from node_runtime.config import Arrival, Scenario, TaskType, TraceRow
+from node_runtime.model.spec import Arrival, Scenario, TaskType, TraceRow
 
 BLOCK = 256  # ticks of arrival counts drawn at once (a constant: part of the stream's definition)
 LOOKAHEAD = BLOCK  # ticks ``next_arrival`` searches ahead before giving up

@@ -17,12 +17,12 @@ import signal
 import sys
 import threading
 
-from node_runtime import process as node_process
-from node_runtime.config import Scenario
-from node_runtime.forkserver import ForkServer
-from node_runtime.keys import DEFAULT_PREFIX, Keys
-from node_runtime.process import ORCHESTRATOR, ProcSpec
-from node_runtime.zenoh_transport import ZenohTransport
+from node_runtime.model.spec import Scenario
+from node_runtime.runtime import process as node_process
+from node_runtime.runtime.forkserver import ForkServer
+from node_runtime.runtime.keys import DEFAULT_PREFIX, Keys
+from node_runtime.runtime.process import ORCHESTRATOR, ProcSpec
+from node_runtime.runtime.zenoh_bus import ZenohTransport
 
 EXIT_OK, EXIT_FAILED, EXIT_USAGE = 0, 1, 2
 

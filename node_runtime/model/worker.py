@@ -23,13 +23,12 @@ from __future__ import annotations
 import math
 from collections import deque
 
-from node_runtime.comm import Radio
-from node_runtime.config import NodeSpec, Scenario
-from node_runtime.energy import compute_energy, idle_energy
-from node_runtime.messages import Decision, Envelope, Kind, NodeState, Pending, Result, Task
-from node_runtime.rng import WORKER, stream
-from node_runtime.role import Outbox, Role
-from node_runtime.routing import role_id, state_topic
+from node_runtime.model.energy import compute_energy, idle_energy
+from node_runtime.model.messages import Decision, Envelope, Kind, NodeState, Pending, Result, Task
+from node_runtime.model.radio import Radio
+from node_runtime.model.rng import WORKER, stream
+from node_runtime.model.role import Outbox, Role, role_id, state_topic
+from node_runtime.model.spec import NodeSpec, Scenario
 
 EPS_CYCLES = 1e-6  # a task with fewer cycles left than this is done (float rounding of budgets)
 

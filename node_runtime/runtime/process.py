@@ -14,14 +14,14 @@ import signal
 import sys
 from dataclasses import dataclass
 
-from node_runtime.config import Scenario
-from node_runtime.driver import HostDriver
-from node_runtime.host import Host
-from node_runtime.keys import Keys
-from node_runtime.plugins import extend_path
-from node_runtime.routing import Layout, Routing
-from node_runtime.transport import TransportError
-from node_runtime.zenoh_transport import ZenohTransport, use_lean_runtime
+from node_runtime.model.plugins import extend_path
+from node_runtime.model.spec import Scenario
+from node_runtime.runtime.driver import HostDriver
+from node_runtime.runtime.host import Host
+from node_runtime.runtime.keys import Keys
+from node_runtime.runtime.layout import Layout, ProcessLayout
+from node_runtime.runtime.transport import TransportError
+from node_runtime.runtime.zenoh_bus import ZenohTransport, use_lean_runtime
 
 ORCHESTRATOR = "orchestrator"  # liveliness name of the clock's owner
 READY_TIMEOUT = 60.0
@@ -65,8 +65,8 @@ def run(spec: ProcSpec) -> int:
     extend_path(spec.paths)
     transport = ZenohTransport.client(spec.endpoint)
     try:
-        routing = Routing(spec.scenario, spec.layout)
-        host = Host(spec.proc, routing)
+        plan = ProcessLayout(spec.scenario, spec.layout)
+        host = Host(spec.proc, plan)
         driver = HostDriver(host, transport, spec.keys)
         orchestrator = {"seen": False, "gone": False}
 

@@ -10,11 +10,29 @@ from dataclasses import dataclass, field, fields
 from operator import attrgetter
 from typing import ClassVar
 
-from node_runtime.comm import Radio
-from node_runtime.config import NodeSpec, Scenario
-from node_runtime.energy import transmit_energy
-from node_runtime.messages import Body, Envelope, Kind
-from node_runtime.routing import role_id
+from node_runtime.model.energy import transmit_energy
+from node_runtime.model.messages import Body, Envelope, Kind
+from node_runtime.model.radio import Radio
+from node_runtime.model.spec import NodeSpec, Scenario
+
+
+def role_id(kind: str, node: str) -> str:
+    """A role's address: mail is sent to it, and message order is fixed by it."""
+    return f"{kind}:{node}"
+
+
+def role_kind(role: str) -> str:
+    return role.split(":", 1)[0]
+
+
+def role_node(role: str) -> str:
+    return role.split(":", 1)[1]
+
+
+def state_topic(node: str) -> str:
+    """The topic a node's worker broadcasts its load on."""
+    return f"state/{node}"
+
 
 DROP_CAUSES = ("queue_full", "expired", "node_failure", "link_loss")
 

@@ -11,26 +11,11 @@ from dataclasses import dataclass
 from functools import cached_property
 from typing import Literal
 
-from node_runtime.config import Scenario
+from node_runtime.model.role import role_id, role_kind, role_node, state_topic
+from node_runtime.model.spec import Scenario
 
 Layout = Literal["per-role", "per-node", "single"]
 LAYOUTS: tuple[Layout, ...] = ("per-role", "per-node", "single")
-
-
-def role_id(kind: str, node: str) -> str:
-    return f"{kind}:{node}"
-
-
-def role_kind(role: str) -> str:
-    return role.split(":", 1)[0]
-
-
-def role_node(role: str) -> str:
-    return role.split(":", 1)[1]
-
-
-def state_topic(node: str) -> str:
-    return f"state/{node}"
 
 
 def proc_for(layout: Layout, role: str) -> str:
@@ -42,8 +27,9 @@ def proc_for(layout: Layout, role: str) -> str:
 
 
 @dataclass(frozen=True)
-class Routing:
-    """The static routing table every process derives from the scenario and the layout."""
+class ProcessLayout:
+    """Which process hosts each role, and who listens to which broadcast: derived by every process
+    from the scenario and the layout name, so no table travels on the bus."""
 
     scenario: Scenario
     layout: Layout

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from node_runtime.comm import dbm_to_watts
+from node_runtime.model.radio import dbm_to_watts
 
 
 def compute_energy(kappa: float, cycles: float, frequency: float) -> float:

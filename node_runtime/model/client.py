@@ -7,14 +7,13 @@ uniformly at random per task.
 
 from __future__ import annotations
 
-from node_runtime.comm import Radio
-from node_runtime.config import NodeSpec, Scenario
-from node_runtime.messages import Envelope, Kind, Task
-from node_runtime.plugins import load
-from node_runtime.rng import CLIENT, stream
-from node_runtime.role import Outbox, Role
-from node_runtime.routing import role_id
-from node_runtime.workload import TaskSource
+from node_runtime.model.messages import Envelope, Kind, Task
+from node_runtime.model.plugins import load
+from node_runtime.model.radio import Radio
+from node_runtime.model.rng import CLIENT, stream
+from node_runtime.model.role import Outbox, Role, role_id
+from node_runtime.model.spec import NodeSpec, Scenario
+from node_runtime.model.workload import TaskSource
 
 COUNTS, TYPES, TARGETS, LINKS = 0, 1, 2, 3  # purposes of the client's random streams
 

@@ -11,7 +11,7 @@ from collections import deque
 from collections.abc import Callable
 from typing import Any
 
-from node_runtime.transport import Handler, Monitored, TokenHandler, Transport, TransportError
+from node_runtime.runtime.transport import Handler, Monitored, TokenHandler, Transport, TransportError
 
 
 def key_matches(a: str, b: str) -> bool:

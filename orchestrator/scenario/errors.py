@@ -1,0 +1,94 @@
+"""Scenario errors: one line per problem, naming the file, the key path and what was expected."""
+
+from __future__ import annotations
+
+import difflib
+from typing import Any
+
+from pydantic import BaseModel
+
+
+class ScenarioError(ValueError):
+    """A scenario the user must fix; ``errors`` holds one line per problem."""
+
+    def __init__(self, errors: list[str]) -> None:
+        super().__init__("\n".join(errors))
+        self.errors = errors
+
+
+def key_path(loc: tuple[Any, ...]) -> str:
+    out = ""
+    for part in loc:
+        if isinstance(part, int):
+            out += f"[{part}]"
+        else:
+            out += ("." if out else "") + str(part)
+    return out or "(top level)"
+
+
+_EXPECT = {
+    "missing": "required key is missing",
+    "int_type": "expected an integer",
+    "int_parsing": "expected an integer",
+    "int_from_float": "expected an integer",
+    "float_type": "expected a number",
+    "float_parsing": "expected a number",
+    "bool_type": "expected true or false",
+    "bool_parsing": "expected true or false",
+    "string_type": "expected a string",
+    "dict_type": "expected a mapping",
+    "model_type": "expected a mapping",
+    "model_attributes_type": "expected a mapping",
+    "list_type": "expected a list",
+    "tuple_type": "expected a list",
+}
+
+
+def describe(err: dict[str, Any], model: type[BaseModel]) -> str:
+    kind = err["type"]
+    ctx = err.get("ctx", {})
+    got = err.get("input")
+    if kind == "extra_forbidden":
+        field = str(err["loc"][-1])
+        known = _fields_at(model, err["loc"][:-1])
+        hint = difflib.get_close_matches(field, known, n=1)
+        return "unknown key" + (f" (did you mean '{hint[0]}'?)" if hint else
+                                f"; expected one of: {', '.join(sorted(known))}" if known else "")
+    if kind in ("greater_than", "greater_than_equal", "less_than_equal", "less_than"):
+        op = {"greater_than": ">", "greater_than_equal": ">=", "less_than_equal": "<=", "less_than": "<"}[kind]
+        bound = next(iter(ctx.values()))
+        return f"expected a number {op} {bound:g} (got {got!r})"
+    if kind == "literal_error":
+        return f"expected {ctx.get('expected')} (got {got!r})"
+    if kind == "too_short":
+        return f"expected at least {ctx.get('min_length')} item(s)"
+    if kind in ("too_long", "tuple_length"):
+        return f"expected {ctx.get('max_length', 2)} items (got {got!r})"
+    if kind == "value_error":
+        return str(ctx.get("error", err["msg"]))
+    if kind in _EXPECT:
+        return _EXPECT[kind] + ("" if kind == "missing" else f" (got {got!r})")
+    return err["msg"][0].lower() + err["msg"][1:]
+
+
+def _fields_at(model: type[BaseModel], loc: tuple[Any, ...]) -> list[str]:
+    """Field names of the model found at ``loc`` (for 'did you mean' hints). Parts that are not
+    fields are mapping keys (a profile's name) and keep the current model."""
+    current: Any = model
+    for part in loc:
+        fields = getattr(current, "model_fields", {})
+        if isinstance(part, str) and part in fields:
+            current = _inner_model(fields[part].annotation)
+    return list(getattr(current, "model_fields", {}))
+
+
+def _inner_model(annotation: Any) -> Any:
+    if isinstance(annotation, type) and issubclass(annotation, BaseModel):
+        return annotation
+    for arg in getattr(annotation, "__args__", ()):
+        found = _inner_model(arg)
+        if found is not None:
+            return found
+    return None
+
+

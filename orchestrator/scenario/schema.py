@@ -1,0 +1,246 @@
+"""The scenario file format: one pydantic model per section (reference: docs/scenario.md).
+
+This pass checks structure only (types, ranges, required and unknown keys); meaning (references
+between nodes, links, failures and traces; connectivity) is ``resolve``'s. Defaults follow the
+paper's parameter table (λ = 0.17, α = 150 MiB, ρ = 8e7, ξ = 1, δ = 100 s, B = 2 MHz, P = 20 dBm,
+1000 steps).
+"""
+
+from __future__ import annotations
+
+from typing import Annotated, Any, Literal
+
+from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
+
+from node_runtime.model.plugins import is_import_path
+from node_runtime.model.policies import POLICIES
+from node_runtime.runtime.keys import CHUNK
+from topologies.generators import GENERATORS
+
+MIB = 1024 * 1024
+Pos = Annotated[float, Field(gt=0)]
+NonNeg = Annotated[float, Field(ge=0)]
+Prob = Annotated[float, Field(ge=0, le=1)]
+Count = Annotated[int, Field(ge=1)]
+
+
+class Strict(BaseModel):
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+
+# ----- the file format -----
+
+class SimulationCfg(Strict):
+    dt: Pos = 1.0
+    steps: Count = 1000
+    seed: int = 0
+    mode: Literal["binary", "batch"] = "binary"
+    decision_interval: Count = 1
+    max_hops: Annotated[int, Field(ge=0)] = 1
+    batch_size: Count = 4
+    state_interval: Count = 1
+    policy: str = "local"
+
+    @field_validator("policy")
+    @classmethod
+    def known_policy(cls, v: str) -> str:
+        if v not in POLICIES and not is_import_path(v):
+            raise ValueError(f"expected one of {', '.join(POLICIES)}, or an import path 'module:Class'")
+        return v
+
+
+class PathLossCfg(Strict):
+    ref_loss_db: float = 40.0
+    ref_distance_m: Pos = 1.0
+    exponent: Pos = 3.0
+
+
+class NetworkCfg(Strict):
+    bandwidth_hz: Pos = 2.0e6
+    tx_power_dbm: float = 20.0
+    noise_dbm: float | None = None  # default: thermal noise over the bandwidth, -174 + 10 log10(B) dBm
+    path_loss: PathLossCfg = PathLossCfg()
+    loss: Prob = 0.0
+
+
+class ArrivalCfg(Strict):
+    kind: Literal["constant", "linear", "zigzag", "uniform"] = "constant"
+    rate: NonNeg = 0.17
+    start: NonNeg = 0.0
+    end: NonNeg = 0.0
+    low: NonNeg = 0.0
+    high: NonNeg = 0.0
+    period: Pos = 100.0
+
+    @model_validator(mode="after")
+    def ordered(self) -> ArrivalCfg:
+        uses = {"constant": {"rate"}, "linear": {"start", "end"}, "zigzag": {"low", "high", "period"},
+                "uniform": {"low", "high"}}[self.kind]
+        stray = sorted(self.model_fields_set - uses - {"kind"})
+        if stray:
+            raise ValueError(f"{', '.join(stray)} {'is' if len(stray) == 1 else 'are'} not used by kind "
+                             f"{self.kind!r}, which takes {', '.join(sorted(uses))}")
+        missing = sorted(uses - self.model_fields_set) if self.kind != "constant" else []
+        if missing:
+            raise ValueError(f"kind {self.kind!r} needs {', '.join(missing)}")
+        if self.kind in ("zigzag", "uniform") and self.high < self.low:
+            raise ValueError("high must be >= low")
+        return self
+
+
+class TaskCfg(Strict):
+    name: str = "task"
+    weight: Pos = 1.0
+    instructions: Pos = 8.0e7
+    input_bytes: Pos = 150 * MIB
+    output_bytes: Pos = 150 * MIB
+    cpi: Pos = 1.0
+    deadline: Pos = 100.0
+
+
+class WorkloadCfg(Strict):
+    arrival: ArrivalCfg = ArrivalCfg()
+    rates: dict[str, NonNeg] = {}
+    targets: dict[str, list[str]] = {}
+    tasks: Annotated[list[TaskCfg], Field(min_length=1)] = [TaskCfg()]
+    trace: str | None = None
+    source: str | None = None  # import path of a TaskSource subclass
+
+    @model_validator(mode="after")
+    def one_workload(self) -> WorkloadCfg:
+        if self.trace is not None:
+            ignored = sorted({"arrival", "rates", "source"} & self.model_fields_set)
+            if ignored:
+                raise ValueError(f"a trace gives every task itself: remove {', '.join(ignored)} "
+                                 "(task sizes come from the trace too; 'tasks' only sizes Ether buffers)")
+        return self
+
+
+class EnergyCfg(Strict):
+    kappa: NonNeg = 1.0e-27
+    idle_power_w: NonNeg = 0.0
+
+
+class RolesCfg(Strict):
+    """User subclasses of the roles, by import path ("package.module:Class")."""
+
+    worker: str | None = None
+    client: str | None = None
+    controller: str | None = None
+
+
+class ProfileCfg(Strict):
+    cores: Count | None = None
+    frequency: Pos | None = None
+    buffer: Count | None = None
+    tier: Annotated[int, Field(ge=0)] | None = None
+    worker: bool | None = None
+    controller: bool | None = None
+    client: bool | None = None
+    policy: str | None = None
+    tx_power_dbm: float | None = None
+    idle_power_w: NonNeg | None = None
+    kappa: NonNeg | None = None
+
+    roles: RolesCfg | None = None
+    params: dict[str, float | int | bool | str] | None = None  # free parameters for user extensions
+
+    @field_validator("policy")
+    @classmethod
+    def known_policy(cls, v: str | None) -> str | None:
+        if v is not None and v not in POLICIES and not is_import_path(v):
+            raise ValueError(f"expected one of {', '.join(POLICIES)}, or an import path 'module:Class'")
+        return v
+
+
+class NodeCfg(ProfileCfg):
+    id: str
+    profile: str | None = None
+    position: tuple[float, float] = (0.0, 0.0)
+
+    @field_validator("id")
+    @classmethod
+    def chunk(cls, v: str) -> str:
+        if not CHUNK.match(v):
+            raise ValueError("expected a name of letters, digits, '_', '.' or '-'")
+        return v
+
+
+class LinkCfg(Strict):
+    between: tuple[str, str]
+    rate_bps: Pos | None = None
+    gain_db: float | None = None
+    loss: Prob | None = None
+
+    @model_validator(mode="before")
+    @classmethod
+    def pair(cls, v: Any) -> Any:
+        return {"between": v} if isinstance(v, (list, tuple)) else v
+
+
+class GeneratorCfg(BaseModel):
+    model_config = ConfigDict(extra="allow", frozen=True)
+    kind: str
+
+    @field_validator("kind")
+    @classmethod
+    def known(cls, v: str) -> str:
+        if v not in GENERATORS:
+            raise ValueError(f"expected one of {', '.join(GENERATORS)}")
+        return v
+
+
+class TopologyCfg(Strict):
+    ether: str | None = None
+    link_rates: Literal["wireless", "ether"] = "wireless"
+    generator: GeneratorCfg | None = None
+    nodes: list[NodeCfg] = []
+    links: list[LinkCfg] = []
+
+    @model_validator(mode="after")
+    def one_source(self) -> TopologyCfg:
+        sources = [s for s in ("ether", "generator") if getattr(self, s) is not None]
+        if len(sources) > 1:
+            raise ValueError("give either 'ether' or 'generator', not both")
+        if "link_rates" in self.model_fields_set and self.ether is None:
+            raise ValueError("link_rates only applies to an Ether import ('ether: FILE')")
+        if not sources and not self.nodes:
+            raise ValueError("expected one of 'ether', 'generator' or 'nodes'")
+        return self
+
+
+class FailureCfg(Strict):
+    node: str
+    at: Annotated[int, Field(ge=0)]
+    duration: Count
+
+
+class ScenarioFile(Strict):
+    name: str | None = None
+    description: str = ""
+    roles: RolesCfg = RolesCfg()
+    reward: str | None = None  # for the environment: "paper", "sparse", or an import path of a callable
+    observation: str | None = None  # for the environment: import path of an observation builder class
+    simulation: SimulationCfg = SimulationCfg()
+    network: NetworkCfg = NetworkCfg()
+    workload: WorkloadCfg = WorkloadCfg()
+    energy: EnergyCfg = EnergyCfg()
+    profiles: dict[str, ProfileCfg] = {}
+    topology: TopologyCfg
+    failures: list[FailureCfg] = []
+
+
+# Built-in hardware profiles: the AoT devices (Ether data, reference mapping) and the paper's tiers.
+BUILTIN_PROFILES: dict[str, dict[str, Any]] = {
+    "rpi3": {"cores": 1, "frequency": 4.0e6, "buffer": 3, "tier": 0, "controller": True, "client": True},
+    "tx2": {"cores": 1, "frequency": 4.0e6, "buffer": 26, "tier": 1},
+    "nuc": {"cores": 1, "frequency": 3.2e7, "buffer": 54, "tier": 1, "controller": True},
+    "server": {"cores": 1, "frequency": 8.8e7, "buffer": 597, "tier": 2, "controller": True},
+    "tier0": {"cores": 1, "frequency": 4.0e7, "buffer": 20, "tier": 0, "controller": True, "client": True},
+    "tier1": {"cores": 1, "frequency": 2.0e7, "buffer": 10, "tier": 1, "controller": True},
+    "tier2": {"cores": 2, "frequency": 8.0e7, "buffer": 100, "tier": 2, "controller": True},
+}
+NODE_DEFAULTS: dict[str, Any] = {"cores": 1, "frequency": 4.0e7, "buffer": 20, "tier": 0, "worker": True,
+                                 "controller": False, "client": False}
+
+
