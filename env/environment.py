@@ -11,7 +11,7 @@
 One ``step`` is one decision epoch (``decision_interval`` ticks of the emulation). The actions reach
 the controllers with the first of those ticks (counted in the clock protocol like any message); the
 observations come back with the controllers' reports at the end of the last one. Observations are
-partial and one tick stale, by design (DESIGN §2).
+partial and one tick stale, by design (docs/model.md, "What neighbours know").
 """
 
 from __future__ import annotations

@@ -1,4 +1,4 @@
-"""The simulated clock: the orchestrator's side of the barrier protocol (DESIGN §4).
+"""The simulated clock: the orchestrator's side of the barrier protocol (docs/protocol.md).
 
 ``step`` opens tick t with ``Tick(t, expect)``, where ``expect[p]`` is the number of publications
 the processes reported sending to ``p`` in tick t - 1, and returns once every process it opened the

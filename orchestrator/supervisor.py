@@ -1,8 +1,8 @@
 """Node processes: start them, wait until all are ready, notice a death at once, leave none behind.
 
 Processes come from the node fork server, which has already imported zenoh, numpy and msgpack
-(DESIGN §6: 70 processes start in under a second that way). Readiness is each process's liveliness
-token; death is the token vanishing (any host) or the process's exit (local ones, checked when
+(70 processes start in under a second that way; docs/protocol.md, "Process life"). Readiness is each
+process's liveliness token; death is the token vanishing (any host) or the process's exit (local ones, checked when
 idle). Every child also dies with the fork server and when the orchestrator's token goes.
 """
 

@@ -11,7 +11,7 @@ from tests.conftest import ROOT, run_summary, write_scenario
 from topologies.ether import load_ether
 from topologies.generators import GENERATORS
 
-# DESIGN §7: nodes, rpi3 / nuc / tx2 / server, controllers, task sources
+# The paper's AoT networks (docs/scenario.md): nodes, rpi3 / nuc / tx2 / server, controllers, task sources
 AOT = {
     "aot1": (12, {"rpi3": 8, "nuc": 1, "tx2": 2, "server": 1}, 10, 8),
     "aot2": (19, {"rpi3": 12, "nuc": 2, "tx2": 4, "server": 1}, 15, 12),

@@ -14,7 +14,7 @@ def dbm_to_watts(dbm: float) -> float:
 
 
 def shannon_rate(bandwidth_hz: float, tx_power_dbm: float, gain_db: float, noise_dbm: float) -> float:
-    """r = B * log2(1 + 10^((P + G - w0) / 10)) in bit/s (DESIGN §2; the paper's Eq. 4)."""
+    """r = B * log2(1 + 10^((P + G - w0) / 10)) in bit/s (the paper's Eq. 4)."""
     snr = 10.0 ** ((tx_power_dbm + gain_db - noise_dbm) / 10.0)
     return bandwidth_hz * math.log2(1.0 + snr)
 

@@ -1,4 +1,4 @@
-"""Seeded random streams: one independent generator per node and role (DESIGN §4.6).
+"""Seeded random streams: one independent generator per node and role (docs/model.md, "Randomness and determinism").
 
 Streams are keyed by the node's canonical index and a role number, never by process, so a
 node draws the same numbers whatever process hosts it. Nothing in the emulator may use a global

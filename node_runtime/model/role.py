@@ -169,5 +169,6 @@ class Role:
     def wake(self, t: int) -> float:
         """After tick ``t``: the next tick at which this role must run even if no mail arrives for it
         (``math.inf``: only mail wakes it). Its ``tick`` with an empty inbox at any tick before that
-        must change nothing, so a process may skip it (DESIGN §6); the default runs every tick."""
+        must change nothing, so a process may skip it (docs/protocol.md, "Sleeping through idle ticks");
+        the default runs every tick."""
         return t + 1

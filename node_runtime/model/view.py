@@ -1,6 +1,6 @@
 """What a controller knows when it decides: its own worker, the tasks to place, its neighbours.
 
-This is the raw, partial and stale view (neighbours are heard one tick late, DESIGN §2). Node-side
+This is the raw, partial and stale view (neighbours are heard one tick late). Node-side
 policies read it directly; the RL environment turns it into fixed-shape arrays.
 """
 

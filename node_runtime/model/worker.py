@@ -1,6 +1,6 @@
 """The worker role: a FIFO buffer, a work-conserving CPU, and the node's radio links.
 
-One tick, in this order (DESIGN §2):
+One tick, in this order (docs/model.md, "The worker, one tick"):
 
 1. failure: a node that goes down drops everything it holds (``node_failure``);
 2. overload is sampled: the buffer was full at the start of the tick;

@@ -1,4 +1,4 @@
-"""A host's side of the clock protocol (DESIGN §4), over any transport.
+"""A host's side of the clock protocol (docs/protocol.md), over any transport.
 
 Per tick t it takes part in: wait for ``Tick(t)``; wait until the publications sent to this process
 in tick t - 1 number ``expect[self]``; deliver them; run the roles; publish the outgoing batches, then

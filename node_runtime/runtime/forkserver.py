@@ -2,7 +2,7 @@
 
 ``ForkServer`` (the orchestrator's handle) starts ``python -m node_runtime.runtime.forkserver`` once. That
 clean interpreter imports zenoh, numpy, msgpack and the node code, then forks one child per
-``start(spec)`` (DESIGN §6: ~0.75 s for 70 processes, against ~7 s with spawn). Unlike the stdlib
+``start(spec)`` (~0.75 s for 70 processes, against ~7 s with spawn). Unlike the stdlib
 forkserver it never runs the caller's main module, so a training script needs no
 ``if __name__ == "__main__"`` guard.
 

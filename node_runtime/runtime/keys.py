@@ -1,4 +1,4 @@
-"""Key expressions: everything of one simulation lives under ``{prefix}/{sim_id}/`` (DESIGN §5)."""
+"""Key expressions: everything of one simulation lives under ``{prefix}/{sim_id}/`` (docs/bus.md, "Key layout")."""
 
 from __future__ import annotations
 

@@ -1,4 +1,4 @@
-"""Messages of the clock protocol (DESIGN §4), as opposed to the model's messages.
+"""Messages of the clock protocol (docs/protocol.md), as opposed to the model's messages.
 
 - ``Tick``: the orchestrator opens tick t for a process (or for all of them), telling it how many
   publications sent in tick t - 1 it must have received first, and carrying the agents' actions;

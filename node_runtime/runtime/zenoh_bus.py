@@ -1,4 +1,4 @@
-"""The Zenoh transport: one session per process, star-shaped around a router (DESIGN §6).
+"""The Zenoh transport: one session per process, star-shaped around a router (docs/protocol.md, "Process life").
 
 Node processes open ``client`` sessions to the router the orchestrator runs; multicast scouting is
 off and endpoints are explicit. Publications are reliable with blocking congestion control (the

@@ -1,6 +1,6 @@
 """``orchestrator bench``: emulator ticks/s next to a bare Zenoh barrier with the same process count.
 
-The bare barrier (DESIGN §6) is the floor a one-barrier-per-tick design approaches: a router, N
+The bare barrier (docs/protocol.md, "Speed") is the floor a one-barrier-per-tick design approaches: a router, N
 client processes from the same fork server, one publication to all of them per tick and N replies,
 no simulation work. Both are measured in the same run, so their ratio holds when the machine's speed
 drifts. Timing excludes start-up; every number is ticks per second of wall time.
