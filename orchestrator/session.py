@@ -35,6 +35,7 @@ from orchestrator.clock import Clock
 from orchestrator.metrics import Metrics, TickReport, bus_record
 from orchestrator.serve import Server, claim, release
 from orchestrator.supervisor import Supervisor
+from orchestrator.version import code_version
 
 TransportName = Literal["zenoh", "inproc"]
 ROUTER_ATTEMPTS = 5
@@ -197,6 +198,7 @@ class Simulation:
         s = self.metrics.summary()
         s["seed"] = self.seed
         s["policy"] = self.policy or sorted({n.policy for n in self.scenario.nodes if n.controller})
+        s["code"] = code_version()
         wall = time.perf_counter() - self._run_started
         s["run"] = {
             "transport": self.transport_name,
