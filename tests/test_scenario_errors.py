@@ -120,6 +120,19 @@ def test_missing_file(tmp_path, capsys):
     assert capsys.readouterr().err.strip() == f"{tmp_path / 'nope.yaml'}: file not found"
 
 
+def test_unknown_bundled_name_lists_the_bundled_scenarios_and_suggests_one(capsys):
+    assert main(["validate", "aot5"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.startswith("aot5: no such file or bundled scenario (did you mean 'aot4'?); bundled: aot1, aot2,")
+    assert "examples/minimal" in err and len(err.splitlines()) == 1
+
+
+def test_an_outside_scenario_names_a_bundled_ether_file_by_its_relative_path(tmp_path, capsys):
+    path = write_case(tmp_path, "outside", {"topology": {"ether": "ether/network_2_clusters.json"}}, {})
+    assert main(["validate", str(path)]) == 0
+    assert capsys.readouterr().out.strip() == "19 nodes, 34 links, 15 controllers, 12 task sources"
+
+
 def test_cli_process_exit_status_and_no_traceback(tmp_path):
     path = write_case(tmp_path, "bad", with_nodes({"id": "a", "client": True, "cores": -2}, {"id": "b"}), {})
     for command in ("validate", "launch"):

@@ -7,6 +7,7 @@ one line naming the file, the key path and what was expected).
 
 from __future__ import annotations
 
+import difflib
 from pathlib import Path
 from typing import Any
 
@@ -15,7 +16,7 @@ import yaml
 from node_runtime.model.spec import Scenario
 from orchestrator.scenario.errors import ScenarioError
 from orchestrator.scenario.resolve import resolve
-from topologies import scenario_path
+from topologies import bundled_scenarios, scenario_path
 
 __all__ = ["ScenarioError", "load_scenario"]
 
@@ -31,7 +32,7 @@ def load_scenario(source: str | Path | dict[str, Any], *, name_hint: str = "") -
     try:
         text = path.read_text()
     except FileNotFoundError:
-        raise ScenarioError([f"{label}: file not found"]) from None
+        raise ScenarioError([f"{label}: {_not_found(str(source))}"]) from None
     except (IsADirectoryError, PermissionError, UnicodeDecodeError) as exc:
         raise ScenarioError([f"{label}: cannot read: {exc}"]) from None
     try:
@@ -48,3 +49,13 @@ def load_scenario(source: str | Path | dict[str, Any], *, name_hint: str = "") -
     return resolve(data, path.parent, path.stem, label)
 
 
+
+
+def _not_found(name: str) -> str:
+    """'file not found'; for a bare name, also the bundled scenarios and the closest one."""
+    if Path(name).parent != Path(".") and not name.startswith("examples/"):
+        return "file not found"
+    bundled = bundled_scenarios()
+    hint = difflib.get_close_matches(name.removesuffix(".yaml"), bundled, n=1)
+    return ("no such file or bundled scenario" + (f" (did you mean '{hint[0]}'?)" if hint else "")
+            + f"; bundled: {', '.join(bundled)}")

@@ -23,6 +23,7 @@ from node_runtime.model.radio import log_distance_gain_db, shannon_rate
 from node_runtime.model.spec import Arrival, Failure, LinkSpec, NodeSpec, Scenario, TaskType, TraceRow, Workload
 from orchestrator.scenario.errors import ScenarioError, describe, key_path
 from orchestrator.scenario.schema import BUILTIN_PROFILES, NODE_DEFAULTS, ScenarioFile
+from topologies import bundled_file
 from topologies.draft import Draft, DraftLink, DraftNode
 from topologies.ether import EtherError, load_ether
 from topologies.generators import GENERATORS, GeneratorError
@@ -54,8 +55,12 @@ class _Resolver:
             raise ScenarioError(self.errors)
 
     def file(self, ref: str) -> Path:
+        """A file named in the scenario: absolute, next to the scenario, or shipped with the package
+        (so that any scenario can say ``ether: ether/network_2_clusters.json``)."""
         p = Path(ref)
-        return p if p.is_absolute() else self.base / p
+        if p.is_absolute() or (self.base / p).exists():
+            return p if p.is_absolute() else self.base / p
+        return bundled_file(ref) or self.base / p
 
     def scenario(self, name: str) -> Scenario:
         cfg = self.cfg
