@@ -8,7 +8,7 @@ import pytest
 
 from orchestrator.cli import main
 from orchestrator.scenario import load_scenario
-from tests.conftest import run_summary, write_scenario
+from tests.conftest import ROOT, run_summary, write_scenario
 from topologies.alibaba import Conversion, TraceError, convert
 
 # task_name, instance_num, job_name, task_type, status, start_time, end_time, plan_cpu, plan_mem
@@ -61,3 +61,18 @@ def test_bad_input(tmp_path, capsys):
     assert main(["trace", "alibaba", str(tmp_path / "none.csv"), "--scenario", "aot1", "--out",
                  str(tmp_path / "o.csv")]) == 2
     assert "none.csv: file not found" in capsys.readouterr().err
+
+
+def test_the_shipped_sample_converts_and_runs(tmp_path):
+    out = tmp_path / "trace.csv"
+    sample = ROOT / "topologies" / "traces" / "alibaba_batch_task_sample.csv"
+    assert main(["trace", "alibaba", str(sample), "--scenario", "aot2", "--out", str(out)]) == 0
+    with out.open() as fh:
+        rows = list(csv.DictReader(fh))
+    with sample.open() as fh:
+        jobs = {r[2] for r in csv.reader(fh) if r[4] == "Terminated"}
+    assert 100 < len(rows) <= len(jobs)
+    path = write_scenario(tmp_path, {"topology": {"ether": "ether/network_2_clusters.json"},
+                                     "workload": {"trace": str(out)}, "simulation": {"steps": 50}})
+    summary = run_summary(load_scenario(path))
+    assert summary["totals"]["generated"] == sum(float(r["time"]) < 50 for r in rows)
