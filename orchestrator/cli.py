@@ -29,6 +29,7 @@ from rich.table import Table
 from node_runtime.model.policies import POLICIES
 from node_runtime.runtime.keys import CHUNK, new_sim_id
 from node_runtime.runtime.layout import LAYOUTS, ProcessLayout
+from orchestrator.arguments import COUNT, NON_NEGATIVE, POSITIVE, integer
 from orchestrator.clock import ClockError
 from orchestrator.metrics import ConservationError, TickReport
 from orchestrator.placement import load_placement
@@ -260,7 +261,7 @@ def build_parser() -> argparse.ArgumentParser:
                        description="Run one episode of a scenario with node-side policies, show progress, print a "
                                    "summary and write summary.json, ticks.csv and nodes.csv.")
     p.add_argument("scenario", help="scenario YAML file, or a bundled name such as aot2")
-    p.add_argument("--steps", type=int, help="decision steps to run (default: the scenario's simulation.steps)")
+    p.add_argument("--steps", type=COUNT, help="decision steps to run (default: the scenario's simulation.steps)")
     p.add_argument("--seed", type=int, help="random seed (default: the scenario's simulation.seed)")
     p.add_argument("--transport", choices=("zenoh", "inproc"), default="zenoh",
                    help="zenoh: one OS process per role over a Zenoh router (default); inproc: all roles in this "
@@ -270,11 +271,11 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--policy", choices=sorted(POLICIES),
                    help="node-side decision policy for every controller (default: the scenario's)")
     p.add_argument("--out", metavar="DIR", help="output directory (default: runs/<scenario>-<time>)")
-    p.add_argument("--timeout", type=float, default=30.0, metavar="S",
+    p.add_argument("--timeout", type=POSITIVE, default=30.0, metavar="S",
                    help="seconds to wait for a tick before declaring a process hung (default 30)")
     p.add_argument("--json", action="store_true", help="print the summary as JSON instead of a table")
     p.add_argument("-q", "--quiet", action="store_true", help="no progress bar or status lines")
-    p.add_argument("--episodes", type=int, default=1, metavar="N",
+    p.add_argument("--episodes", type=integer(0), default=1, metavar="N",
                    help="episodes to run (default 1; with --serve, 0 runs none and only serves)")
     p.add_argument("--serve", action="store_true",
                    help="keep the simulation up after the episodes: monitors and ZenohEdgeEnv(connect=...) can "
@@ -289,7 +290,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--connect", action="append", metavar="ENDPOINT",
                    help="join the router to another Zenoh router (e.g. another simulation's), so that several "
                         "simulations share one network; repeatable")
-    p.add_argument("--tick-rate", type=float, metavar="HZ",
+    p.add_argument("--tick-rate", type=POSITIVE, metavar="HZ",
                    help="run at most HZ ticks per second, to watch a run live with `orchestrator monitor`")
     p.set_defaults(func=cmd_launch)
 
@@ -299,8 +300,8 @@ def build_parser() -> argparse.ArgumentParser:
                                    "process count, all in one run. Ratio = emulator / barrier.")
     p.add_argument("scenarios", nargs="*", default=["aot1", "aot2", "aot3", "aot4"],
                    help="scenario files or bundled names (default: aot1 aot2 aot3 aot4)")
-    p.add_argument("--ticks", type=int, default=500, help="ticks measured per configuration (default 500)")
-    p.add_argument("--rounds", type=int, default=5,
+    p.add_argument("--ticks", type=COUNT, default=500, help="ticks measured per configuration (default 500)")
+    p.add_argument("--rounds", type=COUNT, default=5,
                    help="alternating chunks of emulator and barrier ticks; medians are reported (default 5)")
     p.add_argument("--transports", nargs="+", choices=("inproc", "zenoh"), default=["inproc", "zenoh"])
     p.add_argument("--out", metavar="FILE", help="also write the rows as JSON")
@@ -334,12 +335,12 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("input", help="batch_task.csv (no header)")
     p.add_argument("--scenario", required=True, help="scenario whose task sources receive the tasks")
     p.add_argument("--out", required=True, metavar="FILE", help="trace CSV to write")
-    p.add_argument("--frequency", type=float, default=4.0e6, help="instructions/s of one core (default 4e6)")
-    p.add_argument("--memory", type=float, default=1.0e9, help="bytes that plan_mem = 100 stands for (default 1e9)")
-    p.add_argument("--output-ratio", type=float, default=1.0, help="output bytes / input bytes (default 1)")
-    p.add_argument("--deadline-factor", type=float, default=3.0, help="deadline = factor x job duration (default 3)")
-    p.add_argument("--time-scale", type=float, default=1.0, help="emulated seconds per trace second (default 1)")
-    p.add_argument("--limit", type=int, help="keep the earliest N jobs")
+    p.add_argument("--frequency", type=POSITIVE, default=4.0e6, help="instructions/s of one core (default 4e6)")
+    p.add_argument("--memory", type=POSITIVE, default=1.0e9, help="bytes that plan_mem = 100 stands for (default 1e9)")
+    p.add_argument("--output-ratio", type=NON_NEGATIVE, default=1.0, help="output bytes / input bytes (default 1)")
+    p.add_argument("--deadline-factor", type=POSITIVE, default=3.0, help="deadline = factor x job duration (default 3)")
+    p.add_argument("--time-scale", type=POSITIVE, default=1.0, help="emulated seconds per trace second (default 1)")
+    p.add_argument("--limit", type=COUNT, help="keep the earliest N jobs")
     p.set_defaults(func=cmd_trace)
 
     monitor.add_parser(sub)

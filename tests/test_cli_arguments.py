@@ -1,0 +1,34 @@
+"""Numbers on the command line are checked like the scenario's YAML: one clear error line, exit status 2."""
+
+from __future__ import annotations
+
+import pytest
+
+from orchestrator.cli import main
+
+CASES = [
+    (["launch", "aot1", "--steps", "-5"], "argument --steps: expected an integer >= 1 (got '-5')"),
+    (["launch", "aot1", "--steps", "0"], "argument --steps: expected an integer >= 1 (got '0')"),
+    (["launch", "aot1", "--steps", "2.5"], "argument --steps: expected an integer >= 1 (got '2.5')"),
+    (["launch", "aot1", "--tick-rate", "-5"], "argument --tick-rate: expected a number > 0 (got '-5')"),
+    (["launch", "aot1", "--timeout", "0"], "argument --timeout: expected a number > 0 (got '0')"),
+    (["launch", "aot1", "--timeout", "inf"], "argument --timeout: expected a number > 0 (got 'inf')"),
+    (["launch", "aot1", "--episodes", "-1"], "argument --episodes: expected an integer >= 0 (got '-1')"),
+    (["bench", "--ticks", "0"], "argument --ticks: expected an integer >= 1 (got '0')"),
+    (["trace", "alibaba", "x.csv", "--scenario", "aot2", "--out", "t.csv", "--frequency", "-1"],
+     "argument --frequency: expected a number > 0 (got '-1')"),
+]
+
+
+@pytest.mark.parametrize(("argv", "expected"), CASES, ids=[" ".join(c[0][2:]) or c[0][0] for c in CASES])
+def test_bad_numbers_are_rejected_with_one_line(argv, expected, capsys):
+    with pytest.raises(SystemExit) as exc:
+        main(argv)
+    assert exc.value.code == 2
+    assert capsys.readouterr().err.strip().splitlines()[-1].endswith(f"error: {expected}")
+
+
+def test_good_numbers_run(tmp_path, capsys):
+    assert main(["launch", "aot1", "--transport", "inproc", "--steps", "3", "--tick-rate", "1000", "-q",
+                 "--out", str(tmp_path)]) == 0
+    assert (tmp_path / "summary.json").exists()
