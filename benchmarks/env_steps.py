@@ -23,6 +23,7 @@ from rich.table import Table
 
 from env import ZenohEdgeEnv
 from orchestrator.viewers.bench import BareBarrier
+from orchestrator.viewers.progress import progress_steps
 
 CONFIGS = ("inproc:single", "zenoh:per-role", "zenoh:per-node")
 
@@ -73,13 +74,12 @@ def main() -> None:
     parser.add_argument("--rounds", type=int, default=5, help="alternating chunks; medians are reported (default 5)")
     parser.add_argument("--out", metavar="FILE", help="also write the rows as JSON")
     args = parser.parse_args()
-    console = Console(stderr=True)
     rows = []
-    with console.status("") as status:
+    with progress_steps(len(args.scenarios) * len(args.configs), "env_steps") as step:
         for scenario in args.scenarios:
             for config in args.configs:
                 transport, layout = config.split(":")
-                status.update(f"{scenario} {config}")
+                step(f"{scenario} {config}")
                 rows.append(measure(scenario, transport, layout, args.steps, args.rounds))
     table = Table(title=f"env.step() steps/s, medians of {args.rounds} alternating chunks of "
                         f"{args.steps // args.rounds} steps, random masked actions", title_justify="left")

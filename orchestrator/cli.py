@@ -36,6 +36,7 @@ from orchestrator.placement import load_placement
 from orchestrator.scenario import ScenarioError, load_scenario
 from orchestrator.session import Simulation
 from orchestrator.viewers import monitor
+from orchestrator.viewers.progress import progress_steps
 
 EXIT_OK, EXIT_FAILED, EXIT_USAGE, EXIT_INTERRUPTED = 0, 1, 2, 130
 
@@ -185,9 +186,8 @@ def cmd_bench(args: argparse.Namespace) -> int:
 
     console = Console(stderr=True, highlight=False)
     configs = [c for c in bench.CONFIGS if c[0] in args.transports]
-    with console.status("") as status:
-        rows = bench.run(args.scenarios, args.ticks, configs, args.rounds,
-                         progress=lambda what: status.update(f"measuring {what}"))
+    with progress_steps(len(args.scenarios) * len(configs), "bench", console=console) as step:
+        rows = bench.run(args.scenarios, args.ticks, configs, args.rounds, progress=step)
     table = Table(title=f"ticks/s, medians of {args.rounds} alternating chunks of {args.ticks // args.rounds} ticks "
                         "(random policy); barrier = bare Zenoh barrier, same process count", title_justify="left")
     for col in ("scenario", "transport", "layout", "processes", "ticks/s", "barrier ticks/s", "ratio"):
