@@ -102,11 +102,12 @@ class Renderer:
                 import pygame
             except ImportError:
                 raise RuntimeError("rendering pictures needs pygame: pip install 'zenohedge[render]'") from None
-            pygame.init()
+            pygame.font.init()  # not pygame.init(): audio is never used, and its drivers complain on headless hosts
             self.pygame = pygame
             self.font = pygame.font.Font(None, 18)
             self.title_font = pygame.font.Font(None, 26)
             if self.env.render_mode == "human":
+                pygame.display.init()
                 self.screen = pygame.display.set_mode(SIZE)
                 pygame.display.set_caption(f"ZenohEdge — {self.sc.name}")
         pg = self.pygame
