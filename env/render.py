@@ -91,7 +91,7 @@ class Renderer:
             q, occ, buf, ovl = nodes.get(n.id, (0, 0, n.buffer, False))
             bar = "#" * round(20 * min(occ / buf, 1.0))
             decision = ""
-            if n.controller and f"ctrl_{n.id}" in env._last_actions:
+            if n.has("controller") and f"ctrl_{n.id}" in env._last_actions:
                 decision = f"-> {moves[n.id]}" if n.id in moves else "local"
             lines.append(f"{n.id:<12}{q:>6}{f'{occ}/{buf}':>10}  {bar:<20}{'!' if ovl else '':>4}  {decision}")
         return "\n".join(lines)

@@ -108,7 +108,7 @@ class Metrics:
         for i, r in enumerate(self.roles):
             incidence[sc.index[role_node(r)], i] = 1.0
         self.incidence = incidence
-        self.capacity = np.array([n.capacity * sc.dt if n.worker else 0.0 for n in sc.nodes])
+        self.capacity = np.array([n.capacity * sc.dt if n.has("worker") else 0.0 for n in sc.nodes])
         self.reset()
 
     def reset(self) -> None:

@@ -197,7 +197,7 @@ class Simulation:
     def summary(self) -> dict[str, Any]:
         s = self.metrics.summary()
         s["seed"] = self.seed
-        s["policy"] = self.policy or sorted({n.policy for n in self.scenario.nodes if n.controller})
+        s["policy"] = self.policy or sorted({n.policy for n in self.scenario.nodes if n.has("controller")})
         s["code"] = code_version()
         wall = time.perf_counter() - self._run_started
         s["run"] = {

@@ -53,7 +53,7 @@ def user_module(tmp_path, monkeypatch):
 def test_custom_worker_over_zenoh_processes(tmp_path, user_module):
     plain = load_scenario(write_scenario(tmp_path, small(tmp_path), "plain.yaml"))
     custom = load_scenario(write_scenario(tmp_path, small(tmp_path, roles={"worker": user_module}), "custom.yaml"))
-    assert all(n.worker_impl == user_module for n in custom.nodes)
+    assert all(n.impl("worker") == user_module for n in custom.nodes)
     base = run_summary(plain, transport="inproc")
     over_zenoh = run_summary(custom, transport="zenoh", layout="per-node")
     # its behaviour shows in the metrics: half the CPU, so slower and fuller queues ...
@@ -71,7 +71,7 @@ def test_per_node_roles_and_params(tmp_path, user_module):
     data["topology"]["nodes"][2]["roles"] = {"worker": user_module}
     data["topology"]["nodes"][2]["params"] = {"colour": "blue", "level": 3}
     sc = load_scenario(write_scenario(tmp_path, data))
-    assert [n.worker_impl for n in sc.nodes] == ["", "", user_module]
+    assert [n.impl("worker") for n in sc.nodes] == ["", "", user_module]
     assert sc.node["c"].param("level") == 3 and sc.node["c"].param("missing", 7) == 7
 
 

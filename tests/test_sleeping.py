@@ -78,7 +78,7 @@ def test_an_idle_network_wakes_nobody(tmp_path):
 
 
 def test_looking_ahead_draws_what_asking_every_tick_draws(aot1):
-    node = next(n.id for n in aot1.nodes if n.client)
+    node = next(n.id for n in aot1.nodes if n.has("client"))
 
     def source():
         return TaskSource(aot1, node, np.random.default_rng(3), np.random.default_rng(4))

@@ -10,7 +10,8 @@ from __future__ import annotations
 from node_runtime.model.messages import Envelope, Kind, Task
 from node_runtime.model.plugins import load
 from node_runtime.model.radio import Radio
-from node_runtime.model.rng import CLIENT, stream
+from node_runtime.model.registry import RoleKind, register
+from node_runtime.model.rng import stream
 from node_runtime.model.role import Outbox, Role, role_id
 from node_runtime.model.spec import NodeSpec, Scenario
 from node_runtime.model.workload import TaskSource
@@ -24,7 +25,7 @@ class Client(Role):
     def __init__(self, node: NodeSpec, scenario: Scenario) -> None:
         super().__init__(node, scenario)
         self.targets = scenario.targets[node.id]
-        self.local = node.worker  # hands tasks to its own worker
+        self.local = node.has("worker")  # hands tasks to its own worker
         self.radio = None if self.local else Radio.for_node(scenario, node.id, self.targets)
         self.reset(scenario.seed)
 
@@ -32,12 +33,12 @@ class Client(Role):
         super().reset(seed)
         source = self.scenario.workload.source
         cls = load(source, TaskSource) if source else TaskSource
-        self.source = cls(self.scenario, self.node.id, stream(seed, self.index, CLIENT, COUNTS),
-                          stream(seed, self.index, CLIENT, TYPES))
-        self.target_rng = stream(seed, self.index, CLIENT, TARGETS)
+        self.source = cls(self.scenario, self.node.id, stream(seed, self.index, CLIENT.stream, COUNTS),
+                          stream(seed, self.index, CLIENT.stream, TYPES))
+        self.target_rng = stream(seed, self.index, CLIENT.stream, TARGETS)
         self.seq = 0
         if self.radio is not None:
-            self.radio.reset(stream(seed, self.index, CLIENT, LINKS))
+            self.radio.reset(stream(seed, self.index, CLIENT.stream, LINKS))
 
     def task_id(self) -> int:
         self.seq += 1
@@ -82,3 +83,6 @@ class Client(Role):
         if self.outages:  # a failed client draws nothing, so its draws depend on the failure schedule
             return t + 1
         return self.source.next_arrival(t)
+
+
+CLIENT = register(RoleKind(Client, order=1, stream=1))

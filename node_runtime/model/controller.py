@@ -20,8 +20,9 @@ from collections.abc import Sequence
 
 from node_runtime.model.messages import Decision, Envelope, Kind, NodeState, Pending
 from node_runtime.model.policies import Policy, make_policy
-from node_runtime.model.rng import CONTROLLER, stream
-from node_runtime.model.role import Outbox, Role, role_id
+from node_runtime.model.registry import RoleKind, register
+from node_runtime.model.rng import stream
+from node_runtime.model.role import Outbox, Role, role_id, state_topic
 from node_runtime.model.spec import NodeSpec, Scenario
 from node_runtime.model.view import NodeView, Observation, TaskView
 
@@ -53,7 +54,7 @@ class Controller(Role):
         wanted = policy or self.node.policy
         if wanted != self.policy_spec:
             self.policy_spec, self.policy = wanted, make_policy(wanted)
-        self.policy.reset(stream(seed, self.index, CONTROLLER))
+        self.policy.reset(stream(seed, self.index, CONTROLLER.stream))
         sc = self.scenario
         self.states: dict[str, NodeState] = {
             n: NodeState(n, 0, 0) for n in (self.node.id, *self.neighbours)
@@ -66,7 +67,8 @@ class Controller(Role):
         me = self.node.id
         # static facts of every node in view: (buffer, capacity, tier, rate from here, can take tasks)
         self._static = {n: (sc.node[n].buffer, sc.node[n].capacity, sc.node[n].tier,
-                            0.0 if n == me else sc.link[(me, n)].rate_bps, sc.node[n].worker) for n in self.states}
+                            0.0 if n == me else sc.link[(me, n)].rate_bps, sc.node[n].has("worker"))
+                        for n in self.states}
         # with no failures in view and a broadcast every tick, every state is exactly one tick old
         self._always_fresh = sc.state_interval == 1 and not any(sc.failure_windows.get(n) for n in self.states)
 
@@ -171,3 +173,12 @@ class Controller(Role):
             tasks=tasks,
             neighbours=[self.view(j, t) for j in self.neighbours],
         )
+
+
+def heard_states(node: NodeSpec, scenario: Scenario) -> tuple[str, ...]:
+    """Its own node's state and its neighbours'."""
+    return tuple(state_topic(n) for n in (node.id, *scenario.neighbours[node.id]))
+
+
+CONTROLLER = register(RoleKind(Controller, order=2, stream=2, letter="k", needs=("worker",),
+                               subscribes=heard_states, agent=True))

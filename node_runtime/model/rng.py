@@ -1,15 +1,13 @@
 """Seeded random streams: one independent generator per node and role (docs/model.md, "Randomness and determinism").
 
 Streams are keyed by the node's canonical index and a role number, never by process, so a
-node draws the same numbers whatever process hosts it. Nothing in the emulator may use a global
-or unseeded generator.
+node draws the same numbers whatever process hosts it. Each role kind declares its number when it
+registers (``RoleKind.stream``). Nothing in the emulator may use a global or unseeded generator.
 """
 
 from __future__ import annotations
 
 import numpy as np
-
-WORKER, CLIENT, CONTROLLER = 0, 1, 2
 
 
 def stream(seed: int, node_index: int, role: int, purpose: int = 0) -> np.random.Generator:

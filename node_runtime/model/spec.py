@@ -18,7 +18,7 @@ Mode = Literal["binary", "batch"]
 
 @dataclass(frozen=True, slots=True)
 class NodeSpec:
-    """One network node: a worker, optionally with a client (task source) and a controller."""
+    """One network node and the roles it has (usually a worker, optionally a client and a controller)."""
 
     id: str
     tier: int
@@ -29,15 +29,18 @@ class NodeSpec:
     tx_power_dbm: float
     idle_power_w: float
     kappa: float  # switched capacitance: compute energy = kappa * cycles * frequency**2
-    worker: bool = True
-    controller: bool = False
-    client: bool = False
+    roles: tuple[str, ...]  # its role kinds, in canonical order (node_runtime.model.registry)
     policy: str = "local"  # node-side decision policy (a name, or an import path "module:Class")
     profile: str = ""  # hardware profile name, for display
-    worker_impl: str = ""  # import path of a user Worker subclass ("" = the built-in one)
-    client_impl: str = ""
-    controller_impl: str = ""
+    impls: tuple[tuple[str, str], ...] = ()  # kind -> import path of a user subclass of the kind's class
     params: tuple[tuple[str, Any], ...] = ()  # free parameters for user extensions (``params:`` key)
+
+    def has(self, kind: str) -> bool:
+        return kind in self.roles
+
+    def impl(self, kind: str) -> str:
+        """The class the scenario gives this node's role ``kind`` ("" = the kind's own)."""
+        return dict(self.impls).get(kind, "")
 
     @property
     def capacity(self) -> float:
@@ -132,6 +135,7 @@ class Scenario:
     links: tuple[LinkSpec, ...]
     workload: Workload
     failures: tuple[Failure, ...] = ()
+    kinds: tuple[tuple[str, str], ...] = ()  # role kinds the nodes have, in canonical order: (name, class path)
     source: str = ""  # the file it came from, for messages only
     extra: dict[str, Any] = field(default_factory=dict)  # free-form metadata (description ...)
 
@@ -164,14 +168,14 @@ class Scenario:
         explicit = dict(self.workload.client_targets)
         out: dict[str, tuple[str, ...]] = {}
         for n in self.nodes:
-            if not n.client:
+            if not n.has("client"):
                 continue
             if n.id in explicit:
                 out[n.id] = explicit[n.id]
-            elif n.worker:
+            elif n.has("worker"):
                 out[n.id] = (n.id,)
             else:
-                out[n.id] = tuple(j for j in self.neighbours[n.id] if self.node[j].worker)
+                out[n.id] = tuple(j for j in self.neighbours[n.id] if self.node[j].has("worker"))
         return out
 
     @cached_property
@@ -186,11 +190,11 @@ class Scenario:
 
     @property
     def controllers(self) -> tuple[str, ...]:
-        return tuple(n.id for n in self.nodes if n.controller)
+        return tuple(n.id for n in self.nodes if n.has("controller"))
 
     @property
     def clients(self) -> tuple[str, ...]:
-        return tuple(n.id for n in self.nodes if n.client)
+        return tuple(n.id for n in self.nodes if n.has("client"))
 
     @property
     def undirected_links(self) -> int:
@@ -222,22 +226,41 @@ class Scenario:
             max_hops=int(d["max_hops"]),
             batch_size=int(d["batch_size"]),
             state_interval=int(d["state_interval"]),
-            nodes=tuple(NodeSpec(**{**n, "position": tuple(n["position"]),
+            nodes=tuple(NodeSpec(**{**n, "position": tuple(n["position"]), "roles": tuple(n["roles"]),
+                                     "impls": tuple(tuple(kv) for kv in n["impls"]),
                                      "params": tuple(tuple(kv) for kv in n.get("params", ()))}) for n in d["nodes"]),
             links=tuple(LinkSpec(**lk) for lk in d["links"]),
             workload=workload,
             failures=tuple(Failure(**f) for f in d["failures"]),
+            kinds=tuple(tuple(kv) for kv in d["kinds"]),
             source=d.get("source", ""),
             extra=dict(d.get("extra", {})),
         )
 
     def digest(self) -> str:
-        """Content hash of everything that affects the emulation (not the source path)."""
+        """Content hash of everything that affects the emulation (not the source path, nor where the
+        code of the role kinds lives, as for the code of any role)."""
         d = self.to_dict()
         d.pop("source", None)
         d.pop("extra", None)
+        d.pop("kinds", None)
+        d["nodes"] = [_hashed_node(n) for n in d["nodes"]]
         blob = json.dumps(d, sort_keys=True, separators=(",", ":")).encode()
         return hashlib.sha256(blob).hexdigest()[:16]
+
+
+DIGEST_KINDS = ("worker", "client", "controller")
+
+
+def _hashed_node(node: dict[str, Any]) -> dict[str, Any]:
+    """A node as the digest has always hashed it: ``<kind>: bool`` and ``<kind>_impl: str`` for each of
+    its kinds and, present or not, the ``DIGEST_KINDS``, so that hashes stay comparable across versions."""
+    node = dict(node)
+    roles, impls = node.pop("roles"), dict(node.pop("impls"))
+    for kind in dict.fromkeys((*DIGEST_KINDS, *roles, *impls)):
+        node[kind] = kind in roles
+        node[f"{kind}_impl"] = impls.get(kind, "")
+    return node
 
 
 def _plain(value: Any) -> Any:

@@ -26,7 +26,8 @@ from collections import deque
 from node_runtime.model.energy import compute_energy, idle_energy
 from node_runtime.model.messages import Decision, Envelope, Kind, NodeState, Pending, Result, Task
 from node_runtime.model.radio import Radio
-from node_runtime.model.rng import WORKER, stream
+from node_runtime.model.registry import RoleKind, register
+from node_runtime.model.rng import stream
 from node_runtime.model.role import Outbox, Role, role_id, state_topic
 from node_runtime.model.spec import NodeSpec, Scenario
 
@@ -41,8 +42,8 @@ class Worker(Role):
         self.dt = scenario.dt
         self.neighbours = scenario.neighbours[node.id]
         self.radio = Radio.for_node(scenario, node.id, self.neighbours)
-        self.decides = node.controller and scenario.max_hops > 0
-        self.controller = role_id("controller", node.id) if node.controller else ""
+        self.decides = node.has("controller") and scenario.max_hops > 0
+        self.controller = role_id("controller", node.id) if node.has("controller") else ""
         self.topic = state_topic(node.id)
         self.budget = node.capacity * scenario.dt
         self.idle_w = node.idle_power_w
@@ -54,7 +55,7 @@ class Worker(Role):
         self.undecided: dict[int, tuple[Task, int]] = {}  # id -> (task, arrival tick), in arrival order
         self.next_expiry = math.inf  # no held task expires before this tick (it may be early, never late)
         self.failed = False
-        self.radio.reset(stream(seed, self.index, WORKER))
+        self.radio.reset(stream(seed, self.index, WORKER.stream))
         self._last_state: tuple[int, int] | None = None
         self._undecided_version = 0  # bumped whenever the undecided set changes
         self._reported_version = -1
@@ -256,3 +257,10 @@ class Worker(Role):
         if self.controller and self._undecided_version != self._reported_version:
             self._reported_version = self._undecided_version
             out.send(Kind.REPORT, self.controller, [Pending.of(task, at) for task, at in self.undecided.values()])
+
+
+def own_state(node: NodeSpec, scenario: Scenario) -> tuple[str, ...]:
+    return (state_topic(node.id),)
+
+
+WORKER = register(RoleKind(Worker, order=0, stream=0, default=True, publishes=own_state))

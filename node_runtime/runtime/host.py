@@ -12,18 +12,14 @@ import math
 from collections import defaultdict
 from dataclasses import dataclass
 
-from node_runtime.model.client import Client
-from node_runtime.model.controller import Action, Controller
+from node_runtime.model.controller import Action
 from node_runtime.model.messages import Envelope, Kind
 from node_runtime.model.plugins import load
-from node_runtime.model.role import Outbox, Role, read_stats, role_kind, role_node, state_topic
-from node_runtime.model.spec import Scenario
+from node_runtime.model.role import Outbox, Role, read_stats, role_node
 from node_runtime.model.view import Observation
-from node_runtime.model.worker import Worker
 from node_runtime.runtime.layout import ProcessLayout
 from node_runtime.runtime.protocol import Done
 
-ROLE_TYPES: dict[str, type[Role]] = {"worker": Worker, "client": Client, "controller": Controller}
 CARRIES_TASK = (Kind.TASK, Kind.RESULT)
 NO_MAIL: tuple[Envelope, ...] = ()
 
@@ -36,21 +32,22 @@ class Outgoing:
     events: list[tuple[str, str, dict]]  # (kind, node, fields), collected only while a monitor listens
 
 
-def make_role(role: str, scenario: Scenario) -> Role:
-    """The role's class: the built-in one, or the scenario's subclass of it (``roles:`` key)."""
-    node = scenario.node[role_node(role)]
-    kind = role_kind(role)
-    impl = getattr(node, f"{kind}_impl")
-    cls = load(impl, ROLE_TYPES[kind]) if impl else ROLE_TYPES[kind]
-    return cls(node, scenario)
+def make_role(role: str, plan: ProcessLayout) -> Role:
+    """The role: of its kind's class, or of the scenario's subclass of it (``roles:`` key)."""
+    node = plan.scenario.node[role_node(role)]
+    kind = plan.kind_of(role)
+    impl = node.impl(kind.name)
+    cls = load(impl, kind.base) if impl else kind.base
+    return cls(node, plan.scenario)
 
 
 class Host:
     def __init__(self, proc: str, plan: ProcessLayout) -> None:
         self.proc = proc
         self.plan = plan
-        self.roles: list[Role] = [make_role(r, plan.scenario) for r in plan.roles_of[proc]]
+        self.roles: list[Role] = [make_role(r, plan) for r in plan.roles_of[proc]]
         self.by_id = {r.id: r for r in self.roles}
+        self.drivable = {r.id for r in self.roles if plan.kind_of(r.id).agent}  # roles an agent can drive
         self.outboxes = {r.id: Outbox(r.id) for r in self.roles}
         # For each topic: local subscribers, and remote processes that subscribe.
         self.local_subs: dict[str, list[str]] = {}
@@ -69,8 +66,8 @@ class Host:
         return list(dict.fromkeys(r.node.id for r in self.roles))
 
     def published_topics(self) -> list[str]:
-        """Broadcast topics of this host's workers that some other process listens to."""
-        topics = [state_topic(r.node.id) for r in self.roles if isinstance(r, Worker)]
+        """Broadcast topics of this host's roles that some other process listens to."""
+        topics = [t for r in self.roles for t in self.plan.publications[r.id]]
         return [t for t in topics if self.remote_subs.get(t)]
 
     def reset(self, episode: int, seed: int, external: frozenset[str] = frozenset(),
@@ -79,7 +76,7 @@ class Host:
         self.episode = episode
         self.external = set(external) & set(self.by_id)
         for role in self.roles:
-            if isinstance(role, Controller):
+            if role.id in self.drivable:
                 role.reset(seed, external=role.id in self.external, policy=policy)
             else:
                 role.reset(seed)

@@ -11,7 +11,8 @@ from dataclasses import dataclass
 from functools import cached_property
 from typing import Literal
 
-from node_runtime.model.role import role_id, role_kind, role_node, state_topic
+from node_runtime.model.registry import RoleKind, kinds_of
+from node_runtime.model.role import role_id, role_kind, role_node
 from node_runtime.model.spec import Scenario
 
 Layout = Literal["per-role", "per-node", "single"]
@@ -35,17 +36,17 @@ class ProcessLayout:
     layout: Layout
 
     @cached_property
+    def kinds(self) -> dict[str, RoleKind]:
+        """The role kinds of the scenario (node_runtime.model.registry), imported here if need be."""
+        return kinds_of(self.scenario)
+
+    @cached_property
     def roles(self) -> tuple[str, ...]:
-        """All roles in canonical order: by node, then worker, client, controller."""
-        out = []
-        for n in self.scenario.nodes:
-            if n.worker:
-                out.append(role_id("worker", n.id))
-            if n.client:
-                out.append(role_id("client", n.id))
-            if n.controller:
-                out.append(role_id("controller", n.id))
-        return tuple(out)
+        """All roles in canonical order: by node, then by kind (worker, client, controller, ...)."""
+        return tuple(role_id(kind, n.id) for n in self.scenario.nodes for kind in n.roles)
+
+    def kind_of(self, role: str) -> RoleKind:
+        return self.kinds[role_kind(role)]
 
     @cached_property
     def role_index(self) -> dict[str, int]:
@@ -73,15 +74,16 @@ class ProcessLayout:
 
     @cached_property
     def subscriptions(self) -> dict[str, tuple[str, ...]]:
-        """Broadcast topics each role listens to: a controller hears its own node and its neighbours."""
-        subs: dict[str, tuple[str, ...]] = {}
-        for r in self.roles:
-            if role_kind(r) == "controller":
-                node = role_node(r)
-                subs[r] = tuple(state_topic(n) for n in (node, *self.scenario.neighbours[node]))
-            else:
-                subs[r] = ()
-        return subs
+        """Broadcast topics each role listens to, as its kind declares (a controller: its own node's
+        and its neighbours' states)."""
+        sc = self.scenario
+        return {r: self.kind_of(r).subscribes(sc.node[role_node(r)], sc) for r in self.roles}
+
+    @cached_property
+    def publications(self) -> dict[str, tuple[str, ...]]:
+        """Broadcast topics each role publishes on, as its kind declares (a worker: its node's state)."""
+        sc = self.scenario
+        return {r: self.kind_of(r).publishes(sc.node[role_node(r)], sc) for r in self.roles}
 
     @cached_property
     def subscribers(self) -> dict[str, tuple[str, ...]]:

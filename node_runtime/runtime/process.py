@@ -39,13 +39,14 @@ class ProcSpec:
 
 
 PR_SET_PDEATHSIG, PR_SET_NAME = 1, 15
-SHORT = {"worker": "zw", "client": "zc", "controller": "zk", "node": "zn", "all": "za"}
+GROUPS = {"node": "zn", "all": "za"}  # per-node and single layouts; per-role processes are named for their kind
 
 
-def short_name(proc: str) -> str:
+def short_name(proc: str, plan: ProcessLayout) -> str:
     """What ``ps``/``top`` show for a node process (15 bytes at most): zw-<node> for a worker, etc."""
     kind, _, node = proc.partition("-")
-    return f"{SHORT.get(kind, 'z')}-{node}"[:15]
+    prefix = plan.kinds[kind].process_prefix if kind in plan.kinds else GROUPS.get(kind, "z")
+    return f"{prefix}-{node}"[:15]
 
 
 def _prctl(option: int, arg: object) -> None:
@@ -66,6 +67,7 @@ def run(spec: ProcSpec) -> int:
     transport = ZenohTransport.client(spec.endpoint)
     try:
         plan = ProcessLayout(spec.scenario, spec.layout)
+        _prctl(PR_SET_NAME, short_name(spec.proc, plan).encode())
         host = Host(spec.proc, plan)
         driver = HostDriver(host, transport, spec.keys)
         orchestrator = {"seen": False, "gone": False}
@@ -91,7 +93,6 @@ def run(spec: ProcSpec) -> int:
 def main(spec: ProcSpec) -> None:
     """Body of a forked node process."""
     die_with_parent()
-    _prctl(PR_SET_NAME, short_name(spec.proc).encode())
     code = run(spec)
     sys.stdout.flush()
     sys.stderr.flush()

@@ -20,9 +20,11 @@ from pydantic import ValidationError, validate_call
 
 from node_runtime.model.plugins import PluginError, is_import_path, load
 from node_runtime.model.radio import log_distance_gain_db, shannon_rate
+from node_runtime.model.registry import ROLE_KINDS
+from node_runtime.model.role import Role
 from node_runtime.model.spec import Arrival, Failure, LinkSpec, NodeSpec, Scenario, TaskType, TraceRow, Workload
 from orchestrator.scenario.errors import ScenarioError, describe, key_path
-from orchestrator.scenario.schema import BUILTIN_PROFILES, NODE_DEFAULTS, ScenarioFile
+from orchestrator.scenario.schema import BUILTIN_PROFILES, NODE_DEFAULTS, ScenarioFile, file_format
 from topologies import bundled_file
 from topologies.draft import Draft, DraftLink, DraftNode
 from topologies.ether import EtherError, load_ether
@@ -30,12 +32,46 @@ from topologies.generators import GENERATORS, GeneratorError
 
 
 def resolve(data: dict[str, Any], base: Path, default_name: str, label: str) -> Scenario:
+    import_new_kinds(data, base, label)
+    model = file_format(tuple(ROLE_KINDS))
     try:
-        cfg = ScenarioFile.model_validate(data)
+        cfg = model.model_validate(data)
     except ValidationError as exc:
-        raise ScenarioError([f"{label}: {key_path(e['loc'])}: {describe(e, ScenarioFile)}"
+        raise ScenarioError([f"{label}: {key_path(e['loc'])}: {describe(e, model)}"
                              for e in exc.errors()]) from None
     return _Resolver(cfg, base, label).scenario(cfg.name or default_name)
+
+
+def import_new_kinds(data: dict[str, Any], base: Path, label: str) -> None:
+    """Import the classes that the top-level ``roles`` names for kinds this process does not know:
+    a new kind's module registers it, and the file format then has its keys."""
+    roles = data.get("roles")
+    if not isinstance(roles, dict):
+        return
+    errors = []
+    for kind, path in roles.items():
+        if kind in ROLE_KINDS or not isinstance(path, str) or not is_import_path(path):
+            continue  # a known kind's class is checked with the other extensions; the rest is the schema's
+        importable_from(base)
+        try:
+            load(path, Role)
+        except PluginError as exc:
+            errors.append(f"{label}: roles.{kind}: {exc}")
+            continue
+        if kind not in ROLE_KINDS:
+            hint = difflib.get_close_matches(str(kind), ROLE_KINDS, n=1)
+            errors.append(f"{label}: roles.{kind}: unknown role kind " + (
+                f"(did you mean '{hint[0]}'?)" if hint else
+                f"{kind!r}: importing {path} did not register it (node_runtime.model.registry.register)"))
+    if errors:
+        raise ScenarioError(errors)
+
+
+def importable_from(base: Path) -> None:
+    """Modules next to the scenario file are importable (its directory joins sys.path, which node
+    processes inherit)."""
+    if base.is_dir() and str(base) not in sys.path:
+        sys.path.append(str(base))
 
 
 class _Resolver:
@@ -94,6 +130,7 @@ class _Resolver:
             links=tuple(links),
             workload=workload,
             failures=failures,
+            kinds=tuple((name, kind.path) for name, kind in ROLE_KINDS.items() if any(n.has(name) for n in nodes)),
             source=self.label,
             extra={"description": cfg.description, "reward": cfg.reward or "", "observation": cfg.observation or ""},
         )
@@ -101,19 +138,13 @@ class _Resolver:
     # --- user extensions ---
 
     def check_extensions(self, nodes: list[NodeSpec]) -> None:
-        """Import every extension once here, so that a typo fails with its key path, not in a node.
-
-        Modules next to the scenario file are importable (its directory joins sys.path, which node
-        processes inherit)."""
-        from node_runtime.model.client import Client
-        from node_runtime.model.controller import Controller
+        """Import every extension once here, so that a typo fails with its key path, not in a node."""
         from node_runtime.model.policies import Policy
-        from node_runtime.model.worker import Worker
         from node_runtime.model.workload import TaskSource
 
         cfg = self.cfg
         checks: dict[tuple[str, str], tuple[type | None, bool]] = {}
-        bases = {"worker": Worker, "client": Client, "controller": Controller}
+        bases = {name: kind.base for name, kind in ROLE_KINDS.items()}
         for kind, base in bases.items():
             path = getattr(cfg.roles, kind)
             if path:
@@ -133,8 +164,8 @@ class _Resolver:
             checks[("workload.source", cfg.workload.source)] = (TaskSource, False)
         if cfg.reward and cfg.reward not in ("paper", "sparse"):
             checks[("reward", cfg.reward)] = (None, True)
-        if (checks or cfg.observation) and self.base.is_dir() and str(self.base) not in sys.path:
-            sys.path.append(str(self.base))
+        if checks or cfg.observation:
+            importable_from(self.base)
         for (key, path), (base, callable_ok) in checks.items():
             try:
                 load(path, base, callable_ok=callable_ok)
@@ -176,7 +207,7 @@ class _Resolver:
                     elif e["type"] == "missing_argument":
                         self.error(f"topology.generator.{arg}", f"{topo.generator.kind} needs this parameter")
                     else:
-                        self.error(f"topology.generator.{key_path(e['loc'])}", describe(e, ScenarioFile))
+                        self.error(f"topology.generator.{key_path(e['loc'])}", describe(e, type(self.cfg)))
                 return Draft([], [])
             except GeneratorError as exc:
                 self.error("topology.generator", str(exc))
@@ -225,6 +256,7 @@ class _Resolver:
             # Precedence, lowest first: defaults, built-in profile, what the topology source knows
             # about the device, the scenario's profile, the node's own entry.
             values: dict[str, Any] = dict(NODE_DEFAULTS)
+            values.update({name: kind.default for name, kind in ROLE_KINDS.items()})
             values.update(tx_power_dbm=cfg.network.tx_power_dbm, idle_power_w=cfg.energy.idle_power_w,
                           kappa=cfg.energy.kappa, policy=cfg.simulation.policy)
             if profile_name and profile_name not in BUILTIN_PROFILES and profile_name not in cfg.profiles:
@@ -259,16 +291,18 @@ class _Resolver:
                 params.update(override.params or {})
                 if "position" in override.model_fields_set:
                     position = override.position
-            if values["controller"] and not values["worker"]:
-                self.error(f"{where}.controller", "a controller needs a worker on its node (worker: true)")
+            kinds = tuple(name for name in ROLE_KINDS if values[name])
+            for name in kinds:
+                for need in ROLE_KINDS[name].needs:
+                    if not values.get(need):
+                        self.error(f"{where}.{name}", f"a {name} needs a {need} on its node ({need}: true)")
             out.append(NodeSpec(
                 id=node.id, tier=values["tier"], cores=values["cores"], frequency=float(values["frequency"]),
                 buffer=values["buffer"], position=(float(position[0]), float(position[1])),
                 tx_power_dbm=float(values["tx_power_dbm"]), idle_power_w=float(values["idle_power_w"]),
-                kappa=float(values["kappa"]), worker=values["worker"], controller=values["controller"],
-                client=values["client"], policy=values["policy"], profile=profile_name or "",
-                worker_impl=roles.get("worker", ""), client_impl=roles.get("client", ""),
-                controller_impl=roles.get("controller", ""), params=tuple(sorted(params.items()))))
+                kappa=float(values["kappa"]), roles=kinds, policy=values["policy"], profile=profile_name or "",
+                impls=tuple((name, roles[name]) for name in ROLE_KINDS if roles.get(name)),
+                params=tuple(sorted(params.items()))))
         for name in cfg.profiles:
             if not any(n.profile == name for n in out) and name not in BUILTIN_PROFILES:
                 self.error(f"profiles.{name}", "profile is not used by any node")
@@ -320,7 +354,7 @@ class _Resolver:
             isolated = ", ".join(parts[0][:5]) + (" ..." if len(parts[0]) > 5 else "")
             self.error("topology", f"the network is disconnected ({len(parts)} parts; e.g. {{{isolated}}} "
                        "cannot reach the rest): add links")
-        if not any(n.client for n in nodes):
+        if not any(n.has("client") for n in nodes):
             self.error("topology", "no node is a task source: set 'client: true' on a node or profile")
 
     def failures(self, ids: set[str]) -> tuple[Failure, ...]:
@@ -340,20 +374,21 @@ class _Resolver:
         for c in wl.rates:
             if c not in by_id:
                 self.error(f"workload.rates.{c}", f"unknown node {c!r}")
-            elif not by_id[c].client:
+            elif not by_id[c].has("client"):
                 self.error(f"workload.rates.{c}", f"node {c!r} is not a task source (client: false)")
         for c, ts in wl.targets.items():
-            if c not in by_id or not by_id[c].client:
+            if c not in by_id or not by_id[c].has("client"):
                 self.error(f"workload.targets.{c}", f"{c!r} is not a task source node")
                 continue
-            if by_id[c].worker and ts != [c]:
+            if by_id[c].has("worker") and ts != [c]:
                 self.error(f"workload.targets.{c}", "a client on a worker node hands its tasks to that worker; "
                            f"expected [{c}]")
             for j, t in enumerate(ts):
-                if t not in by_id or not by_id[t].worker or (t != c and t not in nbrs[c]):
+                if t not in by_id or not by_id[t].has("worker") or (t != c and t not in nbrs[c]):
                     self.error(f"workload.targets.{c}[{j}]", f"{t!r} is not a worker neighbour of {c!r}")
         for n in nodes:
-            if n.client and not n.worker and n.id not in wl.targets and not any(by_id[j].worker for j in nbrs[n.id]):
+            if (n.has("client") and not n.has("worker") and n.id not in wl.targets
+                    and not any(by_id[j].has("worker") for j in nbrs[n.id])):
                 self.error(f"node {n.id!r}", "a task source without a worker needs a worker neighbour")
         trace = None
         if wl.trace is not None:
@@ -386,7 +421,7 @@ class _Resolver:
                     except (TypeError, ValueError, AttributeError):
                         self.error(where, f"{path}:{line}: expected numbers in every column but 'client'")
                         continue
-                    if row.client not in by_id or not by_id[row.client].client:
+                    if row.client not in by_id or not by_id[row.client].has("client"):
                         self.error(where, f"{path}:{line}: {row.client!r} is not a task source node")
                     bad = [c for c in columns[2:] if getattr(row, c) <= 0]
                     if bad:

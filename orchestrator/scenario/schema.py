@@ -8,9 +8,10 @@ paper's parameter table (λ = 0.17, α = 150 MiB, ρ = 8e7, ξ = 1, δ = 100 s, 
 
 from __future__ import annotations
 
+from functools import cache
 from typing import Annotated, Any, Literal
 
-from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
+from pydantic import BaseModel, ConfigDict, Field, create_model, field_validator, model_validator
 
 from node_runtime.model.plugins import is_import_path
 from node_runtime.model.policies import POLICIES
@@ -122,21 +123,18 @@ class EnergyCfg(Strict):
 
 
 class RolesCfg(Strict):
-    """User subclasses of the roles, by import path ("package.module:Class")."""
-
-    worker: str | None = None
-    client: str | None = None
-    controller: str | None = None
+    """User subclasses of the roles, by import path ("package.module:Class"): a key per role kind
+    (``file_format`` adds them)."""
 
 
 class ProfileCfg(Strict):
+    """Hardware and roles of a node. ``file_format`` adds ``<kind>: bool`` per role kind (whether
+    the node has that role)."""
+
     cores: Count | None = None
     frequency: Pos | None = None
     buffer: Count | None = None
     tier: Annotated[int, Field(ge=0)] | None = None
-    worker: bool | None = None
-    controller: bool | None = None
-    client: bool | None = None
     policy: str | None = None
     tx_power_dbm: float | None = None
     idle_power_w: NonNeg | None = None
@@ -230,6 +228,19 @@ class ScenarioFile(Strict):
     failures: list[FailureCfg] = []
 
 
+@cache
+def file_format(kinds: tuple[str, ...]) -> type[ScenarioFile]:
+    """The file format for these role kinds (node_runtime.model.registry): ``<kind>: bool`` on
+    profiles and nodes, and ``<kind>: import path`` under every ``roles``."""
+    roles: Any = create_model("RolesCfg", __base__=RolesCfg, **{k: (str | None, None) for k in kinds})
+    flags: dict[str, Any] = {k: (bool | None, None) for k in kinds}
+    profile: Any = create_model("ProfileCfg", __base__=ProfileCfg, roles=(roles | None, None), **flags)
+    node: Any = create_model("NodeCfg", __base__=NodeCfg, roles=(roles | None, None), **flags)
+    topology: Any = create_model("TopologyCfg", __base__=TopologyCfg, nodes=(list[node], []))
+    return create_model("ScenarioFile", __base__=ScenarioFile, roles=(roles, roles()),
+                        profiles=(dict[str, profile], {}), topology=(topology, ...))
+
+
 # Built-in hardware profiles: the AoT devices (Ether data, reference mapping) and the paper's tiers.
 BUILTIN_PROFILES: dict[str, dict[str, Any]] = {
     "rpi3": {"cores": 1, "frequency": 4.0e6, "buffer": 3, "tier": 0, "controller": True, "client": True},
@@ -240,7 +251,6 @@ BUILTIN_PROFILES: dict[str, dict[str, Any]] = {
     "tier1": {"cores": 1, "frequency": 2.0e7, "buffer": 10, "tier": 1, "controller": True},
     "tier2": {"cores": 2, "frequency": 8.0e7, "buffer": 100, "tier": 2, "controller": True},
 }
-NODE_DEFAULTS: dict[str, Any] = {"cores": 1, "frequency": 4.0e7, "buffer": 20, "tier": 0, "worker": True,
-                                 "controller": False, "client": False}
+NODE_DEFAULTS: dict[str, Any] = {"cores": 1, "frequency": 4.0e7, "buffer": 20, "tier": 0}  # roles: RoleKind.default
 
 

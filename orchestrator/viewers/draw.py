@@ -128,7 +128,7 @@ def _scale(values: dict[str, float], scale: tuple[float, float, float]) -> dict[
 
 def _node_areas(nodes: tuple[NodeSpec, ...]) -> dict[str, float]:
     """Workers by capacity; nodes without a worker have no capacity to show and get the smallest size."""
-    areas = _scale({n.id: n.capacity for n in nodes if n.worker}, NODE_AREA)
+    areas = _scale({n.id: n.capacity for n in nodes if n.has("worker")}, NODE_AREA)
     return {n.id: areas.get(n.id, NODE_AREA[0]) for n in nodes}
 
 
@@ -145,14 +145,14 @@ def _edge_alpha(edges: int) -> float:
 # ----- nodes -----
 
 def _marker(node: NodeSpec) -> str:
-    if not node.worker:
+    if not node.has("worker"):
         return "D"
-    return "o" if node.controller else "s"
+    return "o" if node.has("controller") else "s"
 
 
 def _draw_node(ax: Axes, node: NodeSpec, xy: tuple[float, float], area: float) -> None:
     colour = TIER_COLOURS[node.tier % len(TIER_COLOURS)]
-    edge, lw = (SOURCE_EDGE, 2.2) if node.client else ("white", 1.0)
+    edge, lw = (SOURCE_EDGE, 2.2) if node.has("client") else ("white", 1.0)
     ax.scatter([xy[0]], [xy[1]], s=area, c=[colour], marker=_marker(node), edgecolors=edge, linewidths=lw,
                zorder=3)
 
@@ -276,15 +276,15 @@ def _legends(fig: plt.Figure, ax: Axes, scenario: Scenario, areas: dict[str, flo
         Line2D([], [], marker="s", linestyle="", markersize=9, markerfacecolor=grey, markeredgecolor="white",
                label="worker only"),
     ]
-    if any(not n.worker for n in scenario.nodes):
+    if any(not n.has("worker") for n in scenario.nodes):
         role_handles.append(Line2D([], [], marker="D", linestyle="", markersize=8, markerfacecolor=grey,
                                    markeredgecolor="white", label="no worker"))
     role_handles.append(Line2D([], [], marker="o", linestyle="", markersize=9, markerfacecolor=grey,
                                markeredgecolor=SOURCE_EDGE, markeredgewidth=2.2, label="task source (dark outline)"))
-    caps = sorted({n.capacity for n in scenario.nodes if n.worker})
+    caps = sorted({n.capacity for n in scenario.nodes if n.has("worker")})
     scale_handles = []
     for cap in sorted({caps[0], caps[-1]} if caps else ()):
-        area = next(areas[n.id] for n in scenario.nodes if n.worker and n.capacity == cap)
+        area = next(areas[n.id] for n in scenario.nodes if n.has("worker") and n.capacity == cap)
         scale_handles.append(Line2D([], [], marker="o", linestyle="", markersize=math.sqrt(area),
                                     markerfacecolor="#dddddd", markeredgecolor="#777777",
                                     label=f"capacity {_capacity_text(cap)}"))
