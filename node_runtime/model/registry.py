@@ -80,8 +80,7 @@ def register(kind: RoleKind) -> RoleKind:
     for other in ROLE_KINDS.values():
         for number in ("order", "stream"):
             if getattr(other, number) == getattr(kind, number) and other.name != name:
-                raise ValueError(f"role kind {name!r}: {number} {getattr(kind, number)} is already "
-                                 f"{other.name!r}'s")
+                raise ValueError(f"role kind {name!r}: {number} {getattr(kind, number)} is taken by {other.name!r}")
     ROLE_KINDS[name] = kind
     for k in sorted(ROLE_KINDS.values(), key=lambda k: k.order):
         ROLE_KINDS[k.name] = ROLE_KINDS.pop(k.name)

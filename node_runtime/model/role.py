@@ -117,8 +117,9 @@ class Outbox:
 
 
 class Role:
-    """Base of worker, client and controller. Subclasses implement ``reset`` and ``tick``, and may
-    implement ``wake`` to let their process sleep through ticks in which they have nothing to do."""
+    """Base of every role kind (worker, client, controller, and those users register: ``registry``).
+    Subclasses implement ``reset`` and ``tick``, and may implement ``wake`` to let their process
+    sleep through ticks in which they have nothing to do."""
 
     kind: ClassVar[str]
     radio: Radio | None = None  # set by the role that owns the node's links

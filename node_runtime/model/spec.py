@@ -238,8 +238,8 @@ class Scenario:
         )
 
     def digest(self) -> str:
-        """Content hash of everything that affects the emulation (not the source path, nor where the
-        code of the role kinds lives, as for the code of any role)."""
+        """Content hash of everything that affects the emulation (not the source path, nor the modules
+        the role kinds come from: code is not hashed)."""
         d = self.to_dict()
         d.pop("source", None)
         d.pop("extra", None)
@@ -249,12 +249,14 @@ class Scenario:
         return hashlib.sha256(blob).hexdigest()[:16]
 
 
+# Kinds that every node's hash names, present or not, as before kinds were registered: scenarios keep
+# their hashes (summary.json's scenario_hash).
 DIGEST_KINDS = ("worker", "client", "controller")
 
 
 def _hashed_node(node: dict[str, Any]) -> dict[str, Any]:
-    """A node as the digest has always hashed it: ``<kind>: bool`` and ``<kind>_impl: str`` for each of
-    its kinds and, present or not, the ``DIGEST_KINDS``, so that hashes stay comparable across versions."""
+    """A node as the digest has always hashed it: ``<kind>: bool`` and ``<kind>_impl: str`` for the
+    ``DIGEST_KINDS`` and for every other kind the node has or names a class for."""
     node = dict(node)
     roles, impls = node.pop("roles"), dict(node.pop("impls"))
     for kind in dict.fromkeys((*DIGEST_KINDS, *roles, *impls)):

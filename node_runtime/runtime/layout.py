@@ -1,8 +1,8 @@
 """Who runs where: role ids, process layouts and broadcast subscriptions.
 
-Roles are the unit of behaviour (worker, client, controller of one node); processes are the unit
-of deployment. A layout maps roles to processes. Message order never depends on the layout: it is
-fixed by role ids, so every layout yields the same emulation.
+Roles are the unit of behaviour (worker, client, controller of one node, or a registered kind);
+processes are the unit of deployment. A layout maps roles to processes. Message order never depends
+on the layout: it is fixed by role ids, so every layout yields the same emulation.
 """
 
 from __future__ import annotations
