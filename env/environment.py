@@ -32,14 +32,12 @@ from node_runtime.model.role import role_id
 from node_runtime.model.spec import Arrival, Scenario
 from node_runtime.model.view import Observation
 from node_runtime.runtime.layout import Layout
-from orchestrator.metrics import DROP_CAUSES, ENERGY, F
+from orchestrator.catalogue import Out
+from orchestrator.metrics import output_values
 from orchestrator.scenario import load_scenario
 from orchestrator.session import Simulation
 
 AGENT_PREFIX = "ctrl_"
-NODE_INFO = ("queue", "undecided", "overloaded", "generated", "completed", "offloaded", "decisions")
-INFO_COLUMNS = [F[k] for k in (*NODE_INFO, *DROP_CAUSES, *ENERGY)]
-DELTA_COLUMNS = [F[k] for k in ("completed", *DROP_CAUSES, "generated", "offloaded")]
 
 
 class InvalidActionError(ValueError):
@@ -193,7 +191,8 @@ class ZenohEdgeEnv(ParallelEnv):
         self._last_actions = {}
         self._observe()
         self._potential = {a: self.shaping(self._obs[a]) for a in self.agents} if self.shaping else {}
-        infos = {a: self._info(a, report.nodes, ()) for a in self.agents}
+        nodes = output_values(Out.ENV, report.nodes, report.node_delta, None)
+        infos = {a: self._info(a, nodes, ()) for a in self.agents}
         return dict(self._obs), infos
 
     def step(self, actions: dict[str, Any]):
@@ -226,14 +225,13 @@ class ZenohEdgeEnv(ParallelEnv):
         self._steps += 1
 
         node_delta = reports[0].node_delta if len(reports) == 1 else sum(r.node_delta for r in reports)
-        deltas = node_delta[:, DELTA_COLUMNS].tolist()
-        nodes = reports[-1].nodes[:, INFO_COLUMNS].tolist()
+        deltas = output_values(Out.ENV_DELTA, reports[-1].nodes, node_delta, None)
+        nodes = output_values(Out.ENV, reports[-1].nodes, node_delta, None)
         tick = self.sim.tick
         rewards, infos = {}, {}
         for agent in self.agents:
             row = self._row[agent]
-            d = deltas[row]
-            delta = {"completed": d[0], "dropped": d[1] + d[2] + d[3] + d[4], "generated": d[5], "offloaded": d[6]}
+            delta = _node(deltas, row)
             agent_terms = terms.get(agent, ())
             ctx = RewardContext(agent, self.node_of[agent], before[agent], actions[agent], self._raw[agent],
                                 agent_terms, delta, dt)
@@ -245,7 +243,7 @@ class ZenohEdgeEnv(ParallelEnv):
                 r = shaped(r, self._potential[agent], after, self.gamma)
                 self._potential[agent] = after
             rewards[agent] = r
-            infos[agent] = {"tick": tick, "node": _node_info(nodes[row]),
+            infos[agent] = {"tick": tick, "node": _node(nodes, row),
                             "reward_terms": [t.as_dict() for t in agent_terms], "invalid_action": agent in penalised}
         truncated = self._steps >= self.max_steps
         terminations = dict.fromkeys(self.agents, False)
@@ -331,15 +329,12 @@ class ZenohEdgeEnv(ParallelEnv):
                 + " — pass invalid_action='penalty' to ZenohEdgeEnv to penalise instead of raising")
         return 0
 
-    def _info(self, agent: str, nodes: np.ndarray, terms: tuple[RewardTerms, ...]) -> dict[str, Any]:
-        row = nodes[self._row[agent], INFO_COLUMNS].tolist()
-        return {"tick": self.sim.tick, "node": _node_info(row), "reward_terms": [t.as_dict() for t in terms]}
+    def _info(self, agent: str, nodes: dict[str, Any], terms: tuple[RewardTerms, ...]) -> dict[str, Any]:
+        return {"tick": self.sim.tick, "node": _node(nodes, self._row[agent]),
+                "reward_terms": [t.as_dict() for t in terms]}
 
 
-def _node_info(row: list[float]) -> dict[str, Any]:
-    """The node part of an agent's info, from a row of INFO_COLUMNS."""
-    n = len(NODE_INFO)
-    info = {k: int(v) for k, v in zip(NODE_INFO, row[:n], strict=True)}
-    info["dropped"] = int(sum(row[n:n + len(DROP_CAUSES)]))
-    info["energy_j"] = sum(row[n + len(DROP_CAUSES):])
-    return info
+def _node(by_node: dict[str, Any], row: int) -> dict[str, Any]:
+    """One node's values, from the catalogue's per-node lists (Out.ENV: its counters in infos[agent]["node"];
+    Out.ENV_DELTA: their change during the step, the reward's ``node_delta``)."""
+    return {k: _node(v, row) if isinstance(v, dict) else v[row] for k, v in by_node.items()}

@@ -34,12 +34,13 @@ from orchestrator.clock import ClockError
 from orchestrator.metrics import ConservationError, TickReport
 from orchestrator.placement import load_placement
 from orchestrator.scenario import ScenarioError, load_scenario
-from orchestrator.session import Simulation
+from orchestrator.session import Simulation, node_policies
 from orchestrator.viewers import monitor
 from orchestrator.viewers.progress import progress_steps
+from orchestrator.viewers.summary import policy_text, rows
 
 EXIT_OK, EXIT_FAILED, EXIT_USAGE, EXIT_INTERRUPTED = 0, 1, 2, 130
-
+LOCAL = "local"  # the node-side policy that keeps every task on its own node
 
 
 def fail(message: str) -> None:
@@ -81,7 +82,8 @@ def cmd_launch(args: argparse.Namespace) -> int:
     seed = args.seed if args.seed is not None else scenario.seed
     console.print(f"[bold]{scenario.name}[/]: {len(scenario.nodes)} nodes, {len(scenario.controllers)} controllers, "
                   f"{len(scenario.clients)} task sources; {ticks} ticks of {scenario.dt:g} s; "
-                  f"transport {args.transport} ({layout}); seed {seed}")
+                  f"transport {args.transport} ({layout}); seed {seed}; "
+                  f"{policy_text(node_policies(scenario, args.policy))}")
 
     def waiting(groups: dict[str, list[str]]) -> None:
         where = f"tcp/<this host's address>:{port}" if host in ("0.0.0.0", "::") else f"tcp/{host}:{port}"
@@ -107,7 +109,10 @@ def cmd_launch(args: argparse.Namespace) -> int:
             if args.json:
                 print(json.dumps(summary, indent=2))
             else:
-                Console(highlight=False).print(summary_table(summary))
+                out = Console(highlight=False)
+                out.print(summary_table(summary))
+                if (note := local_note(summary["policy"])) is not None:
+                    out.print(note, soft_wrap=True)
             console.print(f"results: {where}/summary.json, ticks.csv, nodes.csv")
         if args.serve:
             sim.server.wait(ready=lambda: console.print("serving until Ctrl-C"))
@@ -128,8 +133,7 @@ def run_episode(sim: Simulation, ticks: int, seed: int, args: argparse.Namespace
         def on_tick(r: TickReport) -> None:
             if r.tick % every == 0 or r.tick == ticks - 1:
                 progress.update(task, completed=r.tick + 1, stats=(
-                    f"gen {int(r['generated'])}  done {int(r['completed'])}  drop {r.dropped}  "
-                    f"in-system {r.in_system}"))
+                    f"gen {r['generated']}  done {r['completed']}  drop {r['dropped']}  in-system {r['in_system']}"))
             if period:  # pace the run for people watching a monitor
                 next_at[0] += period
                 time.sleep(max(0.0, next_at[0] - time.perf_counter()))
@@ -147,36 +151,24 @@ def parse_listen(text: str) -> tuple[str, int | None]:
 
 
 def summary_table(s: dict[str, Any]) -> Table:
-    t = s["totals"]
-    rt = s["response_time"]
+    """The episode's numbers (the catalogue's TABLE metrics), the policy in the title, the speed last."""
     run = s["run"]
-
-    def sec(v: float | None) -> str:
-        return "-" if v is None else f"{v:.2f} s"
-
-    table = Table(title=f"{s['scenario']} — {s['ticks']} ticks, seed {s['seed']}", show_header=False,
-                  title_justify="left")
+    table = Table(title=f"{s['scenario']} — {s['ticks']} ticks, seed {s['seed']}, {policy_text(s['policy'])}",
+                  show_header=False, title_justify="left")
     table.add_column(style="bold")
     table.add_column(justify="right")
-    gen = max(t["generated"], 1)
-    rows = [
-        ("tasks generated", f"{t['generated']}"),
-        ("completed", f"{t['completed']}  ({100 * t['completed'] / gen:.1f} %)"),
-        ("dropped", f"{t['dropped']['total']}  ({100 * t['dropped']['total'] / gen:.1f} %)"),
-        ("  queue full / expired", f"{t['dropped']['queue_full']} / {t['dropped']['expired']}"),
-        ("  node failure / link loss", f"{t['dropped']['node_failure']} / {t['dropped']['link_loss']}"),
-        ("still in the system", f"{t['in_system']}"),
-        ("offloaded", f"{t['offloaded']}"),
-        ("response time mean / p50 / p95", f"{sec(rt['mean'])} / {sec(rt['p50'])} / {sec(rt['p95'])}"),
-        ("overloaded node-ticks", f"{s['overloaded']['node_ticks']}  (mean {s['overloaded']['mean_nodes']:.2f} nodes)"),
-        ("utilisation", f"{100 * s['utilisation']:.1f} %"),
-        ("energy", f"{s['energy_j']['total']:.4g} J"),
-        ("speed", f"{run['ticks_per_s']} ticks/s  ({run['transport']}, {run['layout']}, "
-                  f"{run['processes']} process{'es' if run['processes'] != 1 else ''})"),
-    ]
-    for k, v in rows:
+    for k, v in rows(s):
         table.add_row(k, v)
+    table.add_row("speed", f"{run['ticks_per_s']} ticks/s  ({run['transport']}, {run['layout']}, "
+                           f"{run['processes']} process{'es' if run['processes'] != 1 else ''})")
     return table
+
+
+def local_note(policy: str | list[str]) -> str | None:
+    """Why nothing was offloaded, when every controller kept its tasks."""
+    if policy in (LOCAL, [LOCAL]):
+        return f"policy {LOCAL} keeps every task on its own node: pass --policy least_queue to offload"
+    return None
 
 
 # ----- bench -----

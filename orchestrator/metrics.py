@@ -14,26 +14,91 @@ from __future__ import annotations
 
 import csv
 import json
+from collections.abc import Callable
 from dataclasses import dataclass
+from functools import cache
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from node_runtime.model.role import DROP_CAUSES, STAT_FIELDS, role_node
+from node_runtime.model.role import STAT_FIELDS, role_node
 from node_runtime.runtime.layout import ProcessLayout
 from node_runtime.runtime.protocol import Done
+from orchestrator.catalogue import CHANGES, METRIC, Agg, Form, Metric, Out, shown
 
 FIELDS = (*STAT_FIELDS, "in_flight")  # in_flight: tasks and results a role sent that have not arrived yet
 F = {name: i for i, name in enumerate(FIELDS)}
 IN_FLIGHT = F["in_flight"]
 N_STATS = len(STAT_FIELDS)
-COUNTS = ("generated", "completed", *DROP_CAUSES, "offloaded", "decisions", "stale_decisions")
-ENERGY = ("energy_compute", "energy_idle", "energy_transmit")
+# generated = completed + dropped + in_system, counter by counter
+CONSERVED = tuple(f for name in ("completed", "dropped", "in_system") for f in METRIC[name].fields)
 
 
 class ConservationError(RuntimeError):
     pass
+
+
+@cache
+def counters(m: Metric) -> tuple[int, ...]:
+    """The columns of FIELDS that ``m`` sums."""
+    return tuple(F[f] for f in m.fields)
+
+
+def total(m: Metric, rows: np.ndarray) -> Any:
+    """``m``'s counters summed for every row (the last axis runs over FIELDS), one counter after the other
+    in catalogue order, so that a float total is the same number in every output."""
+    cols = counters(m)
+    out = rows[..., cols[0]]
+    for c in cols[1:]:
+        out = out + rows[..., c]
+    return out
+
+
+def share(used: Any, capacity: Any) -> Any:
+    """Cycles used / cycles available, 0 where there are none."""
+    with np.errstate(divide="ignore", invalid="ignore"):
+        return np.where(capacity > 0, used / np.where(capacity > 0, capacity, 1), 0.0)
+
+
+def _plain(m: Metric, values: Any) -> Any:
+    """numpy values as Python numbers of the metric's type (nested lists for arrays)."""
+    return (values.astype(np.int64) if m.dtype is int else values).tolist()
+
+
+def output_values(out: Out, level: np.ndarray, change: np.ndarray, capacity: Any,
+           samples: Callable[[Metric], Any] | None = None) -> dict[str, Any]:
+    """What ``out`` shows of the catalogue, by key: Python numbers for one row, lists for several (the last
+    axis of ``level``, the values at the end of the tick, and of ``change``, the tick's change, runs over
+    FIELDS). ``samples(metric)`` gives a SAMPLES metric's value; without it they are left out."""
+    shown_values: dict[str, Any] = {}
+    for m in shown(out):
+        if m.agg is not Agg.SAMPLES:
+            put(shown_values, m.key(out), m, out, level, change, capacity)
+        elif samples is not None:
+            shown_values[m.key(out)] = samples(m)
+    return shown_values
+
+
+def put(into: dict[str, Any], key: str, m: Metric, out: Out, level: np.ndarray, change: np.ndarray,
+        capacity: Any) -> None:
+    """``m`` as ``out`` shows it, under ``key`` (and, in the FLAT form, its parts beside it): a count's
+    change where ``out`` is one of CHANGES, else its cumulative value; a level; a share of ``capacity``
+    in the tick."""
+    if m.agg is Agg.SHARE:
+        into[key] = share(change[..., counters(m)[0]], capacity).tolist()
+        return
+    row = change if m.agg is Agg.COUNT and out in CHANGES else level
+    form = m.form(out)
+    parts = {p.key: row[..., F[p.field]] for p in m.parts}
+    if form is Form.PARTS:
+        into[key] = {k: _plain(m, v) for k, v in parts.items()}
+    elif form is Form.PARTS_TOTAL:
+        into[key] = {**{k: _plain(m, v) for k, v in parts.items()}, "total": _plain(m, sum(parts.values()))}
+    else:
+        into[key] = _plain(m, total(m, row))
+        if form is Form.FLAT:
+            into.update({f"{key}_{k}": _plain(m, v) for k, v in parts.items()})
 
 
 @dataclass(slots=True)
@@ -47,55 +112,26 @@ class TickReport:
     node_delta: np.ndarray
     response_times: list[float]  # completions this tick, seconds
 
-    def __getitem__(self, name: str) -> float:
-        return float(self.totals[F[name]])
-
-    @property
-    def in_system(self) -> int:
-        t = self.totals
-        return int(t[F["queue"]] + t[F["undecided"]] + t[F["in_flight"]])
-
-    @property
-    def dropped(self) -> int:
-        return int(sum(self.totals[F[c]] for c in DROP_CAUSES))
-
-    @property
-    def overloaded_nodes(self) -> int:
-        return int(self.totals[F["overloaded"]])
+    def __getitem__(self, name: str) -> int | float:
+        """A count or level of the catalogue over the network at the end of the tick (cumulative)."""
+        m = METRIC[name]
+        return _plain(m, total(m, self.totals))
 
 
 def bus_record(report: TickReport, metrics: Metrics, sim_id: str, episode: int) -> dict[str, Any]:
     """The ``…/metrics/tick`` message for monitors (schema in docs/bus.md): this tick's totals, its
-    changes, its completions' response times, and one column per node field."""
+    changes, its completions' response times, and one column per node metric."""
     t, d = report.totals, report.delta
-    nodes, nd = report.nodes, report.node_delta
-    cap = metrics.capacity
-    with np.errstate(divide="ignore", invalid="ignore"):
-        util = np.where(cap > 0, nd[:, F["busy_cycles"]] / np.where(cap > 0, cap, 1), 0.0)
-    return {
+    record = {
         "type": "metrics", "sim": sim_id, "episode": episode, "tick": report.tick,
         "time_s": report.tick * metrics.scenario.dt,
-        "totals": {
-            "generated": int(t[F["generated"]]), "completed": int(t[F["completed"]]),
-            "dropped": {c: int(t[F[c]]) for c in DROP_CAUSES}, "offloaded": int(t[F["offloaded"]]),
-            "in_system": report.in_system, "overloaded_nodes": report.overloaded_nodes,
-            "energy_j": float(sum(t[F[k]] for k in ENERGY)),
-        },
-        "delta": {"generated": int(d[F["generated"]]), "completed": int(d[F["completed"]]),
-                  "dropped": int(sum(d[F[c]] for c in DROP_CAUSES)), "offloaded": int(d[F["offloaded"]])},
-        "response_times": report.response_times,
-        "nodes": {
-            "id": list(metrics.node_ids),
-            "buffer": [n.buffer for n in metrics.scenario.nodes],
-            "queue": nodes[:, F["queue"]].astype(int).tolist(),
-            "undecided": nodes[:, F["undecided"]].astype(int).tolist(),
-            "overloaded": nodes[:, F["overloaded"]].astype(int).tolist(),
-            "completed": nodes[:, F["completed"]].astype(int).tolist(),
-            "dropped": nodes[:, [F[c] for c in DROP_CAUSES]].sum(axis=1).astype(int).tolist(),
-            "offloaded": nodes[:, F["offloaded"]].astype(int).tolist(),
-            "utilisation": util.tolist(),
-        },
+        "totals": output_values(Out.BUS, t, d, metrics.capacity.sum()),
+        "delta": output_values(Out.BUS_DELTA, t, d, metrics.capacity.sum()),
     }
+    record.update((m.key(Out.BUS), report.response_times) for m in shown(Out.BUS) if m.agg is Agg.SAMPLES)
+    record["nodes"] = {"id": list(metrics.node_ids), "buffer": [n.buffer for n in metrics.scenario.nodes],
+                       **output_values(Out.BUS_NODES, report.nodes, report.node_delta, metrics.capacity)}
+    return record
 
 
 class Metrics:
@@ -152,11 +188,9 @@ class Metrics:
 
     def check(self, tick: int, t: np.ndarray) -> None:
         generated = t[F["generated"]]
-        accounted = (t[F["completed"]] + sum(t[F[c]] for c in DROP_CAUSES) + t[F["queue"]] + t[F["undecided"]]
-                     + t[F["in_flight"]])
+        accounted = sum(t[F[name]] for name in CONSERVED)
         if generated != accounted:
-            parts = ", ".join(f"{name}={int(t[F[name]])}" for name in
-                              ("completed", *DROP_CAUSES, "queue", "undecided", "in_flight"))
+            parts = ", ".join(f"{name}={int(t[F[name]])}" for name in CONSERVED)
             raise ConservationError(f"tick {tick}: generated={int(generated)} but {parts} "
                                     f"account for {int(accounted)}: a task was lost or invented (a custom role "
                                     "must hand every task on, keep it, or drop it with Role.drop)")
@@ -167,73 +201,60 @@ class Metrics:
         if not self.totals:
             raise RuntimeError("no tick recorded")
         sc = self.scenario
-        end = self.totals[-1]
-        tot = {name: int(end[F[name]]) for name in COUNTS}
-        dropped = {c: tot.pop(c) for c in DROP_CAUSES}
-        dropped["total"] = sum(dropped.values())
-        rt = np.array(self.response_times)
-        overloaded = np.array([t[F["overloaded"]] for t in self.totals])
-        capacity = self.capacity.sum() * len(self.totals)
-        energy = {k.removeprefix("energy_"): float(end[F[k]]) for k in ENERGY}
-        energy["total"] = sum(energy.values())
-        node_end = self.nodes[-1]
-        nodes = {}
-        for i, nid in enumerate(self.node_ids):
-            v = node_end[i]
-            cap = self.capacity[i] * len(self.totals)
-            times = self.rt_by_node.get(nid, [])
-            nodes[nid] = {
-                "generated": int(v[F["generated"]]), "completed": int(v[F["completed"]]),
-                "dropped": int(sum(v[F[c]] for c in DROP_CAUSES)), "offloaded": int(v[F["offloaded"]]),
-                "overloaded_ticks": int(v[F["overloaded_ticks"]]),
-                "utilisation": float(v[F["busy_cycles"]] / cap) if cap else 0.0,
-                "energy_j": float(sum(v[F[k]] for k in ENERGY)),
-                "response_time_mean": float(np.mean(times)) if times else None,
-            }
-        return {
+        out: dict[str, Any] = {
             "scenario": sc.name,
             "scenario_hash": sc.digest(),
             "source": sc.source,
             "seed": None,  # filled in by the session, which knows the episode's seed
             "ticks": len(self.totals),
             "dt": sc.dt,
-            "totals": {**tot, "dropped": dropped, "in_system": int(end[F["queue"]] + end[F["undecided"]]
-                                                                  + end[F["in_flight"]])},
-            "response_time": {
-                "count": int(rt.size),
-                "mean": float(rt.mean()) if rt.size else None,
-                "p50": float(np.percentile(rt, 50)) if rt.size else None,
-                "p95": float(np.percentile(rt, 95)) if rt.size else None,
-                "max": float(rt.max()) if rt.size else None,
-            },
-            "overloaded": {"node_ticks": int(end[F["overloaded_ticks"]]),
-                           "mean_nodes": float(overloaded.mean())},
-            "utilisation": float(end[F["busy_cycles"]] / capacity) if capacity else 0.0,
-            "energy_j": energy,
-            "nodes": nodes,
         }
+        levels = np.array(self.totals)
+        for m in shown(Out.SUMMARY):
+            section, _, key = m.key(Out.SUMMARY).rpartition(".")
+            where = out.setdefault(section, {}) if section else out
+            self._episode(where, key, m, Out.SUMMARY, levels, self.capacity.sum(), self.response_times)
+        nodes = np.array(self.nodes)
+        out["nodes"] = {}
+        for i, nid in enumerate(self.node_ids):
+            where = out["nodes"][nid] = {}
+            for m in shown(Out.SUMMARY_NODES):
+                self._episode(where, m.key(Out.SUMMARY_NODES), m, Out.SUMMARY_NODES, nodes[:, i], self.capacity[i],
+                              self.rt_by_node.get(nid, []))
+        return out
+
+    @staticmethod
+    def _episode(into: dict[str, Any], key: str, m: Metric, out: Out, levels: np.ndarray, capacity: float,
+                 times: list[float]) -> None:
+        """``m`` over the episode, from its ticks' ``levels`` (ticks x FIELDS): a count's total, a level at
+        the end (or its mean over the ticks), the share of the episode's capacity; for samples the count,
+        mean, p50, p95 and max, or the mean alone in a node's row."""
+        end = levels[-1]
+        if m.agg is Agg.SAMPLES:
+            rt = np.array(times)
+            if out is Out.SUMMARY_NODES:
+                into[key] = float(rt.mean()) if rt.size else None
+            elif rt.size:
+                into[key] = {"count": int(rt.size), "mean": float(rt.mean()), "p50": float(np.percentile(rt, 50)),
+                             "p95": float(np.percentile(rt, 95)), "max": float(rt.max())}
+            else:
+                into[key] = {"count": 0, "mean": None, "p50": None, "p95": None, "max": None}
+        elif m.agg is Agg.SHARE:
+            capacity = capacity * len(levels)
+            into[key] = float(end[counters(m)[0]] / capacity) if capacity else 0.0
+        elif m.episode_mean:
+            into[key] = float(np.array([total(m, t) for t in levels]).mean())
+        else:
+            put(into, key, m, out, end, end, capacity)
 
     def tick_table(self) -> tuple[list[str], list[list[Any]]]:
-        header = ["tick", "time_s", "generated", "completed", "dropped", *(f"dropped_{c}" for c in DROP_CAUSES),
-                  "offloaded", "in_system", "queued", "undecided", "in_flight", "overloaded_nodes",
-                  "utilisation", "energy_j", "response_time_mean"]
-        rows = []
-        prev = np.zeros(len(FIELDS))
-        cap = self.capacity.sum()
-        rt_iter = iter(self._rt_per_tick())
-        for tick, t in zip(self.ticks, self.totals, strict=True):
-            d = t - prev
-            prev = t
-            times = next(rt_iter)
-            rows.append([
-                tick, tick * self.scenario.dt, int(d[F["generated"]]), int(d[F["completed"]]),
-                int(sum(d[F[c]] for c in DROP_CAUSES)), *(int(d[F[c]]) for c in DROP_CAUSES),
-                int(d[F["offloaded"]]), int(t[F["queue"]] + t[F["undecided"]] + t[F["in_flight"]]),
-                int(t[F["queue"]]), int(t[F["undecided"]]), int(t[F["in_flight"]]), int(t[F["overloaded"]]),
-                float(d[F["busy_cycles"]] / cap) if cap else 0.0, float(sum(d[F[k]] for k in ENERGY)),
-                float(np.mean(times)) if times else "",
-            ])
-        return header, rows
+        levels = np.array(self.totals)
+        change = levels - np.vstack([np.zeros(len(FIELDS)), levels[:-1]])
+        means = [float(np.mean(times)) if times else "" for times in self._rt_per_tick()]
+        table = output_values(Out.TICKS, levels, change, self.capacity.sum(), samples=lambda m: means)
+        dt = self.scenario.dt
+        return (["tick", "time_s", *table],
+                [[tick, tick * dt, *row] for tick, *row in zip(self.ticks, *table.values(), strict=True)])
 
     def _rt_per_tick(self) -> list[list[float]]:
         """Response times grouped by tick (completions are counted in the same order they were added)."""
@@ -246,22 +267,15 @@ class Metrics:
         return out
 
     def node_table(self) -> tuple[list[str], list[list[Any]]]:
-        header = ["tick", "node", "queue", "undecided", "overloaded", "generated", "completed", "dropped",
-                  "offloaded", "utilisation", "energy_j"]
+        levels = np.array(self.nodes)
+        change = levels - np.concatenate([np.zeros((1, *levels.shape[1:])), levels[:-1]])
+        table = output_values(Out.NODES, levels, change, self.capacity)
+        columns = list(table.values())
         rows = []
-        prev = np.zeros((len(self.node_ids), len(FIELDS)))
-        for tick, nodes in zip(self.ticks, self.nodes, strict=True):
-            d = nodes - prev
-            prev = nodes
-            for i, nid in enumerate(self.node_ids):
-                v, dv = nodes[i], d[i]
-                cap = self.capacity[i]
-                rows.append([tick, nid, int(v[F["queue"]]), int(v[F["undecided"]]), int(v[F["overloaded"]]),
-                             int(dv[F["generated"]]), int(dv[F["completed"]]),
-                             int(sum(dv[F[c]] for c in DROP_CAUSES)), int(dv[F["offloaded"]]),
-                             float(dv[F["busy_cycles"]] / cap) if cap else 0.0,
-                             float(sum(dv[F[k]] for k in ENERGY))])
-        return header, rows
+        for k, tick in enumerate(self.ticks):
+            at = [column[k] for column in columns]
+            rows.extend([tick, nid, *(column[i] for column in at)] for i, nid in enumerate(self.node_ids))
+        return ["tick", "node", *table], rows
 
     def write(self, out_dir: Path, summary: dict[str, Any]) -> None:
         out_dir.mkdir(parents=True, exist_ok=True)

@@ -55,6 +55,12 @@ def open_router(host: str = "127.0.0.1", port: int | None = None,
     raise RuntimeError(f"could not open a Zenoh router on {host}: {last}")
 
 
+def node_policies(scenario: Scenario, policy: str | None = None) -> str | list[str]:
+    """The controllers' node-side policy as summary.json records it: ``policy`` where it overrides them
+    all, else the scenario's policies, sorted, each once."""
+    return policy or sorted({n.policy for n in scenario.nodes if n.has("controller")})
+
+
 class Simulation:
     def __init__(self, scenario: Scenario, *, transport: TransportName = "inproc", layout: Layout | None = None,
                  sim_id: str | None = None, prefix: str = DEFAULT_PREFIX, timeout: float = 30.0,
@@ -197,7 +203,7 @@ class Simulation:
     def summary(self) -> dict[str, Any]:
         s = self.metrics.summary()
         s["seed"] = self.seed
-        s["policy"] = self.policy or sorted({n.policy for n in self.scenario.nodes if n.has("controller")})
+        s["policy"] = node_policies(self.scenario, self.policy)
         s["code"] = code_version()
         wall = time.perf_counter() - self._run_started
         s["run"] = {

@@ -31,6 +31,7 @@ from node_runtime.runtime.process import ORCHESTRATOR
 from node_runtime.runtime.zenoh_bus import ZenohTransport, free_port, zenoh_config
 from orchestrator.scenario import load_scenario
 from orchestrator.session import Simulation
+from orchestrator.units import si
 from orchestrator.viewers.monitor import WINDOW_TICKS, BusMonitor, DashboardState, main, queue_bar, render
 from tests.conftest import ROOT, model_part, run_summary
 from tests.launcher import Launch, assert_all_gone, served
@@ -154,15 +155,18 @@ def test_dashboard_renders_recorded_messages(recorded, tmp_path):
     assert f"tick           {last['tick']} ({last['time_s']:.3g} s simulated), episode 0 · 20.0 ticks/s" in text
     window = records[-WINDOW_TICKS:]
     dt = last["time_s"] / last["tick"]
-    gen = sum(r["delta"]["generated"] for r in window) / (len(window) * dt)
-    done = sum(r["delta"]["completed"] for r in window) / (len(window) * dt)
-    drop = sum(r["delta"]["dropped"] for r in window) / (len(window) * dt)
-    assert f"generated {gen:.2f}  completed {done:.2f}  dropped {drop:.2f}  (last {WINDOW_TICKS} ticks)" in text
+    rates = {k: sum(r["delta"][k] for r in window) / (len(window) * dt) for k in last["delta"]}
+    assert (f"gen {rates['generated']:.2f}  done {rates['completed']:.2f}  drops {rates['dropped']:.2f}  "
+            f"offl {rates['offloaded']:.2f}  (last {WINDOW_TICKS} ticks)") in text
     times = [t for r in records for t in r["response_times"]][-1000:]
     p50, p95 = np.percentile(times, [50, 95])
     assert f"p50 {p50:.2f} s  p95 {p95:.2f} s  (last {len(times)} completions)" in text
-    dropped = last["totals"]["dropped"]
+    totals = last["totals"]
+    dropped = totals["dropped"]
     assert f"dropped        {sum(dropped.values())} = queue full {dropped['queue_full']} + expired " in text
+    assert (f"energy         {si(totals['energy_j'], 'J')} = compute {si(totals['energy_j_compute'], 'J')} + idle "
+            f"{si(totals['energy_j_idle'], 'J')} + radio {si(totals['energy_j_transmit'], 'J')}") in text
+    assert f"now            in the system {totals['in_system']}  overloaded nodes 0 of 5" in text
 
     nodes = last["nodes"]
     for i, nid in enumerate(nodes["id"]):  # one row per node: its queue bar, occupancy and counters
@@ -170,7 +174,9 @@ def test_dashboard_renders_recorded_messages(recorded, tmp_path):
         bar = queue_bar(occ, buf).plain
         assert len(bar) == 16 and bar.count("█") == round(16 * occ / buf)
         row = next(line for line in text.splitlines() if line.strip().startswith(nid + " "))
-        assert bar in row and f"{occ}/{buf}" in row and str(nodes["dropped"][i]) in row
+        assert bar in row and f"{occ}/{buf}" in row
+        assert row.split()[-5:] == [str(nodes["completed"][i]), str(nodes["dropped"][i]), str(nodes["offloaded"][i]),
+                                    f"{100 * np.mean([r['nodes']['utilisation'][i] for r in window]):.0f}", "%"]
 
     flows = Counter((e["node"], e["to"]) for e in offloads if e["tick"] > last["tick"] - WINDOW_TICKS)
     assert flows, "the scenario's least_queue policy offloads"
@@ -189,7 +195,7 @@ def test_dashboard_marks_overload_idle_and_gaps(recorded):
     text = screen(state, now=60.0)
     row = next(line for line in text.splitlines() if line.strip().startswith(hot["nodes"]["id"][2] + " "))
     assert "OVERLOAD" in row
-    assert "1 of 5 nodes overloaded" in text
+    assert "overloaded nodes 1 of 5" in text
     assert "missed         2 tick(s) lost on the way" in text
     assert "no tick for 57 s: episode over or paused" in text
     empty = screen(DashboardState("5ca1ab1e"), now=0.0)

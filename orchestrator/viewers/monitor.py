@@ -39,12 +39,14 @@ from node_runtime.runtime.keys import CHUNK, DEFAULT_PREFIX, Keys
 from node_runtime.runtime.process import ORCHESTRATOR
 from node_runtime.runtime.transport import Handler, TokenHandler, TransportError
 from node_runtime.runtime.zenoh_bus import ZenohTransport
+from orchestrator.catalogue import Agg, Form, Metric, Out, shown
+from orchestrator.units import quantity
 
 EXIT_OK, EXIT_FAILED, EXIT_USAGE = 0, 1, 2
 DEFAULT_ENDPOINT = "tcp/127.0.0.1:7447"  # Zenoh's usual port, e.g. `launch --listen 0.0.0.0:7447`
 ENDPOINT = re.compile(r"^[a-z0-9]+/\S+$")
 WINDOW_TICKS = 100  # ticks behind the task rates, utilisation and offload flows
-RT_WINDOW = 1000  # completions behind the response-time percentiles
+RT_WINDOW = 1000  # samples (completions) behind the response-time percentiles
 RATE_WINDOW_S = 3.0  # wall seconds behind the measured tick rate
 IDLE_S = 2.0  # no tick for this long: say so instead of showing a stale rate
 REFRESH_S = 0.25  # redraw at most this often
@@ -163,16 +165,17 @@ class DashboardState:
     last_at: float = 0.0  # wall time it arrived
     missed: int = 0  # ticks whose message never came (best effort), this episode
     arrivals: deque[tuple[float, int]] = field(default_factory=deque)  # (wall time, tick), RATE_WINDOW_S
-    deltas: deque[tuple[int, int, int]] = field(default_factory=lambda: deque(maxlen=WINDOW_TICKS))
-    utilisation: deque[list[float]] = field(default_factory=lambda: deque(maxlen=WINDOW_TICKS))
-    response_times: deque[float] = field(default_factory=lambda: deque(maxlen=RT_WINDOW))
+    deltas: deque[dict[str, int]] = field(default_factory=lambda: deque(maxlen=WINDOW_TICKS))  # records' "delta"
+    shares: deque[dict[str, list[float]]] = field(  # each tick's per-node shares (utilisation), by key
+        default_factory=lambda: deque(maxlen=WINDOW_TICKS))
+    samples: dict[str, deque[float]] = field(default_factory=dict)  # recent samples (response times), by key
     offloads: deque[tuple[int, int, str, str]] = field(default_factory=deque)  # (episode, tick, from, to)
 
     def add_metrics(self, msg: dict[str, Any], now: float) -> None:
         last = self.record
         if last is not None and msg["episode"] != last["episode"]:
             self.missed = 0
-            for window in (self.arrivals, self.deltas, self.utilisation, self.response_times):
+            for window in (self.arrivals, self.deltas, self.shares, *self.samples.values()):
                 window.clear()
         elif last is not None and msg["tick"] > last["tick"] + 1:
             self.missed += msg["tick"] - last["tick"] - 1
@@ -183,10 +186,13 @@ class DashboardState:
         self.arrivals.append((now, msg["tick"]))
         while self.arrivals[0][0] < now - RATE_WINDOW_S:
             self.arrivals.popleft()
-        d = msg["delta"]
-        self.deltas.append((d["generated"], d["completed"], d["dropped"]))
-        self.utilisation.append(msg["nodes"]["utilisation"])
-        self.response_times.extend(msg["response_times"])
+        self.deltas.append(msg["delta"])
+        nodes = msg["nodes"]
+        self.shares.append({m.key(Out.BUS_NODES): nodes[m.key(Out.BUS_NODES)] for m in monitored(Out.BUS_NODES)
+                            if m.agg is Agg.SHARE})
+        for m in monitored(Out.BUS):
+            if m.agg is Agg.SAMPLES:
+                self.samples.setdefault(m.key(Out.BUS), deque(maxlen=RT_WINDOW)).extend(msg[m.key(Out.BUS)])
         while self.offloads and self._stale(self.offloads[0]):
             self.offloads.popleft()
 
@@ -206,23 +212,26 @@ class DashboardState:
         (t0, k0), (t1, k1) = self.arrivals[0], self.arrivals[-1]
         return (k1 - k0) / (t1 - t0) if t1 > t0 else None
 
-    def task_rates(self) -> tuple[float, float, float]:
-        """Tasks generated, completed and dropped per simulated second over the recent ticks."""
+    def rates(self) -> dict[str, float]:
+        """Each change the record's "delta" carries (tasks generated, completed, ...) per simulated second
+        over the recent ticks."""
         seconds = len(self.deltas) * self.dt
-        if not seconds:
-            return 0.0, 0.0, 0.0
-        g, c, d = (sum(col) for col in zip(*self.deltas, strict=True))
-        return g / seconds, c / seconds, d / seconds
+        return {key: sum(d[key] for d in self.deltas) / seconds if seconds else 0.0
+                for key in (m.key(Out.BUS_DELTA) for m in monitored(Out.BUS_DELTA))}
 
-    def percentiles(self) -> tuple[float, float] | None:
-        """Response-time p50 and p95 (seconds) over the recent completions."""
-        if not self.response_times:
+    def percentiles(self, key: str) -> tuple[float, float] | None:
+        """p50 and p95 of the recent samples of ``key`` (response times, in seconds)."""
+        window = self.samples.get(key)
+        if not window:
             return None
-        p50, p95 = np.percentile(np.fromiter(self.response_times, float), [50, 95])
+        p50, p95 = np.percentile(np.fromiter(window, float), [50, 95])
         return float(p50), float(p95)
 
-    def mean_utilisation(self) -> list[float]:
-        return np.mean(np.array(self.utilisation), axis=0).tolist() if self.utilisation else []
+    def mean_shares(self) -> dict[str, list[float]]:
+        """Per-node shares (utilisation) averaged over the recent ticks, by key."""
+        if not self.shares:
+            return {}
+        return {key: np.mean(np.array([s[key] for s in self.shares]), axis=0).tolist() for key in self.shares[-1]}
 
     def flows(self) -> list[tuple[str, str, int]]:
         """Offloads (from, to, tasks) over the recent ticks, busiest first."""
@@ -246,6 +255,24 @@ def _num(x: float) -> str:
     return f"{x:.3g}" if abs(x) < 1000 else f"{x:,.0f}"
 
 
+def monitored(out: Out) -> list[Metric]:
+    """The catalogue's metrics that the dashboard shows, of those ``out`` (a part of the record) carries."""
+    return [m for m in shown(out) if Out.MONITOR in m.show]
+
+
+def breakdown(m: Metric, totals: dict[str, Any]) -> str:
+    """A metric with parts as "total = part v + part v ...", from the record's totals."""
+    key = m.key(Out.BUS)
+    if m.form(Out.BUS) is Form.PARTS:
+        parts = totals[key]
+        whole = sum(parts.values())
+    else:
+        parts = {p.key: totals[f"{key}_{p.key}"] for p in m.parts}
+        whole = totals[key]
+    return f"{quantity(whole, m.unit)} = " + " + ".join(f"{p.label} {quantity(parts[p.key], m.unit)}"
+                                                        for p in m.parts)
+
+
 def render(state: DashboardState, now: float) -> RenderableType:
     """The whole dashboard for ``state`` at wall time ``now`` (fits 80 columns)."""
     rec = state.record
@@ -261,40 +288,47 @@ def render(state: DashboardState, now: float) -> RenderableType:
         pace = Text(f"no tick for {idle:.0f} s: episode over or paused", style="yellow")
     else:
         pace = Text("measuring ticks/s" if rate is None else f"{rate:.1f} ticks/s")
-    gen, done, drop = state.task_rates()
-    pct = state.percentiles()
-    dropped = tot["dropped"]
+    rates = state.rates()
     head = Table.grid(padding=(0, 2))
     head.add_column(style="bold", no_wrap=True)
     head.add_column()
     head.add_row("tick", Text.assemble(f"{rec['tick']} ({_num(rec['time_s'])} s simulated), episode "
                                        f"{rec['episode']} · ", pace))
-    head.add_row("tasks / sim s", f"generated {gen:.2f}  completed {done:.2f}  dropped {drop:.2f}  "
-                                  f"(last {len(state.deltas)} ticks)")
-    head.add_row("totals", f"generated {tot['generated']}  completed {tot['completed']}  offloaded "
-                           f"{tot['offloaded']}  energy {_num(tot['energy_j'])} J")
-    head.add_row("dropped", f"{sum(dropped.values())} = "
-                 + " + ".join(f"{cause.replace('_', ' ')} {n}" for cause, n in dropped.items()))
-    head.add_row("now", f"{tot['in_system']} tasks in the system, {tot['overloaded_nodes']} of {len(nodes['id'])} "
-                        "nodes overloaded")
-    head.add_row("response time", "no completion yet" if pct is None else
-                 f"p50 {pct[0]:.2f} s  p95 {pct[1]:.2f} s  (last {len(state.response_times)} completions)")
+    head.add_row("per sim s", "  ".join(f"{m.short} {rates[m.key(Out.BUS_DELTA)]:.2f}"
+                                        for m in monitored(Out.BUS_DELTA)) + f"  (last {len(state.deltas)} ticks)")
+    metrics = monitored(Out.BUS)
+    plain = [m for m in metrics if m.agg is Agg.COUNT and m.form(Out.BUS) is Form.TOTAL]
+    head.add_row("totals", "  ".join(f"{m.label} {quantity(tot[m.key(Out.BUS)], m.unit)}" for m in plain))
+    for m in metrics:
+        if m.form(Out.BUS) is not Form.TOTAL:
+            head.add_row(m.label, breakdown(m, tot))
+    head.add_row("now", "  ".join(f"{m.label} {quantity(tot[m.key(Out.BUS)], m.unit)}"
+                                  + (f" of {len(nodes['id'])}" if m.unit == "nodes" else "")
+                                  for m in metrics if m.agg is Agg.LEVEL))
+    for m in metrics:
+        if m.agg is Agg.SAMPLES:
+            pct = state.percentiles(m.key(Out.BUS))
+            head.add_row(m.label, "no completion yet" if pct is None else
+                         f"p50 {quantity(pct[0], m.unit)}  p95 {quantity(pct[1], m.unit)}  "
+                         f"(last {len(state.samples[m.key(Out.BUS)])} completions)")
     if state.missed:
         head.add_row("missed", Text(f"{state.missed} tick(s) lost on the way (best effort)", style="yellow"))
 
+    counters = [m for m in monitored(Out.BUS_NODES) if m.agg is not Agg.LEVEL]
+    averaged = [m.short for m in counters if m.agg is Agg.SHARE]
     table = Table(box=box.SIMPLE_HEAD, show_edge=False, padding=(0, 1), title_justify="left",
-                  title=f"nodes (util: last {len(state.utilisation)} ticks)")
+                  title=f"nodes ({', '.join(averaged)}: last {len(state.shares)} ticks)" if averaged else "nodes")
     for name, justify in (("node", "left"), ("queue", "left"), ("occ/buf", "right"), ("", "left"),
-                          ("drops", "right"), ("util", "right"), ("done", "right"), ("offl", "right")):
+                          *((m.short, "right") for m in counters)):
         table.add_column(name, justify=justify, no_wrap=True)
-    util = state.mean_utilisation()
+    shares = state.mean_shares()
     for i, nid in enumerate(nodes["id"]):
         occ = nodes["queue"][i] + nodes["undecided"][i]
         buf = nodes["buffer"][i]
         table.add_row(nid, queue_bar(occ, buf), f"{occ}/{buf}",
                       Text("OVERLOAD", style="bold red") if nodes["overloaded"][i] else "",
-                      str(nodes["dropped"][i]), f"{100 * util[i]:.0f} %", str(nodes["completed"][i]),
-                      str(nodes["offloaded"][i]))
+                      *(f"{100 * shares[m.key(Out.BUS_NODES)][i]:.0f} %" if m.agg is Agg.SHARE
+                        else quantity(nodes[m.key(Out.BUS_NODES)][i], m.unit) for m in counters))
     flows = state.flows()
     if flows:
         flow_view: RenderableType = Table(box=box.SIMPLE_HEAD, show_edge=False, padding=(0, 1))

@@ -29,13 +29,16 @@ from matplotlib.colors import BoundaryNorm, ListedColormap, PowerNorm
 from matplotlib.figure import Figure
 from matplotlib.ticker import MaxNLocator
 
+from orchestrator.catalogue import METRIC, Out, columns
+from orchestrator.units import prefix, si
 from orchestrator.viewers.draw import TIER_COLOURS
+from orchestrator.viewers.summary import policy_text, rows
 
 DPI = 130
 HINT = "is this a directory written by `orchestrator launch`?"
-TICK_COLUMNS = ("tick", "time_s", "generated", "completed", "dropped", "offloaded", "in_system", "queued",
-                "undecided", "in_flight", "overloaded_nodes", "utilisation", "energy_j", "response_time_mean")
-NODE_COLUMNS = ("tick", "node", "queue", "undecided", "completed", "dropped", "energy_j")
+TICK_COLUMNS = ("tick", "time_s", *columns(Out.TICKS))
+NODE_COLUMNS = ("tick", "node", *columns(Out.NODES))
+ENERGY = METRIC["energy_j"]
 MAX_HEATMAP_COLUMNS = 1200  # longer runs are binned (max per bin) so that no tick disappears between pixels
 
 # One colour per concept, the same in every figure.
@@ -73,12 +76,10 @@ class Run:
     @property
     def title(self) -> str:
         s = self.summary
-        policy = s.get("policy")
-        policy = ", ".join(policy) if isinstance(policy, list) else policy
         n = len(self.x)
         parts = [f"seed {s.get('seed', '?')}", f"{n} tick{'s' if n != 1 else ''} of {self.dt:g} s"]
-        if policy:
-            parts.append(f"policy {policy}")
+        if s.get("policy"):
+            parts.append(policy_text(s["policy"]))
         return f"{s.get('scenario', self.path.name)}, " + ", ".join(parts)
 
     @property
@@ -262,11 +263,10 @@ def _empty(ax: Axes, text: str) -> None:
     ax.text(0.5, 0.5, text, transform=ax.transAxes, ha="center", va="center", color="#777777")
 
 
-def _fmt(v: float | None, unit: str = "", digits: int = 3) -> str:
-    """Significant digits for small numbers, plain thousands for big ones (7,852 J, not 7.85e+03 J)."""
-    if v is None:
-        return "-"
-    return (f"{v:,.0f}" if abs(v) >= 10 ** digits else f"{v:.{digits}g}") + unit
+def _energy_scale(values: np.ndarray) -> tuple[float, str]:
+    """The scale and unit ("µJ", "J", "kJ", ...) that an energy axis reaching ``max(values)`` reads best in."""
+    name, scale = prefix(float(np.nanmax(values, initial=0.0)))
+    return scale, f"{name}{ENERGY.unit}"
 
 
 # ----- panels (each draws one family of series on one axes; the figures combine them) -----
@@ -342,31 +342,15 @@ def panel_utilisation(ax: Axes, run: Run) -> None:
 
 
 def panel_energy(ax: Axes, run: Run) -> None:
-    ax.plot(run.x, np.cumsum(run.ticks["energy_j"]), color=C_ENERGY, linewidth=1.8)
-    _time_axes(ax, run, "energy, all nodes", "energy, cumulative (J)")
+    energy = np.cumsum(run.ticks[ENERGY.name])
+    scale, unit = _energy_scale(energy)
+    ax.plot(run.x, energy / scale, color=C_ENERGY, linewidth=1.8)
+    _time_axes(ax, run, "energy, all nodes", f"energy, cumulative ({unit})")
 
 
 def panel_figures(ax: Axes, run: Run) -> None:
     """The run's key numbers, from summary.json, as text."""
-    s = run.summary
-    tot = s.get("totals", {})
-    gen = max(int(tot.get("generated", 0)), 1)
-    dropped = tot.get("dropped", {}) if isinstance(tot.get("dropped"), dict) else {}
-    r = s.get("response_time", {})
-    e = s.get("energy_j", {})
-    lines = [
-        ("generated", f"{tot.get('generated', '-')}"),
-        ("completed", f"{tot.get('completed', 0)}  ({100 * tot.get('completed', 0) / gen:.1f} %)"),
-        ("dropped", f"{dropped.get('total', '-')}  ({100 * dropped.get('total', 0) / gen:.1f} %)"),
-        *((f"    {c.replace('_', ' ')}", f"{dropped[c]}") for c in run.causes if dropped.get(c)),
-        ("still in the system", f"{tot.get('in_system', '-')}"),
-        ("offloaded", f"{tot.get('offloaded', '-')}"),
-        ("response time mean / p50 / p95",
-         f"{_fmt(r.get('mean'))} / {_fmt(r.get('p50'))} / {_fmt(r.get('p95'))} s"),
-        ("utilisation", f"{100 * s.get('utilisation', 0):.1f} %"),
-        ("energy", _fmt(e.get("total"), " J")),
-        *((f"    {k}", _fmt(e.get(k), " J")) for k in ("compute", "idle", "transmit") if k in e),
-    ]
+    lines = rows(run.summary)
     ax.axis("off")
     ax.set_title("the run in numbers (summary.json)")
     step = min(0.075, 0.95 / max(len(lines), 1))
@@ -521,12 +505,14 @@ def plot_response_time(run: Run, path: Path) -> Path:
 
 
 def plot_energy(run: Run, path: Path, top: int = 8) -> Path:
-    e = run.summary.get("energy_j", {})
-    parts = ", ".join(f"{k} {_fmt(e[k], ' J')}" for k in ("compute", "idle", "transmit") if k in e)
+    e = run.summary.get(ENERGY.name, {})
+    parts = ", ".join(f"{p.label} {si(e[p.key], ENERGY.unit)}" for p in ENERGY.parts if p.key in e)
     fig, ax = _figure(run, 1, 2, (15, max(5.5, 1.8 + 0.17 * len(run.node_ids))),
                       "energy" + (f" ({parts})" if parts else ""), width_ratios=[2.2, 1])
     left, right = ax[0, 0], ax[0, 1]
-    per_node = np.cumsum(np.nan_to_num(run.nodes["energy_j"]), axis=1)
+    total = np.cumsum(run.ticks[ENERGY.name])
+    scale, unit = _energy_scale(total)
+    per_node = np.cumsum(np.nan_to_num(run.nodes[ENERGY.name]), axis=1) / scale
     final = per_node[:, -1]
     order = [int(i) for i in np.argsort(-final, kind="stable")]
     if run.tiers is not None:  # stacked by tier, bars coloured by tier
@@ -550,15 +536,15 @@ def plot_energy(run: Run, path: Path, top: int = 8) -> Path:
         bar_colours = [colours[shown.index(i)] if i in shown else "#c7c7c7" for i in order]
         heading = f"cumulative energy, stacked by node (the {len(shown)} largest consumers)"
     left.stackplot(run.x, *series, labels=labels, colors=colours, alpha=0.9, linewidth=0)
-    left.plot(run.x, np.cumsum(run.ticks["energy_j"]), color="black", linewidth=1.2, label="total")
-    _time_axes(left, run, heading, "energy, cumulative (J)")
+    left.plot(run.x, total / scale, color="black", linewidth=1.2, label="total")
+    _time_axes(left, run, heading, f"energy, cumulative ({unit})")
     left.legend(fontsize=8, loc="upper left", ncols=1 if run.tiers else 2)
     ys = np.arange(len(order))
     names_in_order = [run.node_ids[i] for i in order]
     right.barh(ys, final[order], color=bar_colours)
     right.set_yticks(ys, names_in_order, fontsize=7 if len(order) > 20 else 8)
     right.set_ylim(len(order) - 0.5, -0.5)
-    right.set(title="energy per node over the run", xlabel="energy (J)")
+    right.set(title="energy per node over the run", xlabel=f"energy ({unit})")
     right.grid(axis="x", color="#eeeeee")
     right.set_axisbelow(True)
     return _save(fig, path)

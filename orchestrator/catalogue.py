@@ -1,0 +1,219 @@
+"""The metric catalogue: every metric the orchestrator reports, declared once.
+
+Roles count (``Counters`` in node_runtime/model/role.py); the orchestrator sums the counters over
+roles and nodes every tick (orchestrator/metrics.py). A ``Metric`` says which counters it sums, how
+it aggregates over ticks, its unit, and where it is shown. summary.json, ticks.csv, nodes.csv, the
+bus's metrics record, ``orchestrator monitor``, the launch summary table, the plots' numbers panel
+and the environment's infos are all built by iterating ``CATALOGUE``: a new metric is a counter in
+the model and one entry here (docs/extending.md, "Adding a metric").
+
+Each output lists its metrics in catalogue order, with three exceptions that keep the files as they
+have always been: a row ends with its samples' mean; a node's row starts with its levels (what it
+holds now, then what it did); and summary.json groups metrics in sections (``totals`` for task
+counts), each section in the place of its first metric, its single counts first, then the counts
+broken down by part, then the levels.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass, field
+from enum import Enum, Flag, auto
+from functools import cache
+from typing import Any
+
+from node_runtime.model.role import DROP_CAUSES
+
+
+class Agg(Enum):
+    """How a metric aggregates over ticks (over roles and nodes, it is always a sum)."""
+
+    COUNT = "count"  # cumulative since the episode began; a row (ticks.csv, nodes.csv, delta) shows the tick's change
+    LEVEL = "level"  # the value at the end of the tick
+    SHARE = "share"  # cycles used / cycles the workers have: of the tick in a row, of the episode in the summary
+    SAMPLES = "samples"  # one value per completion: a row shows their mean, the summary count, mean, p50, p95, max
+
+
+class Out(Flag):
+    """Where a metric is shown."""
+
+    SUMMARY = auto()  # summary.json: the episode's value (a LEVEL's at the end, or its mean over the ticks)
+    SUMMARY_NODES = auto()  # summary.json "nodes": the same per node
+    TICKS = auto()  # ticks.csv: one column per metric (a COUNT's change in the tick)
+    NODES = auto()  # nodes.csv: the same per node
+    BUS = auto()  # the bus's metrics record (docs/bus.md), "totals" (SAMPLES: the tick's, as a list beside it)
+    BUS_DELTA = auto()  # the record's "delta": the tick's change
+    BUS_NODES = auto()  # the record's "nodes": one list, indexed like "nodes.id"
+    MONITOR = auto()  # `orchestrator monitor` (from what the record carries)
+    TABLE = auto()  # the summary table of `orchestrator launch` and the numbers panel of `orchestrator plot`
+    ENV = auto()  # ZenohEdgeEnv's infos[agent]["node"]: the agent's node, cumulative
+    ENV_DELTA = auto()  # RewardContext.node_delta: the change of the agent's node during the step
+
+
+BUS_ANY = Out.BUS | Out.BUS_DELTA | Out.BUS_NODES
+NODE_VIEWS = Out.NODES | Out.BUS_NODES | Out.ENV
+ROWS = Out.TICKS | Out.NODES | Out.SUMMARY_NODES
+CHANGES = Out.TICKS | Out.NODES | Out.BUS_DELTA | Out.ENV_DELTA  # where a COUNT shows its change, not its total
+
+
+class Form(Enum):
+    """How a metric with parts appears in an output."""
+
+    TOTAL = "total"  # one value, the sum of the parts
+    PARTS = "parts"  # an object {part: value}
+    PARTS_TOTAL = "parts and total"  # an object {part: value, ..., "total": value}
+    FLAT = "flat"  # the total under the metric's name, then each part as <name>_<part> beside it
+
+
+@dataclass(frozen=True, slots=True)
+class Part:
+    key: str  # its name in outputs
+    field: str  # the counter it reads
+    label: str  # for people
+
+
+@dataclass(frozen=True, slots=True, eq=False)
+class Metric:
+    """One metric. ``fields`` are the counters it sums (``Counters`` fields, or the orchestrator's
+    ``in_flight``); by default the counter of its own name, or its parts' counters."""
+
+    name: str
+    unit: str  # "tasks", "nodes", "node-ticks", "J", "s", "ratio" (0-1)
+    agg: Agg
+    label: str  # in the launch summary table and the monitor
+    short: str  # column heading in the monitor's node table
+    meaning: str
+    show: Out
+    fields: tuple[str, ...] = ()
+    parts: tuple[Part, ...] = ()
+    forms: Mapping[Out, Form] = field(default_factory=dict)  # where the parts are shown (else the total only)
+    names: Mapping[Out, str] = field(default_factory=dict)  # its name in an output, where it is not ``name``
+    dtype: type = int  # of its values (SHARE and SAMPLES are always float)
+    episode_mean: bool = False  # LEVEL: the summary gives its mean over the episode's ticks, not its last value
+    share_of: str | None = None  # the table also gives it as a percentage of this metric
+
+    def __post_init__(self) -> None:
+        if not self.fields and self.agg is not Agg.SAMPLES:
+            object.__setattr__(self, "fields", tuple(p.field for p in self.parts) or (self.name,))
+        if self.agg in (Agg.SHARE, Agg.SAMPLES):
+            object.__setattr__(self, "dtype", float)
+        problems = [
+            *(f"a form for {o.name}, which it does not show" for o in self.forms if o not in self.show),
+            *(f"form {f.value} but no parts" for f in self.forms.values() if f is not Form.TOTAL and not self.parts),
+            *(["MONITOR without a bus output"] if Out.MONITOR in self.show and not self.show & BUS_ANY else []),
+            *(["TABLE without SUMMARY"] if Out.TABLE in self.show and Out.SUMMARY not in self.show else []),
+            *(["a SHARE reads exactly one counter"] if self.agg is Agg.SHARE and len(self.fields) != 1 else []),
+        ]
+        if problems:
+            raise ValueError(f"metric {self.name}: {'; '.join(problems)}")
+
+    def key(self, out: Out) -> str:
+        """Its name in ``out``; in the summary a dotted path (task counts are under "totals")."""
+        if out in self.names:
+            return self.names[out]
+        if out is Out.SUMMARY and self.unit == "tasks":
+            return f"totals.{self.name}"
+        return self.name
+
+    def form(self, out: Out) -> Form:
+        return self.forms.get(out, Form.TOTAL)
+
+    def columns(self, out: Out) -> list[str]:
+        """The column names (or flat keys) it takes in ``out``: its own, then its parts' if FLAT."""
+        key = self.key(out)
+        if self.form(out) is Form.FLAT:
+            return [key, *(f"{key}_{p.key}" for p in self.parts)]
+        return [key]
+
+    def summary_section(self) -> str:
+        return self.key(Out.SUMMARY).partition(".")[0]
+
+
+DROP_PARTS = tuple(Part(c, c, c.replace("_", " ")) for c in DROP_CAUSES)
+ENERGY_PARTS = (Part("compute", "energy_compute", "compute"), Part("idle", "energy_idle", "idle"),
+                Part("transmit", "energy_transmit", "radio"))
+
+_O = Out
+CATALOGUE: tuple[Metric, ...] = (
+    Metric("generated", "tasks", Agg.COUNT, "generated", "gen", "tasks created by the clients",
+           _O.SUMMARY | _O.SUMMARY_NODES | _O.TICKS | _O.NODES | _O.BUS | _O.BUS_DELTA | _O.MONITOR | _O.TABLE
+           | _O.ENV | _O.ENV_DELTA),
+    Metric("completed", "tasks", Agg.COUNT, "completed", "done",
+           "results received by their origin client within the deadline (counted at the origin)",
+           _O.SUMMARY | _O.SUMMARY_NODES | _O.TICKS | _O.NODES | _O.BUS | _O.BUS_DELTA | _O.BUS_NODES | _O.MONITOR
+           | _O.TABLE | _O.ENV | _O.ENV_DELTA, share_of="generated"),
+    Metric("response_time", "s", Agg.SAMPLES, "response time", "rt",
+           "(tick of the result's arrival - tick of creation) x dt, per completed task",
+           _O.SUMMARY | _O.SUMMARY_NODES | _O.TICKS | _O.BUS | _O.MONITOR | _O.TABLE,
+           names={_O.TICKS: "response_time_mean", _O.SUMMARY_NODES: "response_time_mean", _O.BUS: "response_times"}),
+    Metric("dropped", "tasks", Agg.COUNT, "dropped", "drops", "tasks lost, each by exactly one cause",
+           _O.SUMMARY | _O.SUMMARY_NODES | _O.TICKS | _O.NODES | _O.BUS | _O.BUS_DELTA | _O.BUS_NODES | _O.MONITOR
+           | _O.TABLE | _O.ENV | _O.ENV_DELTA, parts=DROP_PARTS, share_of="generated",
+           forms={_O.SUMMARY: Form.PARTS_TOTAL, _O.TICKS: Form.FLAT, _O.BUS: Form.PARTS}),
+    Metric("offloaded", "tasks", Agg.COUNT, "offloaded", "offl",
+           "tasks a worker transmitted to a neighbour on a decision (a task offloaded twice counts twice)",
+           _O.SUMMARY | _O.SUMMARY_NODES | _O.TICKS | _O.NODES | _O.BUS | _O.BUS_DELTA | _O.BUS_NODES | _O.MONITOR
+           | _O.TABLE | _O.ENV | _O.ENV_DELTA),
+    Metric("decisions", "tasks", Agg.COUNT, "decisions", "dec", "tasks a controller placed",
+           _O.SUMMARY | _O.ENV),
+    Metric("stale_decisions", "tasks", Agg.COUNT, "stale decisions", "stale",
+           "decisions that arrived for a task the worker no longer held", _O.SUMMARY),
+    Metric("overloaded_ticks", "node-ticks", Agg.COUNT, "overloaded node-ticks", "ovl",
+           "ticks in which a node's buffer was full at the start", _O.SUMMARY | _O.SUMMARY_NODES | _O.TABLE,
+           names={_O.SUMMARY: "overloaded.node_ticks"}),
+    Metric("in_system", "tasks", Agg.LEVEL, "in the system", "sys",
+           "tasks queued, undecided or in flight on links; generated = completed + dropped + in_system",
+           _O.SUMMARY | _O.TICKS | _O.BUS | _O.MONITOR | _O.TABLE, fields=("queue", "undecided", "in_flight")),
+    Metric("queue", "tasks", Agg.LEVEL, "queued", "queue",
+           "tasks admitted for local processing, the one in service included",
+           _O.TICKS | _O.NODES | _O.BUS_NODES | _O.ENV, names={_O.TICKS: "queued"}),
+    Metric("undecided", "tasks", Agg.LEVEL, "undecided", "undec", "tasks waiting for the controller's decision",
+           _O.TICKS | _O.NODES | _O.BUS_NODES | _O.ENV),
+    Metric("in_flight", "tasks", Agg.LEVEL, "in flight", "fly", "tasks and results on links",
+           _O.TICKS),
+    Metric("overloaded", "nodes", Agg.LEVEL, "overloaded nodes", "ovl",
+           "workers whose buffer was full at the start of the tick",
+           _O.SUMMARY | _O.TICKS | _O.NODES | _O.BUS | _O.BUS_NODES | _O.MONITOR | _O.TABLE | _O.ENV,
+           names={_O.SUMMARY: "overloaded.mean_nodes", _O.TICKS: "overloaded_nodes", _O.BUS: "overloaded_nodes"},
+           episode_mean=True),
+    Metric("utilisation", "ratio", Agg.SHARE, "utilisation", "util",
+           "CPU cycles spent / (cores x frequency x dt) of the nodes with a worker",
+           _O.SUMMARY | _O.SUMMARY_NODES | _O.TICKS | _O.NODES | _O.BUS_NODES | _O.MONITOR | _O.TABLE,
+           fields=("busy_cycles",)),
+    Metric("energy_j", "J", Agg.COUNT, "energy", "energy", "compute + idle + transmit energy of the nodes",
+           _O.SUMMARY | _O.SUMMARY_NODES | _O.TICKS | _O.NODES | _O.BUS | _O.MONITOR | _O.TABLE | _O.ENV,
+           parts=ENERGY_PARTS, dtype=float, forms={_O.SUMMARY: Form.PARTS_TOTAL, _O.BUS: Form.FLAT}),
+)
+METRIC: dict[str, Metric] = {m.name: m for m in CATALOGUE}
+
+
+def _summary_order(metrics: list[Metric]) -> list[Metric]:
+    sections: dict[str, list[Metric]] = {}
+    for m in metrics:
+        sections.setdefault(m.summary_section(), []).append(m)
+    return [m for group in sections.values()
+            for m in sorted(group, key=lambda m: (m.agg is Agg.LEVEL, m.form(Out.SUMMARY) is not Form.TOTAL))]
+
+
+def _in_rows(out: Out) -> Callable[[Metric], Any]:
+    node_view, row = bool(out & NODE_VIEWS), bool(out & ROWS)
+    return lambda m: (node_view and m.agg is not Agg.LEVEL, row and m.agg is Agg.SAMPLES)
+
+
+def shown(out: Out) -> tuple[Metric, ...]:
+    """The metrics ``out`` shows, in its order (the launch table follows the summary's). Read at every
+    call, so that a test may extend ``CATALOGUE``."""
+    return _shown(out, CATALOGUE)
+
+
+@cache
+def _shown(out: Out, catalogue: tuple[Metric, ...]) -> tuple[Metric, ...]:
+    metrics = [m for m in catalogue if out in m.show]
+    if out in (Out.SUMMARY, Out.TABLE):
+        return tuple(_summary_order(metrics))
+    return tuple(sorted(metrics, key=_in_rows(out)))
+
+
+def columns(out: Out) -> list[str]:
+    """The metric columns of ticks.csv (``Out.TICKS``) or nodes.csv (``Out.NODES``), in order."""
+    return [c for m in shown(out) for c in m.columns(out)]
