@@ -191,7 +191,7 @@ class ZenohEdgeEnv(ParallelEnv):
         self._last_actions = {}
         self._observe()
         self._potential = {a: self.shaping(self._obs[a]) for a in self.agents} if self.shaping else {}
-        nodes = output_values(Out.ENV, report.nodes, report.node_delta, None)
+        nodes = output_values(Out.ENV, report.nodes, report.node_delta, self.sim.metrics.capacity)
         infos = {a: self._info(a, nodes, ()) for a in self.agents}
         return dict(self._obs), infos
 
@@ -225,8 +225,9 @@ class ZenohEdgeEnv(ParallelEnv):
         self._steps += 1
 
         node_delta = reports[0].node_delta if len(reports) == 1 else sum(r.node_delta for r in reports)
-        deltas = output_values(Out.ENV_DELTA, reports[-1].nodes, node_delta, None)
-        nodes = output_values(Out.ENV, reports[-1].nodes, node_delta, None)
+        capacity = self.sim.metrics.capacity * len(reports)  # the step's cycles, for a share
+        deltas = output_values(Out.ENV_DELTA, reports[-1].nodes, node_delta, capacity)
+        nodes = output_values(Out.ENV, reports[-1].nodes, node_delta, capacity)
         tick = self.sim.tick
         rewards, infos = {}, {}
         for agent in self.agents:

@@ -82,7 +82,6 @@ class Metric:
     agg: Agg
     label: str  # in the launch summary table and the monitor
     short: str  # column heading in the monitor's node table
-    meaning: str
     show: Out
     fields: tuple[str, ...] = ()
     parts: tuple[Part, ...] = ()
@@ -133,56 +132,59 @@ DROP_PARTS = tuple(Part(c, c, c.replace("_", " ")) for c in DROP_CAUSES)
 ENERGY_PARTS = (Part("compute", "energy_compute", "compute"), Part("idle", "energy_idle", "idle"),
                 Part("transmit", "energy_transmit", "radio"))
 
-_O = Out
 CATALOGUE: tuple[Metric, ...] = (
-    Metric("generated", "tasks", Agg.COUNT, "generated", "gen", "tasks created by the clients",
-           _O.SUMMARY | _O.SUMMARY_NODES | _O.TICKS | _O.NODES | _O.BUS | _O.BUS_DELTA | _O.MONITOR | _O.TABLE
-           | _O.ENV | _O.ENV_DELTA),
+    # tasks created by the clients
+    Metric("generated", "tasks", Agg.COUNT, "generated", "gen",
+           Out.SUMMARY | Out.SUMMARY_NODES | Out.TICKS | Out.NODES | Out.BUS | Out.BUS_DELTA | Out.MONITOR
+           | Out.TABLE | Out.ENV | Out.ENV_DELTA),
+    # results received by their origin client within the deadline (counted at the origin)
     Metric("completed", "tasks", Agg.COUNT, "completed", "done",
-           "results received by their origin client within the deadline (counted at the origin)",
-           _O.SUMMARY | _O.SUMMARY_NODES | _O.TICKS | _O.NODES | _O.BUS | _O.BUS_DELTA | _O.BUS_NODES | _O.MONITOR
-           | _O.TABLE | _O.ENV | _O.ENV_DELTA, share_of="generated"),
+           Out.SUMMARY | Out.SUMMARY_NODES | Out.TICKS | Out.NODES | Out.BUS | Out.BUS_DELTA | Out.BUS_NODES
+           | Out.MONITOR | Out.TABLE | Out.ENV | Out.ENV_DELTA, share_of="generated"),
+    # (tick of the result's arrival - tick of creation) x dt, per completed task
     Metric("response_time", "s", Agg.SAMPLES, "response time", "rt",
-           "(tick of the result's arrival - tick of creation) x dt, per completed task",
-           _O.SUMMARY | _O.SUMMARY_NODES | _O.TICKS | _O.BUS | _O.MONITOR | _O.TABLE,
-           names={_O.TICKS: "response_time_mean", _O.SUMMARY_NODES: "response_time_mean", _O.BUS: "response_times"}),
-    Metric("dropped", "tasks", Agg.COUNT, "dropped", "drops", "tasks lost, each by exactly one cause",
-           _O.SUMMARY | _O.SUMMARY_NODES | _O.TICKS | _O.NODES | _O.BUS | _O.BUS_DELTA | _O.BUS_NODES | _O.MONITOR
-           | _O.TABLE | _O.ENV | _O.ENV_DELTA, parts=DROP_PARTS, share_of="generated",
-           forms={_O.SUMMARY: Form.PARTS_TOTAL, _O.TICKS: Form.FLAT, _O.BUS: Form.PARTS}),
+           Out.SUMMARY | Out.SUMMARY_NODES | Out.TICKS | Out.BUS | Out.MONITOR | Out.TABLE,
+           names={Out.TICKS: "response_time_mean", Out.SUMMARY_NODES: "response_time_mean",
+                  Out.BUS: "response_times"}),
+    # tasks lost, each by exactly one cause
+    Metric("dropped", "tasks", Agg.COUNT, "dropped", "drops",
+           Out.SUMMARY | Out.SUMMARY_NODES | Out.TICKS | Out.NODES | Out.BUS | Out.BUS_DELTA | Out.BUS_NODES
+           | Out.MONITOR | Out.TABLE | Out.ENV | Out.ENV_DELTA, parts=DROP_PARTS, share_of="generated",
+           forms={Out.SUMMARY: Form.PARTS_TOTAL, Out.TICKS: Form.FLAT, Out.BUS: Form.PARTS}),
+    # tasks a worker transmitted to a neighbour on a decision (a task offloaded twice counts twice)
     Metric("offloaded", "tasks", Agg.COUNT, "offloaded", "offl",
-           "tasks a worker transmitted to a neighbour on a decision (a task offloaded twice counts twice)",
-           _O.SUMMARY | _O.SUMMARY_NODES | _O.TICKS | _O.NODES | _O.BUS | _O.BUS_DELTA | _O.BUS_NODES | _O.MONITOR
-           | _O.TABLE | _O.ENV | _O.ENV_DELTA),
-    Metric("decisions", "tasks", Agg.COUNT, "decisions", "dec", "tasks a controller placed",
-           _O.SUMMARY | _O.ENV),
-    Metric("stale_decisions", "tasks", Agg.COUNT, "stale decisions", "stale",
-           "decisions that arrived for a task the worker no longer held", _O.SUMMARY),
+           Out.SUMMARY | Out.SUMMARY_NODES | Out.TICKS | Out.NODES | Out.BUS | Out.BUS_DELTA | Out.BUS_NODES
+           | Out.MONITOR | Out.TABLE | Out.ENV | Out.ENV_DELTA),
+    # tasks a controller placed
+    Metric("decisions", "tasks", Agg.COUNT, "decisions", "dec", Out.SUMMARY | Out.ENV),
+    # decisions that reached a worker which no longer held the task
+    Metric("stale_decisions", "tasks", Agg.COUNT, "stale decisions", "stale", Out.SUMMARY),
+    # ticks in which a node's buffer was full at the start
     Metric("overloaded_ticks", "node-ticks", Agg.COUNT, "overloaded node-ticks", "ovl",
-           "ticks in which a node's buffer was full at the start", _O.SUMMARY | _O.SUMMARY_NODES | _O.TABLE,
-           names={_O.SUMMARY: "overloaded.node_ticks"}),
+           Out.SUMMARY | Out.SUMMARY_NODES | Out.TABLE, names={Out.SUMMARY: "overloaded.node_ticks"}),
+    # queued + undecided + in flight: generated = completed + dropped + in_system, every tick
     Metric("in_system", "tasks", Agg.LEVEL, "in the system", "sys",
-           "tasks queued, undecided or in flight on links; generated = completed + dropped + in_system",
-           _O.SUMMARY | _O.TICKS | _O.BUS | _O.MONITOR | _O.TABLE, fields=("queue", "undecided", "in_flight")),
-    Metric("queue", "tasks", Agg.LEVEL, "queued", "queue",
-           "tasks admitted for local processing, the one in service included",
-           _O.TICKS | _O.NODES | _O.BUS_NODES | _O.ENV, names={_O.TICKS: "queued"}),
-    Metric("undecided", "tasks", Agg.LEVEL, "undecided", "undec", "tasks waiting for the controller's decision",
-           _O.TICKS | _O.NODES | _O.BUS_NODES | _O.ENV),
-    Metric("in_flight", "tasks", Agg.LEVEL, "in flight", "fly", "tasks and results on links",
-           _O.TICKS),
+           Out.SUMMARY | Out.TICKS | Out.BUS | Out.MONITOR | Out.TABLE, fields=("queue", "undecided", "in_flight")),
+    # tasks admitted for local processing, the one in service included
+    Metric("queue", "tasks", Agg.LEVEL, "queued", "queue", Out.TICKS | Out.NODES | Out.BUS_NODES | Out.ENV,
+           names={Out.TICKS: "queued"}),
+    # tasks waiting for the controller's decision
+    Metric("undecided", "tasks", Agg.LEVEL, "undecided", "undec", Out.TICKS | Out.NODES | Out.BUS_NODES | Out.ENV),
+    # tasks and results on links
+    Metric("in_flight", "tasks", Agg.LEVEL, "in flight", "fly", Out.TICKS),
+    # workers whose buffer was full at the start of the tick
     Metric("overloaded", "nodes", Agg.LEVEL, "overloaded nodes", "ovl",
-           "workers whose buffer was full at the start of the tick",
-           _O.SUMMARY | _O.TICKS | _O.NODES | _O.BUS | _O.BUS_NODES | _O.MONITOR | _O.TABLE | _O.ENV,
-           names={_O.SUMMARY: "overloaded.mean_nodes", _O.TICKS: "overloaded_nodes", _O.BUS: "overloaded_nodes"},
+           Out.SUMMARY | Out.TICKS | Out.NODES | Out.BUS | Out.BUS_NODES | Out.MONITOR | Out.TABLE | Out.ENV,
+           names={Out.SUMMARY: "overloaded.mean_nodes", Out.TICKS: "overloaded_nodes", Out.BUS: "overloaded_nodes"},
            episode_mean=True),
+    # CPU cycles spent / (cores x frequency x dt), over the nodes with a worker
     Metric("utilisation", "ratio", Agg.SHARE, "utilisation", "util",
-           "CPU cycles spent / (cores x frequency x dt) of the nodes with a worker",
-           _O.SUMMARY | _O.SUMMARY_NODES | _O.TICKS | _O.NODES | _O.BUS_NODES | _O.MONITOR | _O.TABLE,
+           Out.SUMMARY | Out.SUMMARY_NODES | Out.TICKS | Out.NODES | Out.BUS_NODES | Out.MONITOR | Out.TABLE,
            fields=("busy_cycles",)),
-    Metric("energy_j", "J", Agg.COUNT, "energy", "energy", "compute + idle + transmit energy of the nodes",
-           _O.SUMMARY | _O.SUMMARY_NODES | _O.TICKS | _O.NODES | _O.BUS | _O.MONITOR | _O.TABLE | _O.ENV,
-           parts=ENERGY_PARTS, dtype=float, forms={_O.SUMMARY: Form.PARTS_TOTAL, _O.BUS: Form.FLAT}),
+    # compute + idle + transmit (radio) energy
+    Metric("energy_j", "J", Agg.COUNT, "energy", "energy",
+           Out.SUMMARY | Out.SUMMARY_NODES | Out.TICKS | Out.NODES | Out.BUS | Out.MONITOR | Out.TABLE | Out.ENV,
+           parts=ENERGY_PARTS, dtype=float, forms={Out.SUMMARY: Form.PARTS_TOTAL, Out.BUS: Form.FLAT}),
 )
 METRIC: dict[str, Metric] = {m.name: m for m in CATALOGUE}
 

@@ -67,10 +67,11 @@ def _plain(m: Metric, values: Any) -> Any:
 
 
 def output_values(out: Out, level: np.ndarray, change: np.ndarray, capacity: Any,
-           samples: Callable[[Metric], Any] | None = None) -> dict[str, Any]:
+                  samples: Callable[[Metric], Any] | None = None) -> dict[str, Any]:
     """What ``out`` shows of the catalogue, by key: Python numbers for one row, lists for several (the last
-    axis of ``level``, the values at the end of the tick, and of ``change``, the tick's change, runs over
-    FIELDS). ``samples(metric)`` gives a SAMPLES metric's value; without it they are left out."""
+    axis of ``level``, the values at the end of the tick, and of ``change``, their change over the tick or
+    step, runs over FIELDS; ``capacity``: the cycles available in that tick or step, per row).
+    ``samples(metric)`` gives a SAMPLES metric's value; without it they are left out."""
     shown_values: dict[str, Any] = {}
     for m in shown(out):
         if m.agg is not Agg.SAMPLES:
@@ -83,8 +84,7 @@ def output_values(out: Out, level: np.ndarray, change: np.ndarray, capacity: Any
 def put(into: dict[str, Any], key: str, m: Metric, out: Out, level: np.ndarray, change: np.ndarray,
         capacity: Any) -> None:
     """``m`` as ``out`` shows it, under ``key`` (and, in the FLAT form, its parts beside it): a count's
-    change where ``out`` is one of CHANGES, else its cumulative value; a level; a share of ``capacity``
-    in the tick."""
+    change where ``out`` is one of CHANGES, else its cumulative value; a level; a share of ``capacity``."""
     if m.agg is Agg.SHARE:
         into[key] = share(change[..., counters(m)[0]], capacity).tolist()
         return

@@ -30,8 +30,7 @@ SCENARIO = ROOT / "topologies" / "examples" / "failures.yaml"  # offloads, drops
 TICKS = 60
 EVERYWHERE = (Out.SUMMARY | Out.SUMMARY_NODES | Out.TICKS | Out.NODES | Out.BUS | Out.BUS_DELTA | Out.BUS_NODES
               | Out.MONITOR | Out.TABLE | Out.ENV | Out.ENV_DELTA)
-CYCLES = Metric("cycles", "cycles", Agg.COUNT, "CPU cycles", "cyc", "cycles the workers spent", EVERYWHERE,
-                fields=("busy_cycles",), dtype=float)
+CYCLES = Metric("cycles", "cycles", Agg.COUNT, "CPU cycles", "cyc", EVERYWHERE, fields=("busy_cycles",), dtype=float)
 
 
 def read_csv(path: Path) -> tuple[list[str], list[dict[str, str]]]:
@@ -161,7 +160,7 @@ def test_a_metric_that_shows_parts_where_it_is_not_shown_is_refused():
         dataclasses.replace(catalogue.METRIC["dropped"], name="bad", show=Out.SUMMARY,
                             forms={Out.TICKS: Form.FLAT})
     with pytest.raises(ValueError, match="TABLE without SUMMARY"):
-        Metric("x", "tasks", Agg.COUNT, "x", "x", "x", Out.TABLE)
+        Metric("x", "tasks", Agg.COUNT, "x", "x", Out.TABLE)
 
 
 @pytest.mark.parametrize(("value", "text"), [
