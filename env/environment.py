@@ -191,7 +191,7 @@ class ZenohEdgeEnv(ParallelEnv):
         self._last_actions = {}
         self._observe()
         self._potential = {a: self.shaping(self._obs[a]) for a in self.agents} if self.shaping else {}
-        nodes = output_values(Out.ENV, report.nodes, report.node_delta, self.sim.metrics.capacity)
+        nodes = _by_node(output_values(Out.ENV, report.nodes, report.node_delta, self.sim.metrics.capacity))
         infos = {a: self._info(a, nodes, ()) for a in self.agents}
         return dict(self._obs), infos
 
@@ -226,13 +226,13 @@ class ZenohEdgeEnv(ParallelEnv):
 
         node_delta = reports[0].node_delta if len(reports) == 1 else sum(r.node_delta for r in reports)
         capacity = self.sim.metrics.capacity * len(reports)  # the step's cycles, for a share
-        deltas = output_values(Out.ENV_DELTA, reports[-1].nodes, node_delta, capacity)
-        nodes = output_values(Out.ENV, reports[-1].nodes, node_delta, capacity)
+        deltas = _by_node(output_values(Out.ENV_DELTA, reports[-1].nodes, node_delta, capacity))
+        nodes = _by_node(output_values(Out.ENV, reports[-1].nodes, node_delta, capacity))
         tick = self.sim.tick
         rewards, infos = {}, {}
         for agent in self.agents:
             row = self._row[agent]
-            delta = _node(deltas, row)
+            delta = deltas[row]
             agent_terms = terms.get(agent, ())
             ctx = RewardContext(agent, self.node_of[agent], before[agent], actions[agent], self._raw[agent],
                                 agent_terms, delta, dt)
@@ -244,7 +244,7 @@ class ZenohEdgeEnv(ParallelEnv):
                 r = shaped(r, self._potential[agent], after, self.gamma)
                 self._potential[agent] = after
             rewards[agent] = r
-            infos[agent] = {"tick": tick, "node": _node(nodes, row),
+            infos[agent] = {"tick": tick, "node": nodes[row],
                             "reward_terms": [t.as_dict() for t in agent_terms], "invalid_action": agent in penalised}
         truncated = self._steps >= self.max_steps
         terminations = dict.fromkeys(self.agents, False)
@@ -330,12 +330,12 @@ class ZenohEdgeEnv(ParallelEnv):
                 + " — pass invalid_action='penalty' to ZenohEdgeEnv to penalise instead of raising")
         return 0
 
-    def _info(self, agent: str, nodes: dict[str, Any], terms: tuple[RewardTerms, ...]) -> dict[str, Any]:
-        return {"tick": self.sim.tick, "node": _node(nodes, self._row[agent]),
-                "reward_terms": [t.as_dict() for t in terms]}
+    def _info(self, agent: str, nodes: list[dict[str, Any]], terms: tuple[RewardTerms, ...]) -> dict[str, Any]:
+        return {"tick": self.sim.tick, "node": nodes[self._row[agent]], "reward_terms": [t.as_dict() for t in terms]}
 
 
-def _node(by_node: dict[str, Any], row: int) -> dict[str, Any]:
-    """One node's values, from the catalogue's per-node lists (Out.ENV: its counters in infos[agent]["node"];
-    Out.ENV_DELTA: their change during the step, the reward's ``node_delta``)."""
-    return {k: _node(v, row) if isinstance(v, dict) else v[row] for k, v in by_node.items()}
+def _by_node(values: dict[str, Any]) -> list[dict[str, Any]]:
+    """One dict per node from the catalogue's per-node lists (Out.ENV: the counters in
+    infos[agent]["node"]; Out.ENV_DELTA: their change during the step, the reward's ``node_delta``)."""
+    columns = [_by_node(v) if isinstance(v, dict) else v for v in values.values()]
+    return [dict(zip(values, row, strict=True)) for row in zip(*columns, strict=True)]

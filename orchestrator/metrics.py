@@ -70,35 +70,36 @@ def output_values(out: Out, level: np.ndarray, change: np.ndarray, capacity: Any
                   samples: Callable[[Metric], Any] | None = None) -> dict[str, Any]:
     """What ``out`` shows of the catalogue, by key: Python numbers for one row, lists for several (the last
     axis of ``level``, the values at the end of the tick, and of ``change``, their change over the tick or
-    step, runs over FIELDS; ``capacity``: the cycles available in that tick or step, per row).
-    ``samples(metric)`` gives a SAMPLES metric's value; without it they are left out."""
+    step, runs over FIELDS; ``capacity``: the cycles available in that tick or step, per row). A count
+    shows its change where ``out`` is one of CHANGES, else its cumulative value. ``samples(metric)``
+    gives a SAMPLES metric's value; without it they are left out."""
+    counts = change if out in CHANGES else level
     shown_values: dict[str, Any] = {}
     for m in shown(out):
-        if m.agg is not Agg.SAMPLES:
-            put(shown_values, m.key(out), m, out, level, change, capacity)
-        elif samples is not None:
-            shown_values[m.key(out)] = samples(m)
+        if m.agg is Agg.SAMPLES:
+            if samples is not None:
+                shown_values[m.key(out)] = samples(m)
+        elif m.agg is Agg.SHARE:
+            shown_values[m.key(out)] = share(change[..., counters(m)[0]], capacity).tolist()
+        else:
+            put(shown_values, m.key(out), m, m.form(out), counts if m.agg is Agg.COUNT else level)
     return shown_values
 
 
-def put(into: dict[str, Any], key: str, m: Metric, out: Out, level: np.ndarray, change: np.ndarray,
-        capacity: Any) -> None:
-    """``m`` as ``out`` shows it, under ``key`` (and, in the FLAT form, its parts beside it): a count's
-    change where ``out`` is one of CHANGES, else its cumulative value; a level; a share of ``capacity``."""
-    if m.agg is Agg.SHARE:
-        into[key] = share(change[..., counters(m)[0]], capacity).tolist()
+def put(into: dict[str, Any], key: str, m: Metric, form: Form, row: np.ndarray) -> None:
+    """A count or level ``m`` from ``row`` (or rows) of FIELDS, in ``form``, under ``key`` (in the FLAT
+    form, its parts beside it)."""
+    if form is Form.TOTAL:
+        into[key] = _plain(m, total(m, row))
         return
-    row = change if m.agg is Agg.COUNT and out in CHANGES else level
-    form = m.form(out)
     parts = {p.key: row[..., F[p.field]] for p in m.parts}
     if form is Form.PARTS:
         into[key] = {k: _plain(m, v) for k, v in parts.items()}
     elif form is Form.PARTS_TOTAL:
         into[key] = {**{k: _plain(m, v) for k, v in parts.items()}, "total": _plain(m, sum(parts.values()))}
-    else:
+    else:  # FLAT
         into[key] = _plain(m, total(m, row))
-        if form is Form.FLAT:
-            into.update({f"{key}_{k}": _plain(m, v) for k, v in parts.items()})
+        into.update({f"{key}_{k}": _plain(m, v) for k, v in parts.items()})
 
 
 @dataclass(slots=True)
@@ -245,7 +246,7 @@ class Metrics:
         elif m.episode_mean:
             into[key] = float(np.array([total(m, t) for t in levels]).mean())
         else:
-            put(into, key, m, out, end, end, capacity)
+            put(into, key, m, m.form(out), end)
 
     def tick_table(self) -> tuple[list[str], list[list[Any]]]:
         levels = np.array(self.totals)
