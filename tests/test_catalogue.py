@@ -90,7 +90,7 @@ def test_every_output_shows_exactly_what_the_catalogue_declares(tmp_path):
             assert value["total"] == pytest.approx(sum(value[p.key] for p in m.parts))
     assert list(s) == ["scenario", "scenario_hash", "source", "seed", "ticks", "dt",
                        *dict.fromkeys(m.key(Out.SUMMARY).partition(".")[0] for m in shown(Out.SUMMARY)),
-                       "nodes", "policy", "run"]
+                       "nodes", "policy", "code", "run"]
     for node in s["nodes"].values():
         assert list(node) == [m.key(Out.SUMMARY_NODES) for m in shown(Out.SUMMARY_NODES)]
 
