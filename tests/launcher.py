@@ -12,6 +12,8 @@ import time
 
 import psutil
 
+TIMEOUT = 120.0  # seconds any single wait may take on a loaded machine before the test fails
+
 
 class Launch:
     """``orchestrator launch`` in a subprocess, with its stderr read line by line in the background."""
