@@ -27,7 +27,8 @@ from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, T
 from rich.table import Table
 
 from node_runtime.model.policies import POLICIES
-from node_runtime.runtime.keys import CHUNK, new_sim_id
+from node_runtime.runtime import cli_options
+from node_runtime.runtime.keys import new_sim_id
 from node_runtime.runtime.layout import LAYOUTS, ProcessLayout
 from orchestrator.arguments import COUNT, NON_NEGATIVE, POSITIVE, integer
 from orchestrator.clock import ClockError
@@ -65,8 +66,6 @@ def cmd_launch(args: argparse.Namespace) -> int:
     scenario = load_scenario(args.scenario)
     ticks = (args.steps or scenario.episode_ticks // scenario.decision_interval) * scenario.decision_interval
     out = Path(args.out) if args.out else Path("runs") / f"{scenario.name}-{dt.datetime.now():%Y%m%d-%H%M%S}"
-    if args.sim_id and not CHUNK.match(args.sim_id):
-        raise UsageError(f"--sim-id: expected letters, digits, '_', '.' or '-', not {args.sim_id!r}")
     if args.serve and args.transport != "zenoh":
         raise UsageError("--serve needs --transport zenoh: other processes reach the simulation over Zenoh")
     layout = args.layout or ("single" if args.transport == "inproc" else "per-role")
@@ -286,8 +285,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--placement", metavar="FILE",
                    help="run the nodes listed in FILE's groups on other hosts with zenohedge-node (see deploy/); "
                         "use with --listen")
-    p.add_argument("--sim-id", metavar="ID", help="simulation id (default: random); fix it to script remote hosts")
-    p.add_argument("--connect", action="append", metavar="ENDPOINT",
+    p.add_argument("--sim-id", metavar="ID", type=cli_options.sim_id,
+                   help="simulation id (default: random); fix it to script remote hosts")
+    p.add_argument("--connect", action="append", metavar="ENDPOINT", type=cli_options.endpoint,
                    help="join the router to another Zenoh router (e.g. another simulation's), so that several "
                         "simulations share one network; repeatable")
     p.add_argument("--tick-rate", type=POSITIVE, metavar="HZ",
