@@ -33,66 +33,7 @@ from orchestrator.scenario import load_scenario
 from orchestrator.session import Simulation
 from orchestrator.viewers.monitor import WINDOW_TICKS, BusMonitor, DashboardState, main, queue_bar, render
 from tests.conftest import ROOT, model_part, run_summary
-from tests.launcher import Launch, assert_all_gone, served
-
-TIMEOUT = 120.0  # seconds any single wait may take on a loaded machine before the test fails
-
-
-class Output:
-    """A subprocess whose stdout and stderr lines are read in the background and waited for by content."""
-
-    def __init__(self, *args: str) -> None:
-        self.proc = subprocess.Popen(args, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=ROOT,
-                                     env={**os.environ, "COLUMNS": "120"})
-        self.out: queue.SimpleQueue[str] = queue.SimpleQueue()
-        self.err: queue.SimpleQueue[str] = queue.SimpleQueue()
-        self.readers = [threading.Thread(target=self._pump, args=(stream, q.put), daemon=True)
-                        for stream, q in ((self.proc.stdout, self.out), (self.proc.stderr, self.err))]
-        for reader in self.readers:
-            reader.start()
-
-    @staticmethod
-    def _pump(stream: Any, put: Any) -> None:
-        for line in stream:
-            put(line.rstrip("\n"))
-
-    @staticmethod
-    def _next(q: queue.SimpleQueue[str], what: str, timeout: float) -> str:
-        try:
-            return q.get(timeout=timeout)
-        except queue.Empty:
-            raise AssertionError(f"no {what} line within {timeout} s") from None
-
-    def line(self, timeout: float = TIMEOUT) -> str:
-        """The next line on stdout."""
-        return self._next(self.out, "stdout", timeout)
-
-    def wait_err(self, text: str, timeout: float = TIMEOUT) -> list[str]:
-        """stderr lines up to the first that contains ``text``."""
-        seen = [self._next(self.err, "stderr", timeout)]
-        while text not in seen[-1]:
-            seen.append(self._next(self.err, "stderr", timeout))
-        return seen
-
-    def finish(self, sig: int | None = None, timeout: float = 60.0) -> tuple[int, list[str], list[str]]:
-        """Signal (optionally) and wait for the exit: (status, unread stdout lines, unread stderr lines)."""
-        if sig is not None:
-            self.proc.send_signal(sig)
-        try:
-            status = self.proc.wait(timeout)
-        finally:
-            if self.proc.poll() is None:
-                self.proc.kill()
-        for reader in self.readers:
-            reader.join(timeout)
-        return status, drain(self.out), drain(self.err)
-
-
-def drain(q: queue.SimpleQueue[str]) -> list[str]:
-    lines = []
-    while not q.empty():
-        lines.append(q.get())
-    return lines
+from tests.launcher import TIMEOUT, Launch, Output, assert_all_gone, served
 
 
 def monitor_cli(*args: str) -> Output:
@@ -206,7 +147,9 @@ def test_new_episode_restarts_the_windows(recorded):
 
 # ----- command-line errors -----
 
-def test_user_errors_are_one_line_exit_2(capsys):
+def test_user_errors_are_one_line_exit_2(capsys, tmp_path, monkeypatch):
+    monkeypatch.setenv("XDG_RUNTIME_DIR", str(tmp_path))  # a registry of its own, empty: nothing launched here
+    assert main([]) == 2
     dead = f"tcp/127.0.0.1:{free_port()}"
     assert main(["--connect", dead]) == 2
     endpoint = f"tcp/127.0.0.1:{free_port()}"
@@ -217,6 +160,8 @@ def test_user_errors_are_one_line_exit_2(capsys):
     finally:
         router.close()
     assert capsys.readouterr().err.splitlines() == [
+        "monitor: no simulation running on this host; start one with `orchestrator launch SCENARIO --serve`, or "
+        "give --connect ENDPOINT to watch one on another host",
         f"monitor: cannot reach {dead}: no Zenoh router answers there",
         f"monitor: no simulation running at {endpoint}; start one with `orchestrator launch SCENARIO --serve`, "
         "or check --connect and --prefix",

@@ -1,7 +1,10 @@
 """``orchestrator monitor``: watch a running simulation live, from this host or another one.
 
-    orchestrator monitor --connect tcp/127.0.0.1:7447              # the only simulation running there
+    orchestrator monitor                                           # the only simulation launched on this host
     orchestrator monitor --connect tcp/10.0.0.1:7447 --sim lab1 --json | jq .delta
+
+Without ``--connect`` it follows a simulation that ``orchestrator launch`` listed in this user's
+registry on this host (``orchestrator.registry``); with it, one behind that router.
 
 The monitor only subscribes (``…/metrics/tick``, ``…/events/offloaded/*``, the orchestrator's
 liveliness token) and asks ``…/session``; it never publishes. Metrics and events travel on
@@ -39,9 +42,9 @@ from node_runtime.runtime.keys import DEFAULT_PREFIX, Keys
 from node_runtime.runtime.process import ORCHESTRATOR
 from node_runtime.runtime.transport import Handler, TokenHandler, Transport, TransportError
 from node_runtime.runtime.zenoh_bus import ZenohTransport
+from orchestrator import registry
 
 EXIT_OK, EXIT_FAILED, EXIT_USAGE = 0, 1, 2
-DEFAULT_ENDPOINT = "tcp/127.0.0.1:7447"  # Zenoh's usual port, e.g. `launch --listen 0.0.0.0:7447`
 WINDOW_TICKS = 100  # ticks behind the task rates, utilisation and offload flows
 RT_WINDOW = 1000  # completions behind the response-time percentiles
 RATE_WINDOW_S = 3.0  # wall seconds behind the measured tick rate
@@ -146,6 +149,30 @@ def choose(found: list[SimInfo], wanted: str | None, endpoint: str) -> SimInfo:
         raise MonitorError(f"{len(found)} simulations at {endpoint}: {', '.join(i.label() for i in found)}; "
                            "choose one with --sim ID")
     return found[0]
+
+
+def launched_here(wanted: str | None) -> registry.Entry:
+    """Without --connect: the simulation launched on this host (the only one, or --sim)."""
+    try:
+        entries = registry.running()
+    except registry.RegistryError as exc:
+        raise MonitorError(str(exc)) from None
+    listing = "".join(f"\n  {e.describe()}" for e in entries)
+    if wanted is not None:
+        entries = [e for e in entries if e.sim == wanted]
+        if not entries:
+            raise MonitorError(f"no simulation {wanted!r} launched on this host (give --connect ENDPOINT for "
+                               f"another host); running here:{listing or ' none'}")
+        if len(entries) > 1:
+            raise MonitorError(f"{len(entries)} simulations {wanted!r} on this host; choose one with --connect "
+                               f"ENDPOINT:{listing}")
+    elif not entries:
+        raise MonitorError("no simulation running on this host; start one with `orchestrator launch SCENARIO "
+                           "--serve`, or give --connect ENDPOINT to watch one on another host")
+    elif len(entries) > 1:
+        raise MonitorError(f"{len(entries)} simulations running on this host; choose one with --sim ID (or "
+                           f"--connect ENDPOINT):{listing}")
+    return entries[0]
 
 
 # ----- the dashboard's state -----
@@ -384,7 +411,11 @@ def cmd_monitor(args: argparse.Namespace) -> int:
     bus: BusMonitor | None = None
     sim = args.sim
     try:
-        endpoint = args.connect or DEFAULT_ENDPOINT
+        endpoint = args.connect
+        if endpoint is None:
+            entry = launched_here(sim)
+            say(f"found on this host: {entry.describe()}")
+            endpoint, sim = entry.endpoint, entry.sim
         bus = BusMonitor.connect(endpoint, args.prefix)
         info = choose(bus.discover(), sim, endpoint)
         sim = info.sim_id
@@ -411,13 +442,14 @@ def cmd_monitor(args: argparse.Namespace) -> int:
 def add_parser(sub: Any) -> argparse.ArgumentParser:
     """Register ``monitor`` on the subparsers of ``orchestrator``."""
     p = sub.add_parser("monitor", help="watch a running simulation live (it is never disturbed)",
-                       description="Find the simulations running behind a Zenoh router and follow one: a live "
+                       description="Find the simulation launched on this host, or those running behind a Zenoh "
+                                   "router (--connect), and follow one: a live "
                                    "dashboard (tick rate, task rates, response times, per-node queues, offload "
                                    "flows), or one JSON metrics record per tick. It only subscribes, so it can "
                                    "attach and detach at any time. Ends on Ctrl-C or when the simulation ends.")
     add_sim_options(p, required=False,
-                    connect_help=f"the router of the simulation, as printed by `orchestrator launch` (default "
-                                 f"{DEFAULT_ENDPOINT})",
+                    connect_help="the router of the simulation, as printed by `orchestrator launch`, e.g. "
+                                 "tcp/10.0.0.1:7447 (default: the simulation launched on this host)",
                     sim_help="simulation id (default: the only one running)")
     p.add_argument("--json", action="store_true",
                    help="print each tick's metrics record as one line of JSON (schema in docs/bus.md)")
