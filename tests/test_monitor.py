@@ -31,7 +31,7 @@ from node_runtime.runtime.process import ORCHESTRATOR
 from node_runtime.runtime.zenoh_bus import ZenohTransport, free_port, zenoh_config
 from orchestrator.scenario import load_scenario
 from orchestrator.session import Simulation
-from orchestrator.viewers.monitor import WINDOW_TICKS, BusMonitor, DashboardState, main, queue_bar, render
+from orchestrator.viewers.monitor import WINDOW_TICKS, BusMonitor, DashboardState, Follower, main, queue_bar, render
 from tests.conftest import ROOT, model_part, run_summary
 from tests.launcher import TIMEOUT, Launch, Output, assert_all_gone, served
 
@@ -143,6 +143,41 @@ def test_new_episode_restarts_the_windows(recorded):
     again = dict(records[0], episode=1)
     state.add_metrics(again, now=10.0)
     assert state.missed == 0 and len(state.deltas) == 1 and state.tick_rate() is None
+
+
+# ----- the bus side, on the in-process bus (no router, no process) -----
+
+def test_monitor_follows_an_in_process_simulation():
+    """Discovery, the session query, metrics and offload events into the dashboard, detaching and the
+    end of the simulation: the monitor's whole bus side, on the in-process bus."""
+    with Simulation(load_scenario(ROOT / "topologies" / "examples" / "failures.yaml")) as sim:
+        sim.reset(seed=3)
+        for _ in range(20):
+            sim.step()
+        assert not sim.live.listened  # nobody watches: no metrics record is even built
+        bus = BusMonitor(sim.transport.bus.endpoint(), "the in-process bus")
+        [info] = bus.discover()
+        assert (info.sim_id, info.scenario, info.dt) == (sim.keys.sim_id, "failures", 1.0)
+        follower = Follower(info, as_json=False, once=False, console=Console(file=open(os.devnull, "w")))  # noqa: SIM115
+        bus.follow(info.sim_id, follower.on_metrics, follower.on_alive, follower.on_offload)
+        bus.dispatch(lambda: follower.announced, timeout=TIMEOUT)
+        assert sim.live.listened
+        offloaded_before = sim.summary()["totals"]["offloaded"]
+        for _ in range(60):
+            sim.step()
+        bus.dispatch(lambda: follower.state.record["tick"] == 80, timeout=TIMEOUT)
+        state, totals = follower.state, sim.summary()["totals"]
+        assert len(state.deltas) == 60 and state.missed == 0
+        assert state.record["totals"]["completed"] == totals["completed"]
+        assert len(state.offloads) == totals["offloaded"] - offloaded_before > 0
+        assert f"sim {info.sim_id} · failures" in screen(state, now=time.monotonic())
+        bus.close()
+        assert not sim.live.listened  # detached: records are no longer built
+
+        watcher = BusMonitor(sim.transport.bus.endpoint(), "the in-process bus")
+        watcher.follow(info.sim_id, lambda key, m: None, follower.on_alive)
+        assert not follower.ended
+    assert follower.ended  # the orchestrator's token went with the simulation
 
 
 # ----- command-line errors -----
