@@ -404,9 +404,14 @@ def test_dashboard_in_a_terminal(ticking, tmp_path):
         subprocess.run([*tmux, "send-keys", "-t", name, "Enter"], check=True)
         wait_for(rb"\d+ \d+")
         assert b"50 100" in stream, f"the pane is not 100x50: {bytes(stream)!r}"
-        wait_for(rb"(?s)\d ticks/s.*offl")  # a whole frame with a measured tick rate is on the screen
-        shown = subprocess.run([*tmux, "capture-pane", "-p", "-t", name], check=True, capture_output=True,
-                               text=True).stdout
+        wait_for(rb"(?s)\d ticks/s.*offloads? over the last")  # a whole frame with a measured tick rate was drawn
+        deadline = time.monotonic() + TIMEOUT
+        while True:  # the dashboard redraws in place, so a capture may catch a frame half drawn: take the next
+            shown = subprocess.run([*tmux, "capture-pane", "-p", "-t", name], check=True, capture_output=True,
+                                   text=True).stdout
+            if re.search(r"offloads? over the last", shown):
+                break
+            assert time.monotonic() < deadline, f"no whole frame captured within {TIMEOUT} s: {shown}"
         (tmp_path / "screen.txt").write_text(shown)
         assert f"sim {sim} · aot1" in shown and re.search(r"\d+\.\d ticks/s", shown), shown
         for node in load_scenario("aot1").nodes:
