@@ -137,6 +137,19 @@ def test_dashboard_marks_overload_idle_and_gaps(recorded):
     assert "waiting for the first tick" in empty
 
 
+def test_response_time_says_what_the_episode_completed_before_attaching(recorded):
+    """--once sees one tick: its percentiles cover only the completions seen, the totals the episode."""
+    records, _ = recorded
+    late = next(r for r in records if r["totals"]["completed"] and not r["response_times"])
+    state = DashboardState("5ca1ab1e", "failures")
+    state.add_metrics(late, now=0.0)
+    assert (f"response time  no completion since attaching ({late['totals']['completed']} earlier in this "
+            "episode)") in screen(state, now=0.0)
+    state = DashboardState("5ca1ab1e", "failures")
+    state.add_metrics(records[0], now=0.0)
+    assert records[0]["totals"]["completed"] == 0 and "response time  no completion yet" in screen(state, now=0.0)
+
+
 def test_new_episode_restarts_the_windows(recorded):
     records, _ = recorded
     state = replay(records[:30], [])
@@ -363,6 +376,19 @@ def test_monitor_json_prints_every_tick(ticking):
 
     status, out, _ = monitor_cli("--connect", endpoint, "--sim", sim, "--json", "--once").finish()
     assert status == 0 and [json.loads(line)["sim"] for line in out] == [sim]
+
+
+@pytest.mark.zenoh
+@pytest.mark.parametrize("command", ["examples/subscriber.py {endpoint} {sim}",
+                                     "-m orchestrator.viewers.monitor --connect {endpoint} --json"])
+def test_piped_into_head_they_stop_quietly(ticking, command):
+    """`… | head`: when the reader has gone, the writer leaves with status 0 and no traceback."""
+    endpoint, sim = ticking
+    shell = f"set -o pipefail; {sys.executable} {command.format(endpoint=endpoint, sim=sim)} | head -n 2"
+    done = subprocess.run(["bash", "-c", shell], cwd=ROOT, capture_output=True, text=True, timeout=TIMEOUT)
+    assert done.returncode == 0, done.stderr
+    assert len(done.stdout.splitlines()) == 2
+    assert "Traceback" not in done.stderr and "Error" not in done.stderr, done.stderr
 
 
 @pytest.mark.zenoh

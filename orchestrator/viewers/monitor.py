@@ -306,8 +306,13 @@ def render(state: DashboardState, now: float) -> RenderableType:
                  + " + ".join(f"{cause.replace('_', ' ')} {n}" for cause, n in dropped.items()))
     head.add_row("now", f"{tot['in_system']} tasks in the system, {tot['overloaded_nodes']} of {len(nodes['id'])} "
                         "nodes overloaded")
-    head.add_row("response time", "no completion yet" if pct is None else
-                 f"p50 {pct[0]:.2f} s  p95 {pct[1]:.2f} s  (last {len(state.response_times)} completions)")
+    if pct is not None:
+        response = f"p50 {pct[0]:.2f} s  p95 {pct[1]:.2f} s  (last {len(state.response_times)} completions)"
+    elif tot["completed"]:  # the percentiles cover completions seen here; totals cover the episode
+        response = f"no completion since attaching ({tot['completed']} earlier in this episode)"
+    else:
+        response = "no completion yet"
+    head.add_row("response time", response)
     if state.missed:
         head.add_row("missed", Text(f"{state.missed} tick(s) lost on the way (best effort)", style="yellow"))
 
