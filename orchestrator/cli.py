@@ -32,7 +32,7 @@ from node_runtime.model.policies import POLICIES
 from node_runtime.runtime import cli_options
 from node_runtime.runtime.keys import new_sim_id
 from node_runtime.runtime.layout import LAYOUTS, ProcessLayout
-from orchestrator import registry
+from orchestrator import local_sims
 from orchestrator.arguments import COUNT, NON_NEGATIVE, POSITIVE, integer
 from orchestrator.clock import ClockError
 from orchestrator.metrics import ConservationError, TickReport
@@ -119,12 +119,13 @@ def cmd_launch(args: argparse.Namespace) -> int:
 
 @contextlib.contextmanager
 def listed(sim: Simulation, console: Console) -> Iterator[None]:
-    """A Zenoh simulation is in this host's registry while it runs, for a bare `orchestrator monitor`."""
+    """A Zenoh simulation is listed on this host (orchestrator.local_sims) while it runs, for a bare
+    `orchestrator monitor`."""
     with contextlib.ExitStack() as stack:
         if sim.endpoint is not None:
             try:
-                stack.enter_context(registry.registered(sim.keys.sim_id, sim.endpoint, sim.scenario.name))
-            except registry.RegistryError as exc:
+                stack.enter_context(local_sims.registered(sim.keys.sim_id, sim.endpoint, sim.scenario.name))
+            except local_sims.LocalSimsError as exc:
                 console.print(f"not listed for `orchestrator monitor` on this host ({exc}): monitors need --connect",
                               markup=False)
         yield

@@ -1,6 +1,6 @@
-"""A bare `orchestrator monitor` finds what `orchestrator launch` runs on this host (orchestrator.registry).
+"""A bare `orchestrator monitor` finds what `orchestrator launch` runs on this host (orchestrator.local_sims).
 
-Each test has a registry of its own (XDG_RUNTIME_DIR in its temporary directory), so simulations
+Each test has a list of its own (XDG_RUNTIME_DIR in its temporary directory), so simulations
 that others run on this host cannot interfere. Real launches and monitors in subprocesses; every wait
 is on a printed line, with a timeout that fails loudly.
 """
@@ -16,7 +16,7 @@ from pathlib import Path
 import pytest
 
 from node_runtime.runtime.zenoh_bus import free_port
-from orchestrator import registry
+from orchestrator import local_sims
 from tests.launcher import Launch, Output, assert_all_gone, served
 
 NONE_HERE = ("monitor: no simulation running on this host; start one with `orchestrator launch SCENARIO --serve`, "
@@ -47,7 +47,7 @@ def started_line(entry: dict) -> str:
 
 @pytest.mark.zenoh
 def test_a_bare_monitor_attaches_to_the_simulation_launched_here(runtime_dir, tmp_path):
-    port = free_port()  # a fixed port, as for other hosts (--listen) — the registry says where it is
+    port = free_port()  # a fixed port, as for other hosts (--listen) — its listing says where it is
     run = Launch("aot1", "--serve", "--tick-rate", "20", "--steps", "100000", "--layout", "single",
                  "--listen", f"127.0.0.1:{port}", "--out", str(tmp_path / "run"))
     run.wait_for("processes ready")
@@ -110,15 +110,15 @@ def test_registered_for_the_block_and_stale_entries_dropped(runtime_dir):
     gone = subprocess.Popen(["true"])  # a process that has come and gone: its pid is free
     gone.wait()
     folder = runtime_dir / "zenohedge"
-    with registry.registered("lab1", "tcp/0.0.0.0:7447", "aot2") as entry:
+    with local_sims.registered("lab1", "tcp/0.0.0.0:7447", "aot2") as entry:
         assert entry.endpoint == "tcp/127.0.0.1:7447"  # all interfaces: reached on loopback from here
         (folder / f"old.{gone.pid}.json").write_text(json.dumps(
             {"sim": "old", "endpoint": "tcp/127.0.0.1:1", "scenario": "aot1", "pid": gone.pid, "started": "-"}))
-        assert registry.running() == [entry]
+        assert local_sims.running() == [entry]
         assert sorted(p.name for p in folder.iterdir()) == [f"lab1.{entry.pid}.json"]
-    assert registry.running() == [] and list(folder.iterdir()) == []
-    assert registry.local_endpoint("tcp/[::]:7447") == "tcp/[::1]:7447"
-    assert registry.local_endpoint("tcp/10.0.0.1:7447") == "tcp/10.0.0.1:7447"
+    assert local_sims.running() == [] and list(folder.iterdir()) == []
+    assert local_sims.local_endpoint("tcp/[::]:7447") == "tcp/[::1]:7447"
+    assert local_sims.local_endpoint("tcp/10.0.0.1:7447") == "tcp/10.0.0.1:7447"
 
 
 def test_a_directory_others_can_write_is_refused(runtime_dir, capsys):
@@ -127,8 +127,8 @@ def test_a_directory_others_can_write_is_refused(runtime_dir, capsys):
     folder = runtime_dir / "zenohedge"
     folder.mkdir(mode=0o700)
     folder.chmod(0o777)
-    with pytest.raises(registry.RegistryError, match="writable by another user"), \
-            registry.registered("lab1", "tcp/127.0.0.1:7447", "aot2"):
+    with pytest.raises(local_sims.LocalSimsError, match="writable by another user"), \
+            local_sims.registered("lab1", "tcp/127.0.0.1:7447", "aot2"):
         pass
     assert main([]) == 2
     assert capsys.readouterr().err.splitlines() == [

@@ -3,8 +3,8 @@
     orchestrator monitor                                           # the only simulation launched on this host
     orchestrator monitor --connect tcp/10.0.0.1:7447 --sim lab1 --json | jq .delta
 
-Without ``--connect`` it follows a simulation that ``orchestrator launch`` listed in this user's
-registry on this host (``orchestrator.registry``); with it, one behind that router.
+Without ``--connect`` it follows a simulation that this user's ``orchestrator launch`` listed on this
+host (``orchestrator.local_sims``); with it, one behind that router.
 
 The monitor only subscribes (``…/metrics/tick``, ``…/events/offloaded/*``, the orchestrator's
 liveliness token) and asks ``…/session``; it never publishes. Metrics and events travel on
@@ -42,7 +42,7 @@ from node_runtime.runtime.keys import DEFAULT_PREFIX, Keys
 from node_runtime.runtime.process import ORCHESTRATOR
 from node_runtime.runtime.transport import Handler, TokenHandler, Transport, TransportError
 from node_runtime.runtime.zenoh_bus import ZenohTransport
-from orchestrator import registry
+from orchestrator import local_sims
 
 EXIT_OK, EXIT_FAILED, EXIT_USAGE = 0, 1, 2
 WINDOW_TICKS = 100  # ticks behind the task rates, utilisation and offload flows
@@ -151,11 +151,11 @@ def choose(found: list[SimInfo], wanted: str | None, endpoint: str) -> SimInfo:
     return found[0]
 
 
-def launched_here(wanted: str | None) -> registry.Entry:
+def launched_here(wanted: str | None) -> local_sims.Entry:
     """Without --connect: the simulation launched on this host (the only one, or --sim)."""
     try:
-        entries = registry.running()
-    except registry.RegistryError as exc:
+        entries = local_sims.running()
+    except local_sims.LocalSimsError as exc:
         raise MonitorError(str(exc)) from None
     listing = "".join(f"\n  {e.describe()}" for e in entries)
     if wanted is not None:

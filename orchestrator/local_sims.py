@@ -23,8 +23,8 @@ from pathlib import Path
 SUFFIX = ".json"
 
 
-class RegistryError(Exception):
-    """The registry directory cannot be trusted or written (one line, naming it)."""
+class LocalSimsError(Exception):
+    """The directory of local simulations cannot be trusted or written (one line, naming it)."""
 
 
 @dataclass(frozen=True)
@@ -56,9 +56,9 @@ def _private(path: Path, create: bool) -> bool:
     except FileNotFoundError:
         return False
     if not stat.S_ISDIR(st.st_mode):
-        raise RegistryError(f"{path}: expected a directory of simulations, found something else")
+        raise LocalSimsError(f"{path}: expected a directory of simulations, found something else")
     if st.st_uid != os.getuid() or st.st_mode & 0o022:
-        raise RegistryError(f"{path}: owned or writable by another user; remove it to monitor local simulations")
+        raise LocalSimsError(f"{path}: owned or writable by another user; remove it to monitor local simulations")
     return True
 
 
@@ -85,7 +85,7 @@ def registered(sim: str, endpoint: str, scenario: str) -> Iterator[Entry]:
         partial.replace(path)
     except OSError as exc:
         partial.unlink(missing_ok=True)
-        raise RegistryError(f"{folder}: cannot write: {exc.strerror}") from None
+        raise LocalSimsError(f"{folder}: cannot write: {exc.strerror}") from None
     try:
         yield entry
     finally:
