@@ -17,7 +17,7 @@ import os
 import stat
 import tempfile
 from collections.abc import Iterator
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, fields
 from pathlib import Path
 
 SUFFIX = ".json"
@@ -49,8 +49,12 @@ def directory() -> Path:
 def _private(path: Path, create: bool) -> bool:
     """Whether ``path`` is a directory of ours that nobody else can write (creating it if asked)."""
     if create:
-        with contextlib.suppress(FileExistsError):
+        try:
             path.mkdir(mode=0o700, parents=True)
+        except FileExistsError:
+            pass
+        except OSError as exc:
+            raise LocalSimsError(f"{path}: cannot create: {exc.strerror}") from None
     try:
         st = path.lstat()
     except FileNotFoundError:
@@ -100,10 +104,11 @@ def running() -> list[Entry]:
     entries = []
     for path in folder.glob(f"*{SUFFIX}"):
         try:
-            entry = Entry(**json.loads(path.read_text()))
-        except FileNotFoundError:  # its launch just ended
+            data = json.loads(path.read_text())
+            entry = Entry(**{f.name: data[f.name] for f in fields(Entry)})  # later versions may add fields
+        except OSError:  # its launch just ended, or it is not ours to read
             continue
-        except (ValueError, TypeError):  # not one of ours
+        except (ValueError, TypeError, KeyError):  # not a listing
             path.unlink(missing_ok=True)
             continue
         if _alive(entry.pid):

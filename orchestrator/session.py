@@ -127,7 +127,7 @@ class Simulation:
                timeout: float = 30.0) -> Simulation:
         """Drive a simulation served by ``orchestrator launch --serve`` (possibly on another host).
 
-        ``endpoint``: its Zenoh router, or an open transport on its bus (an endpoint of a served
+        ``endpoint``: its Zenoh router, or an open transport on its bus (e.g. an endpoint of an
         in-process simulation's bus), which this object then owns and closes.
         The served processes stay up when this object closes; the server gets its clock back.
         """
@@ -139,8 +139,8 @@ class Simulation:
         except BaseException:
             transport.close()
             raise
-        self._common(Scenario.from_dict(info["scenario"]), "zenoh" if isinstance(endpoint, str) else "inproc",
-                     info["layout"], keys)
+        self._common(Scenario.from_dict(info["scenario"]), "zenoh" if isinstance(transport, ZenohTransport)
+                     else "inproc", info["layout"], keys)
         self.endpoint = endpoint if isinstance(endpoint, str) else None
         self._run_started = time.perf_counter()
         self.transport = transport
