@@ -16,6 +16,19 @@ from orchestrator.session import Simulation
 ROOT = Path(__file__).resolve().parent.parent
 
 
+@pytest.fixture(autouse=True, scope="session")
+def own_runtime_dir(tmp_path_factory: pytest.TempPathFactory) -> Any:
+    """The simulations the tests launch are listed for `orchestrator monitor` (orchestrator.local_sims) in
+    a directory of this session's, not in the user's: a developer's bare monitor never sees them, and a
+    launch a test kills on purpose leaves its file there."""
+    path = tmp_path_factory.mktemp("xdg-runtime")
+    path.chmod(0o700)
+    patch = pytest.MonkeyPatch()
+    patch.setenv("XDG_RUNTIME_DIR", str(path))
+    yield path
+    patch.undo()
+
+
 def write_scenario(tmp_path: Path, data: dict[str, Any], name: str = "scenario.yaml") -> Path:
     path = tmp_path / name
     path.write_text(yaml.safe_dump(data, sort_keys=False))
