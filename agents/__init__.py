@@ -4,7 +4,8 @@
     ddqn = make_policy("ddqn", env)          # or "a2c", "ppo", "local", "random", "least_queue", ...
     train(env, ddqn, episodes=50); evaluate(env, ddqn, episodes=10)
 
-The package only uses the PettingZoo API and the observation conventions (docs/agents.md).
+The package only uses the PettingZoo API and the observation conventions (docs/agents.md), with the
+column names of ``env.observations``.
 """
 
 from __future__ import annotations

@@ -13,7 +13,8 @@ from collections.abc import Mapping
 
 import numpy as np
 
-from agents.common import NEIGHBOUR, OWN, TASK, Action, Observation, is_batch, masks_of
+from agents.common import Action, Observation, is_batch, masks_of
+from env.observations import NeighbourField, OwnField, TaskField
 
 
 class Baseline(ABC):
@@ -36,7 +37,7 @@ class Baseline(ABC):
             chosen = []
             for task, mask in zip(tasks, masks, strict=True):
                 valid = np.flatnonzero(mask)
-                if task[TASK["present"]] > 0 and len(valid) > 1:
+                if task[TaskField.PRESENT] > 0 and len(valid) > 1:
                     a = int(self.choose(agent, obs, task, valid, extra))
                     extra[a] += 1
                 else:
@@ -52,7 +53,7 @@ class Baseline(ABC):
 
 def _queues(obs: Observation) -> np.ndarray:
     """Queue length of every target: the node itself (action 0), then each neighbour slot."""
-    return np.concatenate([[obs["own"][OWN["queue"]]], obs["neighbours"][:, NEIGHBOUR["queue"]]])
+    return np.concatenate([[obs["own"][OwnField.QUEUE]], obs["neighbours"][:, NeighbourField.QUEUE]])
 
 
 class Local(Baseline):
@@ -111,17 +112,17 @@ class Greedy(Baseline):
 
     @staticmethod
     def estimate(obs: Observation, task: np.ndarray, action: int, extra: float) -> float:
-        cycles = task[TASK["instructions_g"]] * task[TASK["cpi"]] * 1e9
+        cycles = task[TaskField.INSTRUCTIONS_G] * task[TaskField.CPI] * 1e9
         if action == 0:
             own = obs["own"]
-            capacity = own[OWN["capacity_gcps"]] * 1e9
-            return (own[OWN["queue"]] + extra + 1) * cycles / capacity if capacity > 0 else math.inf
+            capacity = own[OwnField.CAPACITY_GCPS] * 1e9
+            return (own[OwnField.QUEUE] + extra + 1) * cycles / capacity if capacity > 0 else math.inf
         nb = obs["neighbours"][action - 1]
-        capacity = nb[NEIGHBOUR["capacity_gcps"]] * 1e9
-        if nb[NEIGHBOUR["occupancy"]] + extra >= nb[NEIGHBOUR["buffer"]] or capacity <= 0:
+        capacity = nb[NeighbourField.CAPACITY_GCPS] * 1e9
+        if nb[NeighbourField.OCCUPANCY] + extra >= nb[NeighbourField.BUFFER] or capacity <= 0:
             return math.inf
-        transfer = (task[TASK["input_mb"]] + task[TASK["output_mb"]]) * 8e6 / (nb[NEIGHBOUR["rate_mbps"]] * 1e6)
-        return transfer + (nb[NEIGHBOUR["queue"]] + extra + 1) * cycles / capacity
+        transfer = (task[TaskField.INPUT_MB] + task[TaskField.OUTPUT_MB]) * 8e6 / (nb[NeighbourField.RATE_MBPS] * 1e6)
+        return transfer + (nb[NeighbourField.QUEUE] + extra + 1) * cycles / capacity
 
 
 BASELINES: dict[str, type[Baseline]] = {p.name: p for p in (Local, Random, RoundRobin, LeastQueue, Greedy)}

@@ -2,8 +2,8 @@
 
 Nothing here knows the emulator: it works from the PettingZoo API and the observation conventions of
 this project's environments (a dict with ``own`` (6,), ``task`` (7,) or (B, 7), ``neighbours`` (D, 8)
-and ``action_mask``; ``task[0] == 0`` means there is nothing to decide). The field order is restated
-below rather than imported, so that the agents stay independent of ``env``.
+and ``action_mask``; ``task[TaskField.PRESENT] == 0`` means there is nothing to decide). The columns
+are named by the environment's ``OwnField``, ``TaskField`` and ``NeighbourField``.
 """
 
 from __future__ import annotations
@@ -20,15 +20,10 @@ import torch
 from gymnasium import spaces
 from torch import nn
 
+from env.observations import NeighbourField, OwnField, TaskField
+
 Observation = Mapping[str, Any]  # one agent's observation dict
 Action = int | list[int]
-
-# Field order of the observation arrays (see the environment's documentation).
-OWN = {name: i for i, name in enumerate(("queue", "occupancy", "buffer", "capacity_gcps", "tier", "undecided"))}
-TASK = {name: i for i, name in enumerate(
-    ("present", "instructions_g", "input_mb", "output_mb", "cpi", "time_left_s", "waited_ticks"))}
-NEIGHBOUR = {name: i for i, name in enumerate(
-    ("present", "queue", "occupancy", "buffer", "capacity_gcps", "tier", "rate_mbps", "age_ticks"))}
 
 
 @runtime_checkable
@@ -48,7 +43,7 @@ class Policy(Protocol):
 
 def has_decision(obs: Observation) -> bool:
     """True when the agent has at least one task to place (otherwise its action is ignored)."""
-    return bool(np.any(np.asarray(obs["task"])[..., TASK["present"]] > 0))
+    return bool(np.any(np.asarray(obs["task"])[..., TaskField.PRESENT] > 0))
 
 
 def masks_of(obs: Observation) -> list[np.ndarray]:
@@ -106,32 +101,32 @@ def flatten(own: np.ndarray, task: np.ndarray, neighbours: np.ndarray) -> np.nda
     own = own.astype(np.float64)
     task = task.astype(np.float64)
     nb = neighbours.astype(np.float64)
-    o = OWN
-    own_buffer = np.maximum(own[:, o["buffer"]], 1.0)
+    o = OwnField
+    own_buffer = np.maximum(own[:, o.BUFFER], 1.0)
     own_f = np.stack([
-        symlog(own[:, o["queue"]]), symlog(own[:, o["occupancy"]]), symlog(own[:, o["buffer"]]),
-        symlog(own[:, o["capacity_gcps"]] * 1e3), symlog(own[:, o["undecided"]]), own[:, o["tier"]],
-        own[:, o["occupancy"]] / own_buffer,
+        symlog(own[:, o.QUEUE]), symlog(own[:, o.OCCUPANCY]), symlog(own[:, o.BUFFER]),
+        symlog(own[:, o.CAPACITY_GCPS] * 1e3), symlog(own[:, o.UNDECIDED]), own[:, o.TIER],
+        own[:, o.OCCUPANCY] / own_buffer,
     ], axis=1)
-    t = TASK
-    present = task[:, t["present"]]
+    t = TaskField
+    present = task[:, t.PRESENT]
     task_f = np.stack([
-        present, task[:, t["cpi"]], symlog(task[:, t["instructions_g"]] * 1e3), symlog(task[:, t["input_mb"]]),
-        symlog(task[:, t["output_mb"]]), symlog(task[:, t["time_left_s"]]), symlog(task[:, t["waited_ticks"]]),
+        present, task[:, t.CPI], symlog(task[:, t.INSTRUCTIONS_G] * 1e3), symlog(task[:, t.INPUT_MB]),
+        symlog(task[:, t.OUTPUT_MB]), symlog(task[:, t.TIME_LEFT_S]), symlog(task[:, t.WAITED_TICKS]),
     ], axis=1)
-    n = NEIGHBOUR
-    nb_present = nb[..., n["present"]]
+    n = NeighbourField
+    nb_present = nb[..., n.PRESENT]
     nb_f = np.stack([
-        nb_present, nb[..., n["tier"]], symlog(nb[..., n["queue"]]), symlog(nb[..., n["occupancy"]]),
-        symlog(nb[..., n["buffer"]]), symlog(nb[..., n["capacity_gcps"]] * 1e3), symlog(nb[..., n["rate_mbps"]]),
-        symlog(nb[..., n["age_ticks"]]), nb[..., n["occupancy"]] / np.maximum(nb[..., n["buffer"]], 1.0),
+        nb_present, nb[..., n.TIER], symlog(nb[..., n.QUEUE]), symlog(nb[..., n.OCCUPANCY]),
+        symlog(nb[..., n.BUFFER]), symlog(nb[..., n.CAPACITY_GCPS] * 1e3), symlog(nb[..., n.RATE_MBPS]),
+        symlog(nb[..., n.AGE_TICKS]), nb[..., n.OCCUPANCY] / np.maximum(nb[..., n.BUFFER], 1.0),
     ], axis=2)
     # Estimated times of the task at each target, in seconds (capacities in cycles/s, sizes in bits).
-    cycles = task[:, t["instructions_g"]] * task[:, t["cpi"]] * 1e9  # (N,)
-    bits = (task[:, t["input_mb"]] + task[:, t["output_mb"]]) * 8e6
-    capacity = np.concatenate([own[:, None, o["capacity_gcps"]], nb[..., n["capacity_gcps"]]], axis=1) * 1e9
-    queue = np.concatenate([own[:, None, o["queue"]], nb[..., n["queue"]]], axis=1)
-    rate = nb[..., n["rate_mbps"]] * 1e6
+    cycles = task[:, t.INSTRUCTIONS_G] * task[:, t.CPI] * 1e9  # (N,)
+    bits = (task[:, t.INPUT_MB] + task[:, t.OUTPUT_MB]) * 8e6
+    capacity = np.concatenate([own[:, None, o.CAPACITY_GCPS], nb[..., n.CAPACITY_GCPS]], axis=1) * 1e9
+    queue = np.concatenate([own[:, None, o.QUEUE], nb[..., n.QUEUE]], axis=1)
+    rate = nb[..., n.RATE_MBPS] * 1e6
     valid = np.concatenate([np.ones_like(present)[:, None], nb_present], axis=1) * present[:, None]
     with np.errstate(divide="ignore", invalid="ignore"):
         execution = np.where(valid > 0, cycles[:, None] / capacity, 0.0)

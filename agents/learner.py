@@ -1,12 +1,13 @@
 """The part every learning agent shares: decision tracking, parameter sharing, checkpoints.
 
-An agent only acts when it has a task (``task[0] == 1``); the steps in between are no-ops whose action
-the environment ignores. A learner therefore sees each agent as a semi-MDP over its own decisions: the
-transition opened at a decision is closed at the agent's next decision, carrying the rewards received
-in between (discounted per environment step) and the discount gamma^k to bootstrap with, k being the
-number of steps it lasted. At the end of an episode an open transition is closed as terminal when the
-agent terminated, or bootstraps from the final observation when truncated with a task in it; truncated
-without a task there is no decision state to bootstrap from, and it is closed as terminal too.
+An agent only acts when it has a task (``task[TaskField.PRESENT] == 1``); the steps in between are
+no-ops whose action the environment ignores. A learner therefore sees each agent as a semi-MDP over
+its own decisions: the transition opened at a decision is closed at the agent's next decision,
+carrying the rewards received in between (discounted per environment step) and the discount gamma^k
+to bootstrap with, k being the number of steps it lasted. At the end of an episode an open transition
+is closed as terminal when the agent terminated, or bootstraps from the final observation when
+truncated with a task in it; truncated without a task there is no decision state to bootstrap from,
+and it is closed as terminal too.
 
 With ``shared=True`` one network serves every agent: the spaces must be uniform (pass
 ``uniform_spaces=True`` to the environment) and the agent's one-hot id is appended to its features.

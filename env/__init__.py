@@ -1,6 +1,11 @@
 """The PettingZoo environment over the emulator: ``from env import ZenohEdgeEnv``."""
 
-from env.environment import InvalidActionError, ZenohEdgeEnv
+from env.actions import InvalidActionError
+from env.environment import ZenohEdgeEnv
+from env.observations import NeighbourField, OwnField, TaskField
+from env.overrides import ScenarioOverrides
 from env.reward import PaperWeights, RewardContext, RewardTerms
+from env.wrappers import InvalidActionPenalty, PotentialShaping
 
-__all__ = ["InvalidActionError", "PaperWeights", "RewardContext", "RewardTerms", "ZenohEdgeEnv"]
+__all__ = ["InvalidActionError", "InvalidActionPenalty", "NeighbourField", "OwnField", "PaperWeights",
+           "PotentialShaping", "RewardContext", "RewardTerms", "ScenarioOverrides", "TaskField", "ZenohEdgeEnv"]

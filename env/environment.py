@@ -11,13 +11,14 @@
 One ``step`` is one decision epoch (``decision_interval`` ticks of the emulation). The actions reach
 the controllers with the first of those ticks (counted in the clock protocol like any message); the
 observations come back with the controllers' reports at the end of the last one. Observations are
-partial and one tick stale, by design (docs/model.md, "What neighbours know").
+partial and one tick stale, by design (docs/model.md, "What neighbours know"). What happens to each
+action is ruled in ``env.actions``; penalties and shaping are wrappers (``env.wrappers``).
 """
 
 from __future__ import annotations
 
-import dataclasses
-from collections.abc import Callable, Sequence
+from collections.abc import Sequence
+from numbers import Integral
 from pathlib import Path
 from typing import Any, ClassVar
 
@@ -25,11 +26,13 @@ import numpy as np
 from gymnasium import spaces
 from pettingzoo import ParallelEnv
 
+from env.actions import ActionRules
 from env.observations import DictObservation, ObservationBuilder, ObservationLayout
-from env.reward import PaperWeights, RewardContext, RewardFn, RewardTerms, paper_terms, resolve_reward, shaped
+from env.overrides import ScenarioOverrides
+from env.reward import PaperWeights, RewardContext, RewardFn, RewardTerms, paper_terms, resolve_reward
 from node_runtime.model.plugins import load
 from node_runtime.model.role import role_id
-from node_runtime.model.spec import Arrival, Scenario
+from node_runtime.model.spec import Scenario
 from node_runtime.model.view import Observation
 from node_runtime.runtime.layout import Layout
 from orchestrator.catalogue import Out
@@ -38,10 +41,6 @@ from orchestrator.scenario import load_scenario
 from orchestrator.session import Simulation
 
 AGENT_PREFIX = "ctrl_"
-
-
-class InvalidActionError(ValueError):
-    """An agent chose an action its ``action_mask`` forbids."""
 
 
 def agent_name(node: str) -> str:
@@ -62,15 +61,14 @@ class ZenohEdgeEnv(ParallelEnv):
         observation: an ``ObservationBuilder`` subclass or its import path (default: the scenario's
             ``observation`` key, else the documented Dict observation).
         reward_weights: ``PaperWeights`` overriding the paper's r_u and chi weights.
-        shaping: a potential ``Xi(observation) -> float``; adds gamma * Xi(s') - Xi(s) to the reward.
-        mode, decision_interval, batch_size: override the scenario's decision settings.
+        overrides: ``ScenarioOverrides`` of the decision mode, decision interval, batch size and arrival rate.
         max_steps: episode length in steps (default: the scenario's ``simulation.steps``, 1000); an episode
             is the reset tick plus ``max_steps`` decision epochs.
-        arrival_rate: replace the workload's arrival schedule by a constant lambda (tasks/s per source).
         agents: controllers the agents drive (node ids); the others keep their node-side policy.
         uniform_spaces: pad every agent to the largest degree, so one network fits all agents.
-        invalid_action: "raise" (default) or "penalty" (a masked action becomes 0 = local and
-            ``invalid_penalty`` is added to the reward).
+        invalid_action: what a choice the mask forbids does: "local" (default: the task stays local, and
+            ``infos[agent]["invalid_action"]`` says so) or "raise" (``InvalidActionError``, for debugging).
+            Penalise it with ``env.wrappers.InvalidActionPenalty``.
         render_mode: None, "ansi", "rgb_array" or "human".
         connect, sim_id: attach to a simulation served by ``orchestrator launch --serve`` instead of
             starting one (give the endpoint it printed, e.g. "tcp/10.0.0.5:7447", and its id).
@@ -84,36 +82,27 @@ class ZenohEdgeEnv(ParallelEnv):
     def __init__(self, scenario: str | Path | dict | Scenario = "aot1", *, seed: int | None = None,
                  transport: str = "zenoh", layout: Layout | None = None, reward: str | RewardFn | None = None,
                  observation: type[ObservationBuilder] | str | None = None,
-                 reward_weights: PaperWeights | None = None, shaping: Callable[[dict], float] | None = None,
-                 gamma: float = 0.99, mode: str | None = None, decision_interval: int | None = None,
-                 batch_size: int | None = None, max_steps: int | None = None, arrival_rate: float | None = None,
-                 agents: Sequence[str] | None = None, uniform_spaces: bool = False,
-                 invalid_action: str = "raise", invalid_penalty: float = -10.0, render_mode: str | None = None,
+                 reward_weights: PaperWeights | None = None, overrides: ScenarioOverrides | None = None,
+                 max_steps: int | None = None, agents: Sequence[str] | None = None, uniform_spaces: bool = False,
+                 invalid_action: str = "local", render_mode: str | None = None,
                  connect: str | None = None, sim_id: str | None = None, timeout: float = 30.0) -> None:
-        changes = {k: v for k, v in (("mode", mode), ("decision_interval", decision_interval),
-                                     ("batch_size", batch_size)) if v is not None}
+        if overrides is not None and not isinstance(overrides, ScenarioOverrides):
+            raise TypeError(f"overrides must be a ScenarioOverrides, not a {type(overrides).__name__}")
         if connect is not None:  # the served simulation fixes the scenario
             if sim_id is None:
                 raise ValueError("connect= needs sim_id= (both are printed by `orchestrator launch --serve`)")
-            if changes or arrival_rate is not None:
-                raise ValueError("mode, decision_interval, batch_size and arrival_rate cannot change a served "
-                                 "simulation; set them in its scenario file")
+            if overrides is not None:
+                raise ValueError("overrides cannot change a served simulation; set them in its scenario file")
             from orchestrator.serve import describe
 
             sc = Scenario.from_dict(describe(connect, sim_id, timeout=timeout)["scenario"])
         else:
             sc = scenario if isinstance(scenario, Scenario) else load_scenario(scenario)
-        if changes:
-            steps = sc.episode_ticks // sc.decision_interval
-            sc = dataclasses.replace(sc, **changes)
-            sc = dataclasses.replace(sc, episode_ticks=steps * sc.decision_interval)
-        if arrival_rate is not None:
-            if arrival_rate < 0:
-                raise ValueError(f"arrival_rate must be >= 0, not {arrival_rate}")
-            arrival = Arrival("constant", rate=float(arrival_rate))
-            sc = dataclasses.replace(sc, workload=dataclasses.replace(sc.workload, arrival=arrival, client_rates=()))
-        if invalid_action not in ("raise", "penalty"):
-            raise ValueError(f"invalid_action must be 'raise' or 'penalty', not {invalid_action!r}")
+        if overrides is not None:
+            sc = overrides.apply(sc)
+        if max_steps is not None and (isinstance(max_steps, bool) or not isinstance(max_steps, Integral)
+                                      or max_steps < 1):
+            raise ValueError(f"max_steps must be an integer >= 1, not {max_steps!r}")
         if render_mode is not None and render_mode not in self.metadata["render_modes"]:
             raise ValueError(f"render_mode must be one of {self.metadata['render_modes']} or None")
         self.scenario = sc
@@ -121,11 +110,7 @@ class ZenohEdgeEnv(ParallelEnv):
         self.layout = layout
         self.reward_fn = resolve_reward(reward or sc.extra.get("reward") or "paper")
         self.weights = reward_weights or PaperWeights()
-        self.shaping = shaping
-        self.gamma = gamma
         self.max_steps = max_steps or sc.episode_ticks // sc.decision_interval
-        self.invalid_action = invalid_action
-        self.invalid_penalty = invalid_penalty
         self.render_mode = render_mode
         self.connect = connect
         self.sim_id = sim_id
@@ -151,17 +136,19 @@ class ZenohEdgeEnv(ParallelEnv):
         self.builders = {a: builder(lay) for a, lay in self.layouts.items()}
         self.observation_spaces = {a: b.space() for a, b in self.builders.items()}
         self.action_spaces = {a: lay.action_space() for a, lay in self.layouts.items()}
+        targets = {a: ("local", *sc.neighbours[n]) for a, n in self.node_of.items()}
+        self.action_rules = ActionRules(self.layouts, targets, invalid_action)
 
         self.sim: Simulation | None = None
         self._seeds = np.random.default_rng(seed)
         self._next_seed = seed
         self._raw: dict[str, Observation | None] = {}
         self._obs: dict[str, dict[str, np.ndarray]] = {}
-        self._potential: dict[str, float] = {}
         self._steps = 0
-        self._last_actions: dict[str, Any] = {}
+        self._invalid = dict.fromkeys(self.possible_agents, 0)  # this episode's invalid actions, per agent
+        self._last_actions: dict[str, Any] = {}  # the last step's decisions, for the renderer
         self._renderer = None
-        self._masks: dict[str, Any] = {}
+        self._closed = False
 
     # ----- PettingZoo API -----
 
@@ -184,39 +171,37 @@ class ZenohEdgeEnv(ParallelEnv):
         self._next_seed = None
         if self.sim is None:
             self.sim = self._open()
+            self._closed = False
         external = [role_id("controller", n) for n in self.node_of.values()]
         report = self.sim.reset(episode_seed, external=external, policy=(options or {}).get("policy"))
         self.agents = list(self.possible_agents)
         self._steps = 0
+        self._invalid = dict.fromkeys(self.possible_agents, 0)
         self._last_actions = {}
         self._observe()
-        self._potential = {a: self.shaping(self._obs[a]) for a in self.agents} if self.shaping else {}
         nodes = _by_node(output_values(Out.ENV, report.nodes, report.node_delta, self.sim.metrics.capacity))
         infos = {a: self._info(a, nodes, ()) for a in self.agents}
         return dict(self._obs), infos
 
     def step(self, actions: dict[str, Any]):
+        """``actions``: one per live agent; docs/env.md "Actions" says what each may be and what it does."""
         if not self.agents:
-            raise RuntimeError("step() called on a finished episode: call reset() first")
-        missing = [a for a in self.agents if a not in actions]
-        if missing:
-            raise ValueError(f"no action for {', '.join(missing)}")
+            self._not_running()
+        resolved = self.action_rules.resolve(actions, self.agents, self._raw)
         dt = self.scenario.dt
         controller_actions: dict[str, Any] = {}
-        penalised: set[str] = set()
         terms: dict[str, tuple[RewardTerms, ...]] = {}
-        for agent in self.agents:
-            action, bad = self._check(agent, actions[agent])
-            if bad:
-                penalised.add(agent)
+        for agent, action in resolved.decisions.items():
             raw = self._raw[agent]
-            if raw is not None and raw.tasks:
-                controller_actions[self._role[agent]] = action
-                if isinstance(action, int):
-                    terms[agent] = (paper_terms(raw, raw.tasks[0], action, dt, self.weights),)
-                else:
-                    terms[agent] = tuple(paper_terms(raw, t, a, dt, self.weights)
-                                         for t, a in zip(raw.tasks, action, strict=False))
+            controller_actions[self._role[agent]] = action
+            if isinstance(action, int):
+                terms[agent] = (paper_terms(raw, raw.tasks[0], action, dt, self.weights),)
+            else:
+                terms[agent] = tuple(paper_terms(raw, t, a, dt, self.weights)
+                                     for t, a in zip(raw.tasks, action, strict=True))
+        for agent in resolved.invalid:
+            self._invalid[agent] += 1
+        self._last_actions = resolved.decisions
         reports = [self.sim.step(controller_actions)]
         for _ in range(self.scenario.decision_interval - 1):
             reports.append(self.sim.step())
@@ -234,24 +219,18 @@ class ZenohEdgeEnv(ParallelEnv):
             row = self._row[agent]
             delta = deltas[row]
             agent_terms = terms.get(agent, ())
-            ctx = RewardContext(agent, self.node_of[agent], before[agent], actions[agent], self._raw[agent],
+            ctx = RewardContext(agent, self.node_of[agent], before[agent], resolved.actions[agent], self._raw[agent],
                                 agent_terms, delta, dt)
-            r = float(self.reward_fn(ctx))
-            if agent in penalised:
-                r += self.invalid_penalty
-            if self.shaping:
-                after = self.shaping(self._obs[agent])
-                r = shaped(r, self._potential[agent], after, self.gamma)
-                self._potential[agent] = after
-            rewards[agent] = r
+            rewards[agent] = float(self.reward_fn(ctx))
             infos[agent] = {"tick": tick, "node": nodes[row],
-                            "reward_terms": [t.as_dict() for t in agent_terms], "invalid_action": agent in penalised}
+                            "reward_terms": [t.as_dict() for t in agent_terms],
+                            "invalid_action": agent in resolved.invalid, "invalid_action_count": self._invalid[agent]}
         truncated = self._steps >= self.max_steps
         terminations = dict.fromkeys(self.agents, False)
         truncations = dict.fromkeys(self.agents, truncated)
         observations = dict(self._obs)
-        if truncated:  # the episode's metrics, as in summary.json, without the wall-clock "run" block
-            episode = {k: v for k, v in self.sim.summary().items() if k != "run"}
+        if truncated:  # the episode's metrics, as in env.summary(), without the wall-clock "run" block
+            episode = {k: v for k, v in self.summary().items() if k != "run"}
             for agent in self.agents:
                 infos[agent]["episode"] = episode
             self.agents = []
@@ -276,16 +255,28 @@ class ZenohEdgeEnv(ParallelEnv):
             self.sim.close()
             self.sim = None
         self.agents = []
+        self._closed = True
 
     # ----- results -----
 
     def summary(self) -> dict[str, Any]:
-        """The episode's metrics so far, as in ``summary.json`` of ``orchestrator launch``."""
+        """The episode's metrics so far, as in ``summary.json`` of ``orchestrator launch``, plus the agents'
+        invalid actions (``invalid_actions``: total and per agent)."""
         if self.sim is None:
-            raise RuntimeError("no episode has run yet")
-        return self.sim.summary()
+            raise RuntimeError("no episode has run yet" if not self._closed else "the environment is closed")
+        invalid = {"total": sum(self._invalid.values()), "by_agent": dict(self._invalid)}
+        return {**self.sim.summary(), "invalid_actions": invalid}
 
     # ----- internals -----
+
+    def _not_running(self) -> None:
+        """Why there is no episode to step: never reset, closed, or over."""
+        if self._closed:
+            raise RuntimeError("step() after close(): call reset() to start the environment again")
+        if self.sim is None:
+            raise RuntimeError("step() before reset(): call reset() to start an episode")
+        raise RuntimeError(f"step() after the episode ended (every agent truncated at step {self._steps}): "
+                           "call reset() to start a new one")
 
     def _open(self) -> Simulation:
         if self.connect is not None:
@@ -297,38 +288,7 @@ class ZenohEdgeEnv(ParallelEnv):
         for agent, role in self._role.items():
             raw = by_role.get(role)
             self._raw[agent] = raw
-            self._masks[agent] = self.layouts[agent].masks(raw)
             self._obs[agent] = self.builders[agent].encode(raw)
-
-    def _check(self, agent: str, action: Any) -> tuple[Any, bool]:
-        """The action to send, and whether it broke the mask (raises in "raise" mode)."""
-        mask = self._masks[agent]
-        layout = self.layouts[agent]
-        if layout.batch is None:
-            a = int(action)
-            if 0 <= a < mask.shape[0] and mask[a]:
-                return a, False
-            return self._invalid(agent, a, mask), True
-        acts = [int(x) for x in np.asarray(action).reshape(-1)]
-        if len(acts) != layout.batch:
-            raise ValueError(f"{agent}: expected {layout.batch} actions (batch mode), got {len(acts)}")
-        bad = False
-        for k, a in enumerate(acts):
-            if not (0 <= a < layout.n_actions and mask[k][a]):
-                acts[k] = self._invalid(agent, a, mask[k])
-                bad = True
-        return acts, bad
-
-    def _invalid(self, agent: str, action: int, mask: np.ndarray) -> int:
-        allowed = [int(i) for i in np.flatnonzero(mask)]
-        if self.invalid_action == "raise":
-            node = self.node_of[agent]
-            names = ["local", *self.scenario.neighbours[node]]
-            raise InvalidActionError(
-                f"{agent}: action {action} is masked; allowed now: "
-                + ", ".join(f"{i} ({names[i]})" for i in allowed if i < len(names))
-                + " — pass invalid_action='penalty' to ZenohEdgeEnv to penalise instead of raising")
-        return 0
 
     def _info(self, agent: str, nodes: list[dict[str, Any]], terms: tuple[RewardTerms, ...]) -> dict[str, Any]:
         return {"tick": self.sim.tick, "node": nodes[self._row[agent]], "reward_terms": [t.as_dict() for t in terms]}

@@ -12,13 +12,15 @@ in docs/env.md):
 - ``action_mask`` (1 + D,) int8 — in batch mode a tuple of B such arrays, one per task slot (the form
   ``MultiDiscrete.sample(mask)`` takes): 1 where the action is allowed.
 
-D is the agent's degree, or the largest degree of all agents with ``uniform=True`` (padding slots
-have present = 0 and a masked action), so that one network can serve every agent.
+D is the agent's degree, or the largest degree of all agents with ``uniform_spaces=True`` (padding slots
+have present = 0 and a masked action), so that one network can serve every agent. The columns are
+named by ``OwnField``, ``TaskField`` and ``NeighbourField``, for the encoder here and for the agents.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
+from enum import IntEnum
 from functools import cached_property
 from typing import Any
 
@@ -27,10 +29,48 @@ from gymnasium import spaces
 
 from node_runtime.model.view import Observation
 
-OWN_FIELDS = ("queue", "occupancy", "buffer", "capacity_gcps", "tier", "undecided")
-TASK_FIELDS = ("present", "instructions_g", "input_mb", "output_mb", "cpi", "time_left_s", "waited_ticks")
-NEIGHBOUR_FIELDS = ("present", "queue", "occupancy", "buffer", "capacity_gcps", "tier", "rate_mbps", "age_ticks")
-TIME_LEFT = TASK_FIELDS.index("time_left_s")
+
+class OwnField(IntEnum):
+    """Columns of ``own``: ``obs["own"][OwnField.QUEUE]``."""
+
+    QUEUE = 0  # tasks admitted for processing
+    OCCUPANCY = 1  # queued + undecided
+    BUFFER = 2  # Q_max
+    CAPACITY_GCPS = 3
+    TIER = 4
+    UNDECIDED = 5
+
+
+class TaskField(IntEnum):
+    """Columns of ``task`` (of each row of it in batch mode): ``obs["task"][TaskField.PRESENT]``."""
+
+    PRESENT = 0  # 1 when there is a task to place; 0: nothing to decide
+    INSTRUCTIONS_G = 1
+    INPUT_MB = 2
+    OUTPUT_MB = 3
+    CPI = 4
+    TIME_LEFT_S = 5  # < 0 once past the deadline
+    WAITED_TICKS = 6
+
+
+class NeighbourField(IntEnum):
+    """Columns of ``neighbours`` (one row per slot): ``obs["neighbours"][:, NeighbourField.QUEUE]``."""
+
+    PRESENT = 0  # 0 in a padding slot
+    QUEUE = 1
+    OCCUPANCY = 2
+    BUFFER = 3
+    CAPACITY_GCPS = 4
+    TIER = 5
+    RATE_MBPS = 6  # of the link from this node
+    AGE_TICKS = 7  # of the information
+
+
+# Columns the encoder fills once (static) and at every step (dynamic), as index arrays.
+_OWN_STATIC = np.array([OwnField.BUFFER, OwnField.CAPACITY_GCPS, OwnField.TIER])
+_NEIGHBOUR_STATIC = np.array([NeighbourField.PRESENT, NeighbourField.BUFFER, NeighbourField.CAPACITY_GCPS,
+                              NeighbourField.TIER, NeighbourField.RATE_MBPS])
+_NEIGHBOUR_DYNAMIC = np.array([NeighbourField.QUEUE, NeighbourField.OCCUPANCY, NeighbourField.AGE_TICKS])
 
 
 @dataclass(frozen=True)
@@ -47,14 +87,14 @@ class ObservationLayout:
 
     def space(self) -> spaces.Dict:
         inf = np.float32(np.inf)
-        task_shape = (len(TASK_FIELDS),) if self.batch is None else (self.batch, len(TASK_FIELDS))
+        task_shape = (len(TaskField),) if self.batch is None else (self.batch, len(TaskField))
         task_low = np.zeros(task_shape, dtype=np.float32)
-        task_low[..., TIME_LEFT] = -inf  # an undecided task may already be past its deadline
+        task_low[..., TaskField.TIME_LEFT_S] = -inf  # an undecided task may already be past its deadline
         mask = spaces.Box(0, 1, (self.n_actions,), np.int8)
         return spaces.Dict({
-            "own": spaces.Box(0.0, inf, (len(OWN_FIELDS),), np.float32),
+            "own": spaces.Box(0.0, inf, (len(OwnField),), np.float32),
             "task": spaces.Box(task_low, np.full(task_shape, inf, dtype=np.float32), task_shape, np.float32),
-            "neighbours": spaces.Box(0.0, inf, (self.slots, len(NEIGHBOUR_FIELDS)), np.float32),
+            "neighbours": spaces.Box(0.0, inf, (self.slots, len(NeighbourField)), np.float32),
             "action_mask": mask if self.batch is None else spaces.Tuple([mask] * self.batch),
         })
 
@@ -124,10 +164,10 @@ class DictObservation(ObservationBuilder):
     def _fill_static(self, first: Observation) -> dict[str, Any]:
         template = self.layout.empty()
         own = first.own
-        template["own"][2:5] = (own.buffer, own.capacity * 1e-9, own.tier)
+        template["own"][_OWN_STATIC] = (own.buffer, own.capacity * 1e-9, own.tier)
         nb = template["neighbours"]
         for i, n in enumerate(first.neighbours):
-            nb[i, [0, 3, 4, 5, 6]] = (1.0, n.buffer, n.capacity * 1e-9, n.tier, n.rate_bps * 1e-6)
+            nb[i, _NEIGHBOUR_STATIC] = (1.0, n.buffer, n.capacity * 1e-9, n.tier, n.rate_bps * 1e-6)
         return template
 
     def encode(self, obs: Observation | None) -> dict[str, Any]:
@@ -137,14 +177,15 @@ class DictObservation(ObservationBuilder):
             self.template = self._fill_static(obs)
         out = copy_obs(self.template)
         own = out["own"]
-        own[0] = obs.own.queue
-        own[1] = obs.own.occupancy
-        own[5] = obs.undecided
+        own[OwnField.QUEUE] = obs.own.queue
+        own[OwnField.OCCUPANCY] = obs.own.occupancy
+        own[OwnField.UNDECIDED] = obs.undecided
         if obs.neighbours:
-            out["neighbours"][:len(obs.neighbours), [1, 2, 7]] = [(n.queue, n.occupancy, n.age) for n in obs.neighbours]
+            out["neighbours"][:len(obs.neighbours), _NEIGHBOUR_DYNAMIC] = [(n.queue, n.occupancy, n.age)
+                                                                             for n in obs.neighbours]
         if obs.tasks:
             tasks = out["task"] if self.layout.batch is not None else out["task"][None, :]
-            for k, task in enumerate(obs.tasks):
+            for k, task in enumerate(obs.tasks):  # the columns of TaskField, in order
                 tasks[k] = (1.0, task.instructions * 1e-9, task.input_bytes * 1e-6, task.output_bytes * 1e-6, task.cpi,
                             task.time_left, task.waited)
             out["action_mask"] = self.layout.masks(obs)

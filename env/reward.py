@@ -83,7 +83,7 @@ class RewardContext:
     agent: str
     node: str
     obs: Observation | None  # the view the agent acted on (None if its node was down)
-    action: Any  # int, or a sequence of ints in batch mode
+    action: Any  # int, or a list of ints in batch mode; a choice the mask forbade reads 0 (kept local)
     next_obs: Observation | None
     terms: tuple[RewardTerms, ...]  # paper terms of each task placed by this action
     node_delta: dict[str, float]  # change of the node's counters during the step (completed, dropped, ...)

@@ -1,8 +1,9 @@
 """``SingleAgentEnv``: a Gymnasium environment with one learning controller.
 
-The other controllers follow their node-side policy (the scenario's, or ``others_policy``). Masked
-actions are penalised rather than raising by default, since single-agent learners rarely use masks;
-the mask is still in the observation (``obs["action_mask"]``) for those that do.
+The other controllers follow their node-side policy (the scenario's, or ``others_policy``). A choice
+the mask forbids keeps the task local, as in ``ZenohEdgeEnv``, and costs ``invalid_penalty`` (the
+``InvalidActionPenalty`` wrapper), since single-agent learners rarely use masks; the mask is still in
+the observation (``obs["action_mask"]``) for those that do.
 
     from env.single_agent import SingleAgentEnv
     env = SingleAgentEnv("aot1", node="nuc_0")
@@ -17,19 +18,20 @@ from typing import Any, ClassVar
 import gymnasium
 
 from env.environment import ZenohEdgeEnv, agent_name
+from env.wrappers import InvalidActionPenalty
 
 
 class SingleAgentEnv(gymnasium.Env):
     metadata: ClassVar[dict[str, Any]] = {"render_modes": ZenohEdgeEnv.metadata["render_modes"], "render_fps": 4}
 
     def __init__(self, scenario: Any = "aot1", node: str | None = None, *, others_policy: str | None = None,
-                 invalid_action: str = "penalty", render_mode: str | None = None, **kwargs: Any) -> None:
+                 invalid_penalty: float = -10.0, render_mode: str | None = None, **kwargs: Any) -> None:
         """``node``: the learning controller (default: the scenario's first); ``kwargs`` go to ZenohEdgeEnv."""
-        probe = ZenohEdgeEnv(scenario, render_mode=render_mode, invalid_action=invalid_action, **kwargs)
+        probe = ZenohEdgeEnv(scenario, render_mode=render_mode, **kwargs)
         node = node or probe.scenario.controllers[0]
         probe.close()
-        self.env = ZenohEdgeEnv(scenario, agents=[node], render_mode=render_mode, invalid_action=invalid_action,
-                                **kwargs)
+        self.env = InvalidActionPenalty(ZenohEdgeEnv(scenario, agents=[node], render_mode=render_mode, **kwargs),
+                                        invalid_penalty)
         self.agent = agent_name(node)
         self.others_policy = others_policy
         self.render_mode = render_mode

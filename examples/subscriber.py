@@ -6,6 +6,7 @@ Needs only eclipse-zenoh and msgpack. It only subscribes, so the simulation runs
 """
 
 import json
+import os
 import queue
 import sys
 
@@ -33,3 +34,5 @@ with zenoh.open(config) as session:
                 print(f"  dropped task {m['task']} at {m['node']} in tick {m['tick']}: {m['cause']}", flush=True)
     except KeyboardInterrupt:
         pass
+    except BrokenPipeError:  # `| head` has read enough: leave quietly, as Unix filters do
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())

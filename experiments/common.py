@@ -13,7 +13,7 @@ from typing import Any
 import torch
 
 from agents import LEARNERS, LearnerConfig
-from env import ZenohEdgeEnv
+from env import ScenarioOverrides, ZenohEdgeEnv
 
 
 def add_env_arguments(parser: argparse.ArgumentParser, scenario: bool = True) -> None:
@@ -44,8 +44,8 @@ def add_learner_arguments(parser: argparse.ArgumentParser) -> None:
 def make_env(scenario: str, lam: float | None, max_steps: int, reward: str = "paper", transport: str = "inproc",
              seed: int = 0) -> ZenohEdgeEnv:
     """The environment every agent of a study runs in: padded spaces, so one network can serve all agents."""
-    return ZenohEdgeEnv(scenario, transport=transport, max_steps=max_steps, arrival_rate=lam, reward=reward,
-                        uniform_spaces=True, seed=seed)
+    return ZenohEdgeEnv(scenario, transport=transport, overrides=ScenarioOverrides(arrival_rate=lam),
+                        max_steps=max_steps, reward=reward, uniform_spaces=True, seed=seed)
 
 
 def coerce(text: str, default: Any) -> Any:

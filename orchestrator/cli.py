@@ -14,11 +14,13 @@ or bad arguments, 130 interrupted.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import datetime as dt
 import json
 import signal
 import sys
 import time
+from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
@@ -27,8 +29,10 @@ from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, T
 from rich.table import Table
 
 from node_runtime.model.policies import POLICIES
-from node_runtime.runtime.keys import CHUNK, new_sim_id
+from node_runtime.runtime import cli_options
+from node_runtime.runtime.keys import new_sim_id
 from node_runtime.runtime.layout import LAYOUTS, ProcessLayout
+from orchestrator import local_sims
 from orchestrator.arguments import COUNT, NON_NEGATIVE, POSITIVE, integer
 from orchestrator.clock import ClockError
 from orchestrator.metrics import ConservationError, TickReport
@@ -66,8 +70,6 @@ def cmd_launch(args: argparse.Namespace) -> int:
     scenario = load_scenario(args.scenario)
     ticks = (args.steps or scenario.episode_ticks // scenario.decision_interval) * scenario.decision_interval
     out = Path(args.out) if args.out else Path("runs") / f"{scenario.name}-{dt.datetime.now():%Y%m%d-%H%M%S}"
-    if args.sim_id and not CHUNK.match(args.sim_id):
-        raise UsageError(f"--sim-id: expected letters, digits, '_', '.' or '-', not {args.sim_id!r}")
     if args.serve and args.transport != "zenoh":
         raise UsageError("--serve needs --transport zenoh: other processes reach the simulation over Zenoh")
     layout = args.layout or ("single" if args.transport == "inproc" else "per-role")
@@ -93,14 +95,15 @@ def cmd_launch(args: argparse.Namespace) -> int:
 
     t0 = time.perf_counter()
     with Simulation(scenario, transport=args.transport, layout=layout, timeout=args.timeout, listen_host=host,
-                    port=port, sim_id=sim_id, placement=placement, on_waiting=waiting, join=args.connect) as sim:
+                    port=port, sim_id=sim_id, placement=placement, on_waiting=waiting, join=args.connect) as sim, \
+            listed(sim, console):
         if args.transport == "zenoh":
             console.print(f"router {sim.endpoint}, simulation id [bold]{sim.keys.sim_id}[/], "
                           f"{len(sim.plan.procs)} processes ready in {sim.startup_s:.2f} s")
         if args.serve:
-            console.print(f"serving: monitor with `orchestrator monitor --connect {sim.endpoint} --sim "
-                          f"{sim.keys.sim_id}`; attach an environment with ZenohEdgeEnv(connect=\"{sim.endpoint}\", "
-                          f"sim_id=\"{sim.keys.sim_id}\")")
+            console.print(f"serving: watch it with `orchestrator monitor` (from another host: `orchestrator monitor "
+                          f"--connect {sim.endpoint} --sim {sim.keys.sim_id}`); attach an environment with "
+                          f"ZenohEdgeEnv(connect=\"{sim.endpoint}\", sim_id=\"{sim.keys.sim_id}\")", markup=False)
         for episode in range(args.episodes):
             where = out if args.episodes == 1 else out / f"episode-{episode}"
             summary = run_episode(sim, ticks, None if seed is None else seed + episode, args, console)
@@ -117,6 +120,20 @@ def cmd_launch(args: argparse.Namespace) -> int:
         if args.serve:
             sim.server.wait(ready=lambda: console.print("serving until Ctrl-C"))
     return EXIT_OK
+
+
+@contextlib.contextmanager
+def listed(sim: Simulation, console: Console) -> Iterator[None]:
+    """A Zenoh simulation is listed on this host (orchestrator.local_sims) while it runs, for a bare
+    `orchestrator monitor`."""
+    with contextlib.ExitStack() as stack:
+        if sim.endpoint is not None:
+            try:
+                stack.enter_context(local_sims.registered(sim.keys.sim_id, sim.endpoint, sim.scenario.name))
+            except local_sims.LocalSimsError as exc:
+                console.print(f"not listed for `orchestrator monitor` on this host ({exc}): monitors need --connect",
+                              markup=False)
+        yield
 
 
 def run_episode(sim: Simulation, ticks: int, seed: int, args: argparse.Namespace, console: Console) -> dict[str, Any]:
@@ -278,8 +295,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--placement", metavar="FILE",
                    help="run the nodes listed in FILE's groups on other hosts with zenohedge-node (see deploy/); "
                         "use with --listen")
-    p.add_argument("--sim-id", metavar="ID", help="simulation id (default: random); fix it to script remote hosts")
-    p.add_argument("--connect", action="append", metavar="ENDPOINT",
+    p.add_argument("--sim-id", metavar="ID", type=cli_options.sim_id,
+                   help="simulation id (default: random); fix it to script remote hosts")
+    p.add_argument("--connect", action="append", metavar="ENDPOINT", type=cli_options.endpoint,
                    help="join the router to another Zenoh router (e.g. another simulation's), so that several "
                         "simulations share one network; repeatable")
     p.add_argument("--tick-rate", type=POSITIVE, metavar="HZ",

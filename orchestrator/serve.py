@@ -1,11 +1,12 @@
 """Serving a simulation to other processes and hosts (``orchestrator launch --serve``).
 
-Every simulation over Zenoh answers two queries through its orchestrator's ``Server``:
+Every simulation answers two requests through its orchestrator's ``Server`` (over Zenoh, or on its
+in-process bus for code in the same process):
 
 - ``…/session``: the scenario (as a dict), the layout, the current episode and the placement of
   processes on hosts — what a remote driver, a remote node group or a monitor needs;
 - ``…/control``: ``{"claim": name}`` / ``{"release": name, "episode": n}`` — while the orchestrator
-  serves (``launch --serve``, after its own episodes), one driver at a time (e.g.
+  accepts drivers (``launch --serve``, after its own episodes), one driver at a time (e.g.
   ``ZenohEdgeEnv(connect=...)``) takes the clock.
 
 A driver announces itself with the liveliness token ``…/alive/driver/<id>``; if it vanishes (the driver
@@ -15,16 +16,17 @@ processes can always tell late mail of an old episode from the current one.
 
 from __future__ import annotations
 
+import contextlib
 import secrets
 import threading
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from typing import Any
 
-from node_runtime.model.spec import Scenario
 from node_runtime.runtime.keys import DEFAULT_PREFIX, Keys
+from node_runtime.runtime.layout import ProcessLayout
+from node_runtime.runtime.transport import Transport
 from node_runtime.runtime.zenoh_bus import ZenohTransport
 from orchestrator.clock import Clock, ClockError
-from orchestrator.supervisor import Supervisor
 
 DRIVER_PREFIX = "driver/"
 
@@ -34,14 +36,17 @@ class Busy(ClockError):
 
 
 class Server:
-    def __init__(self, transport: ZenohTransport, keys: Keys, scenario: Scenario, layout: str, clock: Clock,
-                 supervisor: Supervisor, placement: dict[str, list[str]] | None = None) -> None:
+    """Answers ``…/session`` and ``…/control``. Requests are answered outside ``dispatch`` (a Zenoh
+    thread, or the requester's call in-process; see ``Transport.serve``), hence the lock.
+    ``health`` runs while ``wait`` is idle (the supervisor's check of local processes)."""
+
+    def __init__(self, transport: Transport, keys: Keys, plan: ProcessLayout, clock: Clock,
+                 health: Callable[[], None] | None = None, placement: dict[str, list[str]] | None = None) -> None:
         self.transport = transport
         self.keys = keys
-        self.scenario = scenario
-        self.layout = layout
+        self.plan = plan
         self.clock = clock
-        self.supervisor = supervisor
+        self.health = health
         self.placement = placement or {}
         self.driver: str | None = None
         self.serving = False  # remote drivers may take the clock (launch --serve, after its episodes)
@@ -52,9 +57,9 @@ class Server:
 
     def _session(self, _: Any) -> dict[str, Any]:
         with self._lock:
-            return {"type": "session", "sim": self.keys.sim_id, "scenario": self.scenario.to_dict(),
-                    "layout": self.layout, "episode": self.clock.latest, "driver": self.driver,
-                    "procs": list(self.supervisor.plan.procs), "placement": self.placement}
+            return {"type": "session", "sim": self.keys.sim_id, "scenario": self.plan.scenario.to_dict(),
+                    "layout": self.plan.layout, "episode": self.clock.latest, "driver": self.driver,
+                    "procs": list(self.plan.procs), "placement": self.placement}
 
     def _control(self, msg: dict[str, Any]) -> dict[str, Any]:
         with self._lock:
@@ -76,39 +81,48 @@ class Server:
             if not alive and name == self.driver:  # the driver died without releasing
                 self.driver = None
 
-    def wait(self, stop: threading.Event | None = None, ready: Callable[[], None] | None = None) -> None:
-        """Serve remote drivers until ``stop`` is set (or Ctrl-C), noticing dead processes meanwhile.
-        ``ready`` runs once drivers can claim the clock (to announce it)."""
-        stop = stop or threading.Event()
+    @contextlib.contextmanager
+    def accepting(self) -> Iterator[None]:
+        """Let remote drivers claim the clock inside this block; it is ours again after it."""
         with self._lock:
             self.serving = True
-        if ready is not None:
-            ready()
         try:
-            self.transport.dispatch(until=stop.is_set, idle=self.supervisor.check)
+            yield
         finally:
             with self._lock:
                 self.serving = False
                 self.driver = None
 
+    def wait(self, stop: threading.Event | None = None, ready: Callable[[], None] | None = None) -> None:
+        """Serve remote drivers until ``stop`` is set (or Ctrl-C), noticing dead processes meanwhile.
+        ``ready`` runs once drivers can claim the clock (to announce it)."""
+        stop = stop or threading.Event()
+        with self.accepting():
+            if ready is not None:
+                ready()
+            self.transport.dispatch(until=stop.is_set, idle=self.health)
+
+
+def session_of(transport: Transport, keys: Keys, timeout: float, where: str = "this endpoint") -> dict[str, Any]:
+    """The session description of a simulation, without taking its clock."""
+    try:
+        return transport.request(keys.session(), {"type": "session?"}, timeout=timeout)
+    except Exception as exc:
+        raise ClockError(f"no simulation {keys.sim_id!r} answers at {where}: {exc}") from None
+
 
 def describe(endpoint: str, sim_id: str, prefix: str = DEFAULT_PREFIX, timeout: float = 10.0) -> dict[str, Any]:
-    """The session description of a served simulation, without taking its clock."""
+    """The session description of a simulation served at a Zenoh endpoint."""
     transport = ZenohTransport.client(endpoint)
     try:
-        return transport.request(Keys(sim_id, prefix).session(), {"type": "session?"}, timeout=timeout)
-    except Exception as exc:
-        raise ClockError(f"no simulation {sim_id!r} answers at {endpoint}: {exc}") from None
+        return session_of(transport, Keys(sim_id, prefix), timeout, endpoint)
     finally:
         transport.close()
 
 
-def claim(transport: ZenohTransport, keys: Keys, timeout: float) -> tuple[dict[str, Any], str]:
+def claim(transport: Transport, keys: Keys, timeout: float) -> tuple[dict[str, Any], str]:
     """Take the clock of a served simulation; returns its session description and our driver name."""
-    try:
-        info = transport.request(keys.session(), {"type": "session?"}, timeout=timeout)
-    except Exception as exc:
-        raise ClockError(f"no simulation {keys.sim_id!r} answers at this endpoint: {exc}") from None
+    info = session_of(transport, keys, timeout)
     name = f"{DRIVER_PREFIX}{secrets.token_hex(3)}"
     answer = transport.request(keys.control(), {"type": "control", "claim": name}, timeout=timeout)
     if not answer.get("granted"):
@@ -117,5 +131,5 @@ def claim(transport: ZenohTransport, keys: Keys, timeout: float) -> tuple[dict[s
     return info, name
 
 
-def release(transport: ZenohTransport, keys: Keys, name: str, episode: int) -> None:
+def release(transport: Transport, keys: Keys, name: str, episode: int) -> None:
     transport.request(keys.control(), {"type": "control", "release": name, "episode": episode}, timeout=5.0)

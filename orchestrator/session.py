@@ -10,6 +10,8 @@ This is what ``orchestrator launch`` drives and what ``ZenohEdgeEnv`` holds:
 ``transport="inproc"`` runs the same node code in this process over an in-memory bus (layout
 ``single`` by default: one host holding every role); ``"zenoh"`` starts one OS process per role
 (``per-role``, the default) or per node (``per-node``) around a Zenoh router owned by this object.
+Either way the bus carries the same liveliness tokens and answers the same requests (``serve``), so
+monitors and drivers work on both.
 """
 
 from __future__ import annotations
@@ -28,6 +30,7 @@ from node_runtime.runtime.host import Host
 from node_runtime.runtime.inproc import InprocBus
 from node_runtime.runtime.keys import DEFAULT_PREFIX, Keys, new_sim_id
 from node_runtime.runtime.layout import Layout, ProcessLayout
+from node_runtime.runtime.process import ORCHESTRATOR
 from node_runtime.runtime.protocol import Done
 from node_runtime.runtime.transport import Transport
 from node_runtime.runtime.zenoh_bus import ZenohTransport, free_port
@@ -76,10 +79,15 @@ class Simulation:
                      Keys(sim_id or new_sim_id(), prefix))
         if transport == "inproc":
             bus = InprocBus()
-            self.drivers = [HostDriver(Host(p, self.plan), bus.endpoint(), self.keys) for p in self.plan.procs]
+            for proc in self.plan.procs:
+                host = bus.endpoint()
+                self.drivers.append(HostDriver(Host(proc, self.plan), host, self.keys))
+                host.declare_token(self.keys.alive(proc))  # ready, as a node process says once it is
             self.transport: Transport = bus.endpoint()
+            self.transport.declare_token(self.keys.alive(ORCHESTRATOR))
             self.clock = Clock(self.transport, self.keys, self.plan, timeout)
             self.live = self.transport.monitored(self.keys.metrics())
+            self.server = Server(self.transport, self.keys, self.plan, self.clock)
         else:
             router, self.endpoint = open_router(listen_host, port, join)
             self.transport = router
@@ -87,7 +95,7 @@ class Simulation:
                 self.supervisor = Supervisor(router, self.keys, self.plan)
                 self.clock = Clock(router, self.keys, self.plan, timeout, health=self.supervisor.check)
                 self.live = router.monitored(self.keys.metrics())
-                self.server = Server(router, self.keys, scenario, self.layout, self.clock, self.supervisor, placement)
+                self.server = Server(router, self.keys, self.plan, self.clock, self.supervisor.check, placement)
                 remote = {p for procs in (placement or {}).values() for p in procs}
                 local = tuple(p for p in self.plan.procs if p not in remote)
                 if remote and on_waiting is not None:
@@ -107,7 +115,7 @@ class Simulation:
         self.keys = keys
         self.metrics = Metrics(self.plan)
         self.supervisor: Supervisor | None = None
-        self.server: Server | None = None  # answers …/session and …/control (Zenoh only)
+        self.server: Server | None = None  # answers …/session and …/control (not when attached)
         self.attached: str | None = None  # our driver name, when attached to a served simulation
         self.live = None  # publisher of …/metrics/tick, for monitors
         self.endpoint: str | None = None
@@ -121,21 +129,25 @@ class Simulation:
         self._ticks_run = 0
 
     @classmethod
-    def attach(cls, endpoint: str, sim_id: str, prefix: str = DEFAULT_PREFIX, timeout: float = 30.0) -> Simulation:
+    def attach(cls, endpoint: str | Transport, sim_id: str, prefix: str = DEFAULT_PREFIX,
+               timeout: float = 30.0) -> Simulation:
         """Drive a simulation served by ``orchestrator launch --serve`` (possibly on another host).
 
+        ``endpoint``: its Zenoh router, or an open transport on its bus (e.g. an endpoint of an
+        in-process simulation's bus), which this object then owns and closes.
         The served processes stay up when this object closes; the server gets its clock back.
         """
         self = cls.__new__(cls)
         keys = Keys(sim_id, prefix)
-        transport = ZenohTransport.client(endpoint)
+        transport = ZenohTransport.client(endpoint) if isinstance(endpoint, str) else endpoint
         try:
             info, driver = claim(transport, keys, timeout)
         except BaseException:
             transport.close()
             raise
-        self._common(Scenario.from_dict(info["scenario"]), "zenoh", info["layout"], keys)
-        self.endpoint = endpoint
+        self._common(Scenario.from_dict(info["scenario"]), "zenoh" if isinstance(transport, ZenohTransport)
+                     else "inproc", info["layout"], keys)
+        self.endpoint = endpoint if isinstance(endpoint, str) else None
         self._run_started = time.perf_counter()
         self.transport = transport
         self.attached = driver

@@ -6,6 +6,7 @@ import json
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 import pytest
 import yaml
 
@@ -13,6 +14,19 @@ from orchestrator.scenario import load_scenario
 from orchestrator.session import Simulation
 
 ROOT = Path(__file__).resolve().parent.parent
+
+
+@pytest.fixture(autouse=True, scope="session")
+def own_runtime_dir(tmp_path_factory: pytest.TempPathFactory) -> Any:
+    """The simulations the tests launch are listed for `orchestrator monitor` (orchestrator.local_sims) in
+    a directory of this session's, not in the user's: a developer's bare monitor never sees them, and a
+    launch a test kills on purpose leaves its file there."""
+    path = tmp_path_factory.mktemp("xdg-runtime")
+    path.chmod(0o700)
+    patch = pytest.MonkeyPatch()
+    patch.setenv("XDG_RUNTIME_DIR", str(path))
+    yield path
+    patch.undo()
 
 
 def write_scenario(tmp_path: Path, data: dict[str, Any], name: str = "scenario.yaml") -> Path:
@@ -47,3 +61,14 @@ def aot2():
 
 def dump(obj: Any) -> str:
     return json.dumps(obj, indent=1, sort_keys=True)
+
+
+def same(a: Any, b: Any) -> bool:
+    """Exact equality of nested dicts, lists, tuples and arrays (dtype included): two environment steps agree."""
+    if isinstance(a, dict):
+        return a.keys() == b.keys() and all(same(a[k], b[k]) for k in a)
+    if isinstance(a, (list, tuple)):
+        return len(a) == len(b) and all(same(x, y) for x, y in zip(a, b, strict=True))
+    if isinstance(a, np.ndarray):
+        return a.dtype == b.dtype and np.array_equal(a, b)
+    return a == b

@@ -9,8 +9,13 @@ import subprocess
 import sys
 import threading
 import time
+from typing import Any
 
 import psutil
+
+from tests.conftest import ROOT
+
+TIMEOUT = 120.0  # seconds any single wait may take on a loaded machine before the test fails
 
 
 class Launch:
@@ -72,3 +77,60 @@ def served(run: Launch) -> tuple[str, str]:
     sim = re.search(r"simulation id (\w+)", text)
     assert endpoint and sim, text
     return endpoint.group(1), sim.group(1)
+
+
+class Output:
+    """A subprocess whose stdout and stderr lines are read in the background and waited for by content."""
+
+    def __init__(self, *args: str) -> None:
+        self.proc = subprocess.Popen(args, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=ROOT,
+                                     env={**os.environ, "COLUMNS": "120"})
+        self.out: queue.SimpleQueue[str] = queue.SimpleQueue()
+        self.err: queue.SimpleQueue[str] = queue.SimpleQueue()
+        self.readers = [threading.Thread(target=self._pump, args=(stream, q.put), daemon=True)
+                        for stream, q in ((self.proc.stdout, self.out), (self.proc.stderr, self.err))]
+        for reader in self.readers:
+            reader.start()
+
+    @staticmethod
+    def _pump(stream: Any, put: Any) -> None:
+        for line in stream:
+            put(line.rstrip("\n"))
+
+    @staticmethod
+    def _next(q: queue.SimpleQueue[str], what: str, timeout: float) -> str:
+        try:
+            return q.get(timeout=timeout)
+        except queue.Empty:
+            raise AssertionError(f"no {what} line within {timeout} s") from None
+
+    def line(self, timeout: float = TIMEOUT) -> str:
+        """The next line on stdout."""
+        return self._next(self.out, "stdout", timeout)
+
+    def wait_err(self, text: str, timeout: float = TIMEOUT) -> list[str]:
+        """stderr lines up to the first that contains ``text``."""
+        seen = [self._next(self.err, "stderr", timeout)]
+        while text not in seen[-1]:
+            seen.append(self._next(self.err, "stderr", timeout))
+        return seen
+
+    def finish(self, sig: int | None = None, timeout: float = 60.0) -> tuple[int, list[str], list[str]]:
+        """Signal (optionally) and wait for the exit: (status, unread stdout lines, unread stderr lines)."""
+        if sig is not None:
+            self.proc.send_signal(sig)
+        try:
+            status = self.proc.wait(timeout)
+        finally:
+            if self.proc.poll() is None:
+                self.proc.kill()
+        for reader in self.readers:
+            reader.join(timeout)
+        return status, drain(self.out), drain(self.err)
+
+
+def drain(q: queue.SimpleQueue[str]) -> list[str]:
+    lines = []
+    while not q.empty():
+        lines.append(q.get())
+    return lines

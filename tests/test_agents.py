@@ -12,7 +12,7 @@ from agents.a2c import A2C
 from agents.common import AgentSpec, MaskedCategorical, flat_dim, flatten_one, masked_argmax
 from agents.ddqn import td_target
 from agents.onpolicy import Record
-from env import ZenohEdgeEnv
+from env import ScenarioOverrides, TaskField, ZenohEdgeEnv
 
 # A slow task source beside a fast idle worker over a fast link: offloading is clearly the better choice.
 SLOW_FAST = {
@@ -47,9 +47,9 @@ def check_valid(obs: dict, actions: dict) -> int:
 
 @pytest.mark.parametrize("scenario", ["aot1", "aot2", "aot3", "aot4", "batch"])
 def test_baselines_pick_only_valid_actions(scenario):
-    kwargs = {"mode": "batch", "batch_size": 3} if scenario == "batch" else {}
+    mode = {"mode": "batch", "batch_size": 3} if scenario == "batch" else {}
     env = ZenohEdgeEnv("aot2" if scenario == "batch" else scenario, transport="inproc", max_steps=25,
-                       arrival_rate=0.6, **kwargs)
+                       overrides=ScenarioOverrides(arrival_rate=0.6, **mode), invalid_action="raise")
     for name, cls in BASELINES.items():
         policy = cls(seed=1)
         obs, _ = env.reset(seed=3)
@@ -59,7 +59,7 @@ def test_baselines_pick_only_valid_actions(scenario):
             actions = policy.act(obs)
             choices += check_valid(obs, actions)
             offloads += sum(np.count_nonzero(a) for a in actions.values())
-            obs, *_ = env.step(actions)  # the env raises InvalidActionError on a masked action too
+            obs, *_ = env.step(actions)  # invalid_action="raise": the env checks the masks too
         assert choices > 0, name
         if name == "local":
             assert offloads == 0
@@ -101,7 +101,8 @@ def test_masked_distribution_and_argmax_never_pick_masked_actions():
 
 
 def test_flatten_has_the_documented_size_and_finite_values():
-    env = ZenohEdgeEnv("aot2", transport="inproc", max_steps=30, uniform_spaces=True, arrival_rate=0.5)
+    env = ZenohEdgeEnv("aot2", transport="inproc", max_steps=30, uniform_spaces=True,
+                       overrides=ScenarioOverrides(arrival_rate=0.5))
     obs, _ = env.reset(seed=0)
     slots = env.observation_space(env.possible_agents[0])["neighbours"].shape[0]
     for _ in range(30):
@@ -230,7 +231,8 @@ def test_learners_beat_random_where_offloading_is_best(slow_fast, algo):
                                          ("a2c", A2CConfig(rollout_steps=8)),
                                          ("ppo", PPOConfig(rollout_steps=16, centralised_critic=True))])
 def test_checkpoint_round_trip_gives_the_same_actions(tmp_path, algo, config):
-    env = ZenohEdgeEnv("aot1", transport="inproc", max_steps=40, arrival_rate=0.5, uniform_spaces=config.shared)
+    env = ZenohEdgeEnv("aot1", transport="inproc", max_steps=40, overrides=ScenarioOverrides(arrival_rate=0.5),
+                       uniform_spaces=config.shared)
     learner = make_policy(algo, env, config)
     train(env, learner, 1)
     learner.save(tmp_path / "ckpt.pt")
@@ -243,7 +245,7 @@ def test_checkpoint_round_trip_gives_the_same_actions(tmp_path, algo, config):
         loaded.reset(11)
         actions = learner.act(obs)
         assert loaded.act(obs) == actions
-        compared += sum(int(o["task"][0]) for o in obs.values())
+        compared += sum(int(o["task"][TaskField.PRESENT]) for o in obs.values())
         obs, *_ = env.step(actions)
     assert compared > 10
     env.close()

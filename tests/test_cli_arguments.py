@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import pytest
 
+from node_runtime.runtime import remote
 from orchestrator.cli import main
 
 CASES = [
@@ -17,6 +18,10 @@ CASES = [
     (["bench", "--ticks", "0"], "argument --ticks: expected an integer >= 1 (got '0')"),
     (["trace", "alibaba", "x.csv", "--scenario", "aot2", "--out", "t.csv", "--frequency", "-1"],
      "argument --frequency: expected a number > 0 (got '-1')"),
+    (["launch", "aot1", "--sim-id", "a/b"], "argument --sim-id: expected letters, digits, '_', '.' or '-' (got 'a/b')"),
+    (["launch", "aot1", "--connect", "localhost"],
+     "argument --connect: expected an endpoint such as tcp/10.0.0.1:7447 (got 'localhost')"),
+    (["monitor", "--sim", "a/b"], "argument --sim: expected letters, digits, '_', '.' or '-' (got 'a/b')"),
 ]
 
 
@@ -32,3 +37,11 @@ def test_good_numbers_run(tmp_path, capsys):
     assert main(["launch", "aot1", "--transport", "inproc", "--steps", "3", "--tick-rate", "1000", "-q",
                  "--out", str(tmp_path)]) == 0
     assert (tmp_path / "summary.json").exists()
+
+
+def test_zenohedge_node_checks_the_same_options_the_same_way(capsys):
+    with pytest.raises(SystemExit) as exc:
+        remote.main(["--connect", "tcp/10.0.0.1:7447", "--sim", "a/b", "--group", "g"])
+    assert exc.value.code == 2
+    assert capsys.readouterr().err.strip().splitlines()[-1] == (
+        "zenohedge-node: error: argument --sim: expected letters, digits, '_', '.' or '-' (got 'a/b')")

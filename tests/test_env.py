@@ -1,4 +1,7 @@
-"""ZenohEdgeEnv: PettingZoo's own tests, transport agreement, masks, rewards, failures."""
+"""ZenohEdgeEnv: PettingZoo's own tests, transport agreement, overrides, rewards, failures.
+
+The rules for actions have their own tests (test_env_actions.py), and so do the wrappers (test_env_wrappers.py).
+"""
 
 from __future__ import annotations
 
@@ -10,10 +13,10 @@ import pytest
 from pettingzoo.test import api_test, parallel_api_test, parallel_seed_test, render_test
 from pettingzoo.utils.conversions import parallel_to_aec
 
-from env import InvalidActionError, ZenohEdgeEnv
+from env import ScenarioOverrides, TaskField, ZenohEdgeEnv
 from env.reward import paper_reward, sparse_reward
 from orchestrator.clock import ProcessFailed
-from tests.conftest import write_scenario
+from tests.conftest import same, write_scenario
 
 os.environ.setdefault("SDL_VIDEODRIVER", "dummy")
 
@@ -38,6 +41,59 @@ def n_tier(tmp_path):
     return write_scenario(tmp_path, N_TIER)
 
 
+# ----- PettingZoo's own tests, with the defaults (only the episode is shortened), on both transports -----
+
+TRANSPORTS = ["inproc", pytest.param("zenoh", marks=pytest.mark.zenoh)]
+
+
+def default_env(transport: str, **kwargs) -> ZenohEdgeEnv:
+    """``ZenohEdgeEnv()`` (aot1 over Zenoh) or its in-process twin, with a short episode."""
+    if transport == "zenoh":
+        return ZenohEdgeEnv(max_steps=12, **kwargs)
+    return ZenohEdgeEnv(transport="inproc", max_steps=12, **kwargs)
+
+
+@pytest.mark.parametrize("transport", TRANSPORTS)
+def test_parallel_api_test_with_the_defaults(transport):
+    env = default_env(transport)
+    parallel_api_test(env, num_cycles=20)
+    env.close()
+
+
+@pytest.mark.parametrize("transport", TRANSPORTS)
+def test_parallel_seed_test_with_the_defaults(transport):
+    """It samples from action_space(agent) without the mask: every such action must be accepted."""
+    parallel_seed_test(lambda: default_env(transport))
+
+
+@pytest.mark.parametrize("transport", TRANSPORTS)
+def test_aec_api_test_with_the_defaults(transport):
+    env = parallel_to_aec(default_env(transport))
+    api_test(env, num_cycles=20)
+    env.close()
+
+
+@pytest.mark.parametrize("transport", TRANSPORTS)
+def test_render_test_with_the_defaults(transport):
+    render_test(lambda render_mode=None: parallel_to_aec(default_env(transport, render_mode=render_mode)))
+
+
+@pytest.mark.parametrize("transport", TRANSPORTS)
+def test_unmasked_random_episode_with_the_defaults(transport):
+    """A whole episode of actions sampled from the space alone: nothing raises, and with every
+    neighbour a worker (aot1) no choice is masked, so nothing counts as invalid."""
+    env = default_env(transport)
+    env.reset(seed=3)
+    for i, agent in enumerate(env.possible_agents):
+        env.action_space(agent).seed(i)
+    while env.agents:
+        _, _, _, _, infos = env.step({a: env.action_space(a).sample() for a in env.agents})
+        assert not any(info["invalid_action"] for info in infos.values())
+    assert env.summary()["invalid_actions"]["total"] == 0
+    assert infos[env.possible_agents[0]]["episode"]["invalid_actions"]["total"] == 0
+    env.close()
+
+
 @pytest.mark.parametrize("scenario", ["aot1", "n_tier"])
 def test_parallel_api_inproc(scenario, request):
     source = request.getfixturevalue("n_tier") if scenario == "n_tier" else scenario
@@ -47,7 +103,8 @@ def test_parallel_api_inproc(scenario, request):
 
 
 def test_parallel_api_batch_mode_and_uniform_spaces():
-    env = ZenohEdgeEnv("aot1", transport="inproc", mode="batch", batch_size=3, uniform_spaces=True, max_steps=40)
+    env = ZenohEdgeEnv("aot1", transport="inproc", overrides=ScenarioOverrides(mode="batch", batch_size=3),
+                       uniform_spaces=True, max_steps=40)
     agent = env.possible_agents[0]
     masks = env.observation_space(agent)["action_mask"]
     assert len(masks) == 3 and masks[0].shape == (1 + 11,)  # padded to the largest degree
@@ -56,30 +113,23 @@ def test_parallel_api_batch_mode_and_uniform_spaces():
     env.close()
 
 
-def test_aec_conversion_api_test():
-    env = parallel_to_aec(ZenohEdgeEnv("aot1", transport="inproc", max_steps=30))
-    api_test(env, num_cycles=40)
-    env.close()
-
-
-def test_seed_test_inproc():
-    parallel_seed_test(lambda: ZenohEdgeEnv("aot1", transport="inproc", invalid_action="penalty", max_steps=50))
-
-
-def test_render_modes(n_tier):
-    for source in ("aot1", n_tier):
-        render_test(lambda render_mode=None, s=source: parallel_to_aec(
-            ZenohEdgeEnv(s, transport="inproc", render_mode=render_mode, max_steps=20)))
+def test_render_modes_on_an_n_tier_network(n_tier):
+    render_test(lambda render_mode=None: parallel_to_aec(
+        ZenohEdgeEnv(n_tier, transport="inproc", render_mode=render_mode, max_steps=20)))
 
 
 def test_ansi_render_shows_queues_and_decisions():
     env = ZenohEdgeEnv("aot1", transport="inproc", render_mode="ansi", max_steps=30)
     obs, _ = env.reset(seed=3)
-    rng = np.random.default_rng(0)
-    for _ in range(10):
-        obs, *_ = env.step(masked_random(env, obs, rng))
-    text = env.render()
-    assert "rpi3_0" in text and "server_0" in text and "occ/buf" in text
+    agent = "ctrl_rpi3_0"
+    while not obs[agent]["task"][TaskField.PRESENT]:
+        obs, *_ = env.step(dict.fromkeys(env.agents, 0))
+    actions = dict.fromkeys(env.agents, 0)
+    actions[agent] = 1  # to nuc_0
+    env.step(actions)
+    rows = {line.split()[0]: line for line in env.render().splitlines()[2:]}
+    assert "occ/buf" in env.render() and "server_0" in rows
+    assert rows["rpi3_0"].endswith("-> nuc_0")  # the last step's decision
     env.close()
 
 
@@ -92,16 +142,6 @@ def run_episode(env, seed, actions_rng_seed, steps):
         obs, rewards, _, trunc, infos = env.step(actions)
         trace.append((actions, obs, rewards, trunc, infos))
     return trace
-
-
-def same(a, b):
-    if isinstance(a, dict):
-        return a.keys() == b.keys() and all(same(a[k], b[k]) for k in a)
-    if isinstance(a, (list, tuple)):
-        return len(a) == len(b) and all(same(x, y) for x, y in zip(a, b, strict=True))
-    if isinstance(a, np.ndarray):
-        return a.dtype == b.dtype and np.array_equal(a, b)
-    return a == b
 
 
 @pytest.mark.zenoh
@@ -136,41 +176,9 @@ def test_default_env_over_zenoh_and_reset_keeps_processes():
     assert not alive
 
 
-def test_masked_action_raises_a_clear_error():
-    env = ZenohEdgeEnv("aot1", transport="inproc", max_steps=100)
-    obs, _ = env.reset(seed=2)
-    rng = np.random.default_rng(0)
-    for _ in range(100):  # until some agent has a task to place
-        agent = next((a for a in env.agents if obs[a]["task"][0] == 1), None)
-        if agent is not None:
-            break
-        obs, *_ = env.step(masked_random(env, obs, rng))
-    assert agent is not None
-    actions = masked_random(env, obs, rng)
-    actions[agent] = env.action_space(agent).n  # out of range
-    with pytest.raises(InvalidActionError, match=rf"{agent}: action \d+ is masked; allowed now: 0 \(local\)"):
-        env.step(actions)
-    env.close()
-
-
-def test_penalty_mode_replaces_masked_action_with_local():
-    env = ZenohEdgeEnv("aot1", transport="inproc", invalid_action="penalty", invalid_penalty=-7.0, reward="sparse",
-                       max_steps=50)
-    obs, _ = env.reset(seed=2)
-    agent = env.possible_agents[0]
-    # with no task the mask allows only 0: anything else is penalised
-    assert obs[agent]["task"][0] == 0 and obs[agent]["action_mask"].tolist() == [1, 0, 0]
-    actions = dict.fromkeys(env.agents, 0)
-    actions[agent] = 2
-    _, rewards, _, _, infos = env.step(actions)
-    assert infos[agent]["invalid_action"] is True
-    assert rewards[agent] == pytest.approx(-7.0)
-    env.close()
-
-
 def test_observations_match_their_spaces_exactly():
     for mode in ("binary", "batch"):
-        env = ZenohEdgeEnv("aot2", transport="inproc", mode=mode, max_steps=200)
+        env = ZenohEdgeEnv("aot2", transport="inproc", overrides=ScenarioOverrides(mode=mode), max_steps=200)
         obs, _ = env.reset(seed=4)
         rng = np.random.default_rng(4)
         for _ in range(200):
@@ -187,12 +195,42 @@ def test_observations_match_their_spaces_exactly():
 
 
 def test_decision_interval_advances_several_ticks():
-    env = ZenohEdgeEnv("aot1", transport="inproc", decision_interval=3, max_steps=10)
+    env = ZenohEdgeEnv("aot1", transport="inproc", overrides=ScenarioOverrides(decision_interval=3), max_steps=10)
     _, infos = env.reset(seed=0)
     assert infos[env.possible_agents[0]]["tick"] == 0
     _, _, _, _, infos = env.step(dict.fromkeys(env.agents, 0))
     assert infos[env.possible_agents[0]]["tick"] == 3
     env.close()
+
+
+def test_overrides_change_the_scenario_and_keep_the_episode_length():
+    base = ZenohEdgeEnv("aot2", transport="inproc").scenario
+    sc = ZenohEdgeEnv("aot2", transport="inproc", overrides=ScenarioOverrides(
+        mode="batch", decision_interval=2, batch_size=5, arrival_rate=0.4)).scenario
+    assert (sc.mode, sc.decision_interval, sc.batch_size) == ("batch", 2, 5)
+    assert sc.episode_ticks // sc.decision_interval == base.episode_ticks // base.decision_interval
+    assert sc.workload.arrival.kind == "constant" and sc.workload.arrival.rate == 0.4
+    assert ZenohEdgeEnv("aot2", transport="inproc", overrides=ScenarioOverrides()).scenario == base
+
+
+@pytest.mark.parametrize("kwargs,message", [
+    ({"mode": "batched"}, "mode must be 'binary' or 'batch', not 'batched'"),
+    ({"decision_interval": 0}, "decision_interval must be an integer >= 1, not 0"),
+    ({"batch_size": 2.5}, "batch_size must be an integer >= 1, not 2.5"),
+    ({"arrival_rate": -1.0}, r"arrival_rate must be a number >= 0 \(tasks/s per source\), not -1.0"),
+])
+def test_bad_overrides_say_what_was_expected(kwargs, message):
+    with pytest.raises(ValueError, match=f"^ScenarioOverrides: {message}$"):
+        ScenarioOverrides(**kwargs)
+
+
+def test_bad_environment_arguments_say_what_was_expected():
+    with pytest.raises(TypeError, match=r"^overrides must be a ScenarioOverrides, not a dict$"):
+        ZenohEdgeEnv("aot1", transport="inproc", overrides={"mode": "batch"})
+    with pytest.raises(ValueError, match=r"^max_steps must be an integer >= 1, not 0$"):
+        ZenohEdgeEnv("aot1", transport="inproc", max_steps=0)
+    with pytest.raises(ValueError, match=r"^invalid_action must be 'local' .* or 'raise', not 'penalty'$"):
+        ZenohEdgeEnv("aot1", transport="inproc", invalid_action="penalty")
 
 
 def test_truncation_and_episode_summary():
@@ -208,31 +246,8 @@ def test_truncation_and_episode_summary():
     assert episode["ticks"] == 26 and "run" not in episode  # the reset tick, then 25 epochs of one tick
     t = episode["totals"]
     assert t["generated"] == t["completed"] + t["dropped"]["total"] + t["in_system"]
-    with pytest.raises(RuntimeError, match="reset"):
-        env.step({})
+    assert episode["invalid_actions"] == {"total": 0, "by_agent": dict.fromkeys(env.possible_agents, 0)}
     env.close()
-
-
-def test_sparse_reward_and_potential_shaping():
-    def potential(obs):
-        return -float(obs["own"][1])  # fewer tasks in the buffer is better
-
-    plain = ZenohEdgeEnv("aot1", transport="inproc", reward="sparse", max_steps=40)
-    shaped = ZenohEdgeEnv("aot1", transport="inproc", reward="sparse", shaping=potential, gamma=0.9, max_steps=40)
-    plain.reset(seed=8)
-    obs_s, _ = shaped.reset(seed=8)
-    for _ in range(40):
-        actions = dict.fromkeys(plain.agents, 0)
-        _, r_p, *_ = plain.step(actions)
-        next_s, r_s, _, _, infos = shaped.step(actions)
-        for agent in plain.possible_agents:
-            expected = r_p[agent] + 0.9 * potential(next_s[agent]) - potential(obs_s[agent])
-            assert r_s[agent] == pytest.approx(expected)
-            node = infos[agent]["node"]
-            assert node["completed"] >= 0 and node["dropped"] >= 0
-        obs_s = next_s
-    plain.close()
-    shaped.close()
 
 
 def test_custom_reward_callable_sees_the_context():

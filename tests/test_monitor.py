@@ -32,68 +32,9 @@ from node_runtime.runtime.zenoh_bus import ZenohTransport, free_port, zenoh_conf
 from orchestrator.scenario import load_scenario
 from orchestrator.session import Simulation
 from orchestrator.units import si
-from orchestrator.viewers.monitor import WINDOW_TICKS, BusMonitor, DashboardState, main, queue_bar, render
+from orchestrator.viewers.monitor import WINDOW_TICKS, BusMonitor, DashboardState, Follower, main, queue_bar, render
 from tests.conftest import ROOT, model_part, run_summary
-from tests.launcher import Launch, assert_all_gone, served
-
-TIMEOUT = 120.0  # seconds any single wait may take on a loaded machine before the test fails
-
-
-class Output:
-    """A subprocess whose stdout and stderr lines are read in the background and waited for by content."""
-
-    def __init__(self, *args: str) -> None:
-        self.proc = subprocess.Popen(args, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=ROOT,
-                                     env={**os.environ, "COLUMNS": "120"})
-        self.out: queue.SimpleQueue[str] = queue.SimpleQueue()
-        self.err: queue.SimpleQueue[str] = queue.SimpleQueue()
-        self.readers = [threading.Thread(target=self._pump, args=(stream, q.put), daemon=True)
-                        for stream, q in ((self.proc.stdout, self.out), (self.proc.stderr, self.err))]
-        for reader in self.readers:
-            reader.start()
-
-    @staticmethod
-    def _pump(stream: Any, put: Any) -> None:
-        for line in stream:
-            put(line.rstrip("\n"))
-
-    @staticmethod
-    def _next(q: queue.SimpleQueue[str], what: str, timeout: float) -> str:
-        try:
-            return q.get(timeout=timeout)
-        except queue.Empty:
-            raise AssertionError(f"no {what} line within {timeout} s") from None
-
-    def line(self, timeout: float = TIMEOUT) -> str:
-        """The next line on stdout."""
-        return self._next(self.out, "stdout", timeout)
-
-    def wait_err(self, text: str, timeout: float = TIMEOUT) -> list[str]:
-        """stderr lines up to the first that contains ``text``."""
-        seen = [self._next(self.err, "stderr", timeout)]
-        while text not in seen[-1]:
-            seen.append(self._next(self.err, "stderr", timeout))
-        return seen
-
-    def finish(self, sig: int | None = None, timeout: float = 60.0) -> tuple[int, list[str], list[str]]:
-        """Signal (optionally) and wait for the exit: (status, unread stdout lines, unread stderr lines)."""
-        if sig is not None:
-            self.proc.send_signal(sig)
-        try:
-            status = self.proc.wait(timeout)
-        finally:
-            if self.proc.poll() is None:
-                self.proc.kill()
-        for reader in self.readers:
-            reader.join(timeout)
-        return status, drain(self.out), drain(self.err)
-
-
-def drain(q: queue.SimpleQueue[str]) -> list[str]:
-    lines = []
-    while not q.empty():
-        lines.append(q.get())
-    return lines
+from tests.launcher import TIMEOUT, Launch, Output, assert_all_gone, served
 
 
 def monitor_cli(*args: str) -> Output:
@@ -202,6 +143,19 @@ def test_dashboard_marks_overload_idle_and_gaps(recorded):
     assert "waiting for the first tick" in empty
 
 
+def test_response_time_says_what_the_episode_completed_before_attaching(recorded):
+    """--once sees one tick: its percentiles cover only the completions seen, the totals the episode."""
+    records, _ = recorded
+    late = next(r for r in records if r["totals"]["completed"] and not r["response_times"])
+    state = DashboardState("5ca1ab1e", "failures")
+    state.add_metrics(late, now=0.0)
+    assert (f"response time  no completion since attaching ({late['totals']['completed']} earlier in this "
+            "episode)") in screen(state, now=0.0)
+    state = DashboardState("5ca1ab1e", "failures")
+    state.add_metrics(records[0], now=0.0)
+    assert records[0]["totals"]["completed"] == 0 and "response time  no completion yet" in screen(state, now=0.0)
+
+
 def test_new_episode_restarts_the_windows(recorded):
     records, _ = recorded
     state = replay(records[:30], [])
@@ -210,13 +164,48 @@ def test_new_episode_restarts_the_windows(recorded):
     assert state.missed == 0 and len(state.deltas) == 1 and state.tick_rate() is None
 
 
+# ----- the bus side, on the in-process bus (no router, no process) -----
+
+def test_monitor_follows_an_in_process_simulation():
+    """Discovery, the session query, metrics and offload events into the dashboard, detaching and the
+    end of the simulation: the monitor's whole bus side, on the in-process bus."""
+    with Simulation(load_scenario(ROOT / "topologies" / "examples" / "failures.yaml")) as sim:
+        sim.reset(seed=3)
+        for _ in range(20):
+            sim.step()
+        assert not sim.live.listened  # nobody watches: no metrics record is even built
+        bus = BusMonitor(sim.transport.bus.endpoint(), "the in-process bus")
+        [info] = bus.discover()
+        assert (info.sim_id, info.scenario, info.dt) == (sim.keys.sim_id, "failures", 1.0)
+        follower = Follower(info, as_json=False, once=False, console=Console(file=open(os.devnull, "w")))  # noqa: SIM115
+        bus.follow(info.sim_id, follower.on_metrics, follower.on_alive, follower.on_offload)
+        bus.dispatch(lambda: follower.announced, timeout=TIMEOUT)
+        assert sim.live.listened
+        offloaded_before = sim.summary()["totals"]["offloaded"]
+        for _ in range(60):
+            sim.step()
+        bus.dispatch(lambda: follower.state.record["tick"] == 80, timeout=TIMEOUT)
+        state, totals = follower.state, sim.summary()["totals"]
+        assert len(state.deltas) == 60 and state.missed == 0
+        assert state.record["totals"]["completed"] == totals["completed"]
+        assert len(state.offloads) == totals["offloaded"] - offloaded_before > 0
+        assert f"sim {info.sim_id} · failures" in screen(state, now=time.monotonic())
+        bus.close()
+        assert not sim.live.listened  # detached: records are no longer built
+
+        watcher = BusMonitor(sim.transport.bus.endpoint(), "the in-process bus")
+        watcher.follow(info.sim_id, lambda key, m: None, follower.on_alive)
+        assert not follower.ended
+    assert follower.ended  # the orchestrator's token went with the simulation
+
+
 # ----- command-line errors -----
 
-def test_user_errors_are_one_line_exit_2(capsys):
+def test_user_errors_are_one_line_exit_2(capsys, tmp_path, monkeypatch):
+    monkeypatch.setenv("XDG_RUNTIME_DIR", str(tmp_path))  # a registry of its own, empty: nothing launched here
+    assert main([]) == 2
     dead = f"tcp/127.0.0.1:{free_port()}"
     assert main(["--connect", dead]) == 2
-    assert main(["--connect", "localhost"]) == 2
-    assert main(["--sim", "a/b"]) == 2
     endpoint = f"tcp/127.0.0.1:{free_port()}"
     router = ZenohTransport.router(endpoint)  # a Zenoh network with no simulation on it
     try:
@@ -225,13 +214,22 @@ def test_user_errors_are_one_line_exit_2(capsys):
     finally:
         router.close()
     assert capsys.readouterr().err.splitlines() == [
+        "monitor: no simulation running on this host; start one with `orchestrator launch SCENARIO --serve`, or "
+        "give --connect ENDPOINT to watch one on another host",
         f"monitor: cannot reach {dead}: no Zenoh router answers there",
-        "monitor: --connect: expected an endpoint such as tcp/127.0.0.1:7447, not 'localhost'",
-        "monitor: --sim: expected letters, digits, '_', '.' or '-', not 'a/b'",
         f"monitor: no simulation running at {endpoint}; start one with `orchestrator launch SCENARIO --serve`, "
         "or check --connect and --prefix",
         f"monitor: no simulation 'nope' at {endpoint} (running: none)",
     ]
+    for args, error in ((["--connect", "localhost"], "argument --connect: expected an endpoint such as "
+                                                     "tcp/10.0.0.1:7447 (got 'localhost')"),
+                        (["--sim", "a/b"], "argument --sim: expected letters, digits, '_', '.' or '-' (got 'a/b')"),
+                        (["--prefix", "zedge/*"], "argument --prefix: expected key chunks without wildcards, "
+                                                  "such as zedge (got 'zedge/*')")):
+        with pytest.raises(SystemExit) as exited:
+            main(args)
+        assert exited.value.code == 2
+        assert capsys.readouterr().err.splitlines()[-1] == f"orchestrator monitor: error: {error}"
 
 
 # ----- against real runs -----
@@ -249,7 +247,7 @@ def test_attach_mid_run_sees_every_tick_and_changes_nothing(tmp_path):
         node processes' event publishing on: that must not change the run either."""
         ticks: list[dict] = []
         events: list[dict] = []
-        bus = BusMonitor(endpoint)
+        bus = BusMonitor.connect(endpoint)
         try:
             assert [i.label() for i in bus.discover()] == [f"{sim} (aot1)"]
             bus.follow(sim, lambda key, m: ticks.append(m), lambda key, alive: None)
@@ -294,7 +292,7 @@ def test_two_simulations_on_one_network_stay_apart(tmp_path):
     (end_a, sim_a), (end_b, sim_b) = (served(run) for run in runs)
     hub = zenoh.open(zenoh_config("router", listen=[f"tcp/127.0.0.1:{free_port()}"], connect=[end_a, end_b]))
     spy = ZenohTransport.client(end_b)
-    bus = BusMonitor(end_a)
+    bus = BusMonitor.connect(end_a)
     try:
         orchestrators: set[str] = set()
         spy.watch_tokens(f"zedge/*/alive/{ORCHESTRATOR}", lambda key, alive: alive and orchestrators.add(key))
@@ -387,6 +385,19 @@ def test_monitor_json_prints_every_tick(ticking):
 
 
 @pytest.mark.zenoh
+@pytest.mark.parametrize("command", ["examples/subscriber.py {endpoint} {sim}",
+                                     "-m orchestrator.viewers.monitor --connect {endpoint} --json"])
+def test_piped_into_head_they_stop_quietly(ticking, command):
+    """`… | head`: when the reader has gone, the writer leaves with status 0 and no traceback."""
+    endpoint, sim = ticking
+    shell = f"set -o pipefail; {sys.executable} {command.format(endpoint=endpoint, sim=sim)} | head -n 2"
+    done = subprocess.run(["bash", "-c", shell], cwd=ROOT, capture_output=True, text=True, timeout=TIMEOUT)
+    assert done.returncode == 0, done.stderr
+    assert len(done.stdout.splitlines()) == 2
+    assert "Traceback" not in done.stderr and "Error" not in done.stderr, done.stderr
+
+
+@pytest.mark.zenoh
 @pytest.mark.skipif(shutil.which("tmux") is None, reason="needs tmux")
 def test_dashboard_in_a_terminal(ticking, tmp_path):
     """The real dashboard in a real terminal (tmux): the screen shows nodes, queue bars and the tick rate."""
@@ -425,9 +436,14 @@ def test_dashboard_in_a_terminal(ticking, tmp_path):
         subprocess.run([*tmux, "send-keys", "-t", name, "Enter"], check=True)
         wait_for(rb"\d+ \d+")
         assert b"50 100" in stream, f"the pane is not 100x50: {bytes(stream)!r}"
-        wait_for(rb"(?s)\d ticks/s.*offl")  # a whole frame with a measured tick rate is on the screen
-        shown = subprocess.run([*tmux, "capture-pane", "-p", "-t", name], check=True, capture_output=True,
-                               text=True).stdout
+        wait_for(rb"(?s)\d ticks/s.*offloads? over the last")  # a whole frame with a measured tick rate was drawn
+        deadline = time.monotonic() + TIMEOUT
+        while True:  # the dashboard redraws in place, so a capture may catch a frame half drawn: take the next
+            shown = subprocess.run([*tmux, "capture-pane", "-p", "-t", name], check=True, capture_output=True,
+                                   text=True).stdout
+            if re.search(r"offloads? over the last", shown):
+                break
+            assert time.monotonic() < deadline, f"no whole frame captured within {TIMEOUT} s: {shown}"
         (tmp_path / "screen.txt").write_text(shown)
         assert f"sim {sim} · aot1" in shown and re.search(r"\d+\.\d ticks/s", shown), shown
         for node in load_scenario("aot1").nodes:

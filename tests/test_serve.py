@@ -1,4 +1,8 @@
-"""`orchestrator launch --serve`: environments attach from other processes and drive the clock."""
+"""`orchestrator launch --serve`: environments attach from other processes and drive the clock.
+
+The same serving runs on the in-process bus too (no router, no process), through the same
+Transport interface: describe, claim, release, a vanished driver.
+"""
 
 from __future__ import annotations
 
@@ -8,10 +12,10 @@ import numpy as np
 import pytest
 
 from env import ZenohEdgeEnv
-from orchestrator.serve import Busy
+from orchestrator.serve import Busy, claim, session_of
+from orchestrator.session import Simulation
+from tests.conftest import model_part, run_summary
 from tests.launcher import Launch, assert_all_gone, served
-
-pytestmark = pytest.mark.zenoh
 
 
 def play(env, seed, steps, actions_seed=0):
@@ -25,6 +29,7 @@ def play(env, seed, steps, actions_seed=0):
     return obs, rewards, env.summary()
 
 
+@pytest.mark.zenoh
 def test_attach_drive_detach_and_stop(tmp_path):
     run = Launch("aot1", "--serve", "--episodes", "1", "--steps", "30", "--layout", "per-node", "--out", str(tmp_path))
     run.wait_for("serving until Ctrl-C")
@@ -59,6 +64,40 @@ def test_attach_drive_detach_and_stop(tmp_path):
     run.proc.send_signal(signal.SIGTERM)
     assert run.finish(30) == 130
     assert_all_gone(children)
+
+
+def test_serving_over_the_in_process_bus(aot1):
+    with Simulation(aot1) as served_sim:
+        bus, keys = served_sim.transport.bus, served_sim.keys
+        served_sim.run(10, seed=5)  # the server's own episode 0
+        info = session_of(bus.endpoint(), keys, 1.0)
+        assert {k: info[k] for k in ("type", "sim", "layout", "episode", "driver", "procs", "placement")} == {
+            "type": "session", "sim": keys.sim_id, "layout": "single", "episode": 0, "driver": None,
+            "procs": ["all"], "placement": {}}
+        assert info["scenario"]["name"] == "aot1" and len(info["scenario"]["nodes"]) == 12
+
+        with pytest.raises(Busy, match="not serving"):  # outside `accepting`, the clock stays the server's
+            Simulation.attach(bus.endpoint(), keys.sim_id)
+        with served_sim.server.accepting():
+            driver = Simulation.attach(bus.endpoint(), keys.sim_id)
+            assert session_of(bus.endpoint(), keys, 1.0)["driver"] == driver.attached
+            with pytest.raises(Busy, match=f"held by {driver.attached}"):
+                Simulation.attach(bus.endpoint(), keys.sim_id)
+            summary = driver.run(40, seed=7)
+            assert driver.clock.episode == 1
+            driver.close()
+            assert session_of(bus.endpoint(), keys, 1.0)["driver"] is None
+
+            # a driver that vanishes without releasing: the server takes the clock back
+            lost = bus.endpoint()
+            _, name = claim(lost, keys, 1.0)
+            lost.declare_token(keys.alive(name))
+            assert session_of(bus.endpoint(), keys, 1.0)["driver"] == name
+            lost.close()
+            assert session_of(bus.endpoint(), keys, 1.0)["driver"] is None
+        served_sim.reset(seed=1)
+        assert served_sim.clock.episode == 2  # numbered after the driver's episode
+    assert model_part(summary) == model_part(run_summary(aot1, 40, seed=7))  # attached: the same emulation
 
 
 def test_connect_requires_the_sim_id():

@@ -2,7 +2,9 @@
 
 Delivery is synchronous and in publication order: ``publish`` queues the message for every
 matching subscriber and, unless a delivery is already running, delivers until the queue is empty.
-Messages are passed as objects (no encoding), which is what makes this path fast.
+Messages are passed as objects (no encoding), which is what makes this path fast. Requests, rare
+and never on the tick path, do go through the codec, so that an answer is a copy with the types it
+would have over Zenoh. Nothing here is thread-safe: one thread owns the bus.
 """
 
 from __future__ import annotations
@@ -11,7 +13,8 @@ from collections import deque
 from collections.abc import Callable
 from typing import Any
 
-from node_runtime.runtime.transport import Handler, Monitored, TokenHandler, Transport, TransportError
+from node_runtime.runtime import codec
+from node_runtime.runtime.transport import Handler, Monitored, RequestHandler, TokenHandler, Transport, TransportError
 
 
 def key_matches(a: str, b: str) -> bool:
@@ -39,6 +42,7 @@ class InprocBus:
         self._queue: deque[tuple[Callable[..., None], tuple]] = deque()
         self._delivering = False
         self._monitors: list[InprocMonitor] = []
+        self._served: dict[str, RequestHandler] = {}
 
     def endpoint(self) -> InprocEndpoint:
         return InprocEndpoint(self)
@@ -69,11 +73,27 @@ class InprocBus:
         if not self._delivering:
             self._deliver()
 
-    def subscribe(self, key_expr: str, handler: Handler) -> None:
-        self._subs.append((key_expr, handler))
+    def subscribe(self, key_expr: str, handler: Handler) -> tuple[str, Handler]:
+        """Returns the subscription, to ``drop`` it later."""
+        sub = (key_expr, handler)
+        self._subs.append(sub)
+        self._rematch()
+        return sub
+
+    def drop(self, subs: list[tuple[str, Handler]], watchers: list[tuple[str, TokenHandler]]) -> None:
+        """Remove these subscriptions and token watchers (the very objects returned when declared)."""
+        gone = {id(x) for x in subs + watchers}
+        self._subs = [s for s in self._subs if id(s) not in gone]
+        self._watchers = [w for w in self._watchers if id(w) not in gone]
+        self._rematch()
+
+    def _rematch(self) -> None:
         self._routes.clear()
         for monitor in self._monitors:
             monitor.listened = bool(self._handlers(monitor.key))
+
+    def unmatched(self, keys: list[str]) -> list[str]:
+        return [key for key in keys if not self._handlers(key)]
 
     def monitored(self, key: str) -> InprocMonitor:
         monitor = InprocMonitor(self, key)
@@ -86,11 +106,32 @@ class InprocBus:
             if key_matches(expr, key):
                 self._post(h, key, alive)
 
-    def watch(self, key_expr: str, handler: TokenHandler) -> None:
-        self._watchers.append((key_expr, handler))
+    def watch(self, key_expr: str, handler: TokenHandler) -> tuple[str, TokenHandler]:
+        watcher = (key_expr, handler)
+        self._watchers.append(watcher)
         for key in sorted(self._tokens):
             if key_matches(key_expr, key):
                 self._post(handler, key, True)
+        return watcher
+
+    def alive(self, key_expr: str) -> list[str]:
+        return sorted(key for key in self._tokens if key_matches(key_expr, key))
+
+    def serve(self, key: str, handler: RequestHandler) -> None:
+        if key in self._served:
+            raise TransportError(f"{key} is already served on this in-process bus")
+        self._served[key] = handler
+
+    def unserve(self, key: str) -> None:
+        del self._served[key]
+
+    def request(self, key_expr: str, message: Any) -> Any:
+        """The answer of the first served key (in key order) matching ``key_expr``."""
+        for key in sorted(self._served):
+            if key_matches(key_expr, key):
+                answer = self._served[key](codec.decode(codec.encode(message)))
+                return codec.decode(codec.encode(answer))
+        raise TransportError(f"nobody serves {key_expr} on the in-process bus")
 
 
 class InprocMonitor(Monitored):
@@ -107,19 +148,38 @@ class InprocEndpoint(Transport):
     def __init__(self, bus: InprocBus) -> None:
         self.bus = bus
         self._tokens: list[str] = []
+        self._subs: list[tuple[str, Handler]] = []
+        self._watchers: list[tuple[str, TokenHandler]] = []
+        self._served: list[str] = []
 
     def publish(self, key: str, message: Any) -> None:
         self.bus.publish(key, message)
 
     def subscribe(self, key_expr: str, handler: Handler) -> None:
-        self.bus.subscribe(key_expr, handler)
+        self._subs.append(self.bus.subscribe(key_expr, handler))
+
+    def wait_matching(self, keys: list[str], timeout: float) -> None:
+        """Returns or raises at once: on a bus owned by one thread, nobody can subscribe meanwhile."""
+        missing = self.bus.unmatched(keys)
+        if missing:
+            raise TransportError(f"no subscriber on the in-process bus for: {', '.join(sorted(missing))}")
 
     def declare_token(self, key: str) -> None:
         self._tokens.append(key)
         self.bus.token(key, True)
 
     def watch_tokens(self, key_expr: str, handler: TokenHandler) -> None:
-        self.bus.watch(key_expr, handler)
+        self._watchers.append(self.bus.watch(key_expr, handler))
+
+    def tokens(self, key_expr: str, timeout: float) -> list[str]:
+        return self.bus.alive(key_expr)
+
+    def serve(self, key: str, handler: RequestHandler) -> None:
+        self.bus.serve(key, handler)
+        self._served.append(key)
+
+    def request(self, key: str, message: Any, timeout: float) -> Any:
+        return self.bus.request(key, message)
 
     def dispatch(self, until: Callable[[], bool], timeout: float | None = None,
                  idle: Callable[[], None] | None = None) -> None:
@@ -132,6 +192,14 @@ class InprocEndpoint(Transport):
         return self.bus.monitored(key)
 
     def close(self) -> None:
+        """Undeclare what this endpoint declared, as closing a Zenoh session does."""
+        for key in self._served:
+            self.bus.unserve(key)
+        self._served.clear()
+        if self._subs or self._watchers:
+            self.bus.drop(self._subs, self._watchers)
+            self._subs.clear()
+            self._watchers.clear()
         for key in self._tokens:
             self.bus.token(key, False)
         self._tokens.clear()

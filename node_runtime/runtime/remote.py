@@ -19,8 +19,9 @@ import threading
 
 from node_runtime.model.spec import Scenario
 from node_runtime.runtime import process as node_process
+from node_runtime.runtime.cli_options import add_sim_options
 from node_runtime.runtime.forkserver import ForkServer
-from node_runtime.runtime.keys import DEFAULT_PREFIX, Keys
+from node_runtime.runtime.keys import Keys
 from node_runtime.runtime.process import ORCHESTRATOR, ProcSpec
 from node_runtime.runtime.zenoh_bus import ZenohTransport
 
@@ -73,11 +74,9 @@ def main(argv: list[str] | None = None) -> None:
         description="Run, on this host, the node processes placed in one group of a ZenohEdge simulation launched "
                     "elsewhere with `orchestrator launch SCENARIO --listen 0.0.0.0:PORT --placement FILE`.",
         epilog="See deploy/README.md.")
-    parser.add_argument("--connect", required=True, metavar="ENDPOINT",
-                        help="the orchestrator's router, e.g. tcp/10.0.0.1:7447")
-    parser.add_argument("--sim", required=True, metavar="ID", help="the simulation id (launch --sim-id fixes it)")
+    add_sim_options(parser, required=True, connect_help="the orchestrator's router, e.g. tcp/10.0.0.1:7447",
+                    sim_help="the simulation id (launch --sim-id fixes it)")
     parser.add_argument("--group", required=True, help="the group of the placement file this host runs")
-    parser.add_argument("--prefix", default=DEFAULT_PREFIX, help="key prefix (default: zedge)")
     parser.add_argument("--timeout", type=float, default=30.0, help="seconds to wait for the orchestrator")
     args = parser.parse_args(argv)
     sys.exit(run_group(args.connect, Keys(args.sim, args.prefix), args.group, args.timeout))

@@ -1,8 +1,10 @@
-"""The transport interface: keyed publish/subscribe, liveliness, and a dispatch loop.
+"""The transport interface: keyed publish/subscribe, liveliness, request/reply, and a dispatch loop.
 
 Two implementations share it: ``ZenohTransport`` (a Zenoh session) and ``InprocBus`` endpoints (an
-in-memory bus inside one process). Handlers always run in the thread that calls ``dispatch``, so
-protocol code never needs locks and behaves the same on both.
+in-memory bus inside one process). Subscription and token handlers always run in the thread that
+calls ``dispatch``, so protocol code never needs locks and behaves the same on both. Request
+handlers (``serve``) are the exception: a simulation must answer ``…/session`` while its owner is
+busy elsewhere, so they run outside ``dispatch`` (see ``serve``).
 """
 
 from __future__ import annotations
@@ -13,6 +15,7 @@ from typing import Any
 
 Handler = Callable[[str, Any], None]
 TokenHandler = Callable[[str, bool], None]  # (key, alive)
+RequestHandler = Callable[[Any], Any]  # request message -> answer
 
 
 class TransportError(RuntimeError):
@@ -29,12 +32,34 @@ class Transport(ABC):
         """Call ``handler(key, message)`` (from ``dispatch``) for every message matching ``key_expr``."""
 
     @abstractmethod
+    def wait_matching(self, keys: list[str], timeout: float) -> None:
+        """Return once a subscriber is known for each key, so that no first publication is lost; raise
+        ``TransportError`` naming the keys still unmatched after ``timeout`` seconds."""
+
+    @abstractmethod
     def declare_token(self, key: str) -> None:
         """Announce presence; the token vanishes when this endpoint closes or its process dies."""
 
     @abstractmethod
     def watch_tokens(self, key_expr: str, handler: TokenHandler) -> None:
         """Be told (from ``dispatch``) of tokens appearing and vanishing, current ones included."""
+
+    @abstractmethod
+    def tokens(self, key_expr: str, timeout: float) -> list[str]:
+        """The keys of the tokens alive now that match ``key_expr``, sorted (waits at most ``timeout``)."""
+
+    @abstractmethod
+    def serve(self, key: str, handler: RequestHandler) -> None:
+        """Answer every request on ``key`` with ``handler(message)``, until this endpoint closes.
+
+        The handler does not run in ``dispatch``: over Zenoh it runs in a Zenoh thread, in-process in
+        the requester's ``request`` call. It may thus run while another thread dispatches, so it must
+        guard what it reads and must neither publish nor dispatch."""
+
+    @abstractmethod
+    def request(self, key: str, message: Any, timeout: float) -> Any:
+        """The answer of whoever serves ``key`` (a wildcard key: the first to answer); raises
+        ``TransportError`` when nobody answers within ``timeout`` seconds."""
 
     @abstractmethod
     def dispatch(self, until: Callable[[], bool], timeout: float | None = None,

@@ -21,7 +21,7 @@ from typing import Any, Literal
 import zenoh
 
 from node_runtime.runtime import codec
-from node_runtime.runtime.transport import Handler, Monitored, TokenHandler, Transport, TransportError
+from node_runtime.runtime.transport import Handler, Monitored, RequestHandler, TokenHandler, Transport, TransportError
 
 Mode = Literal["router", "client", "peer"]
 IDLE_SLICE = 0.1  # seconds between idle checks while dispatching
@@ -103,7 +103,7 @@ class ZenohTransport(Transport):
         return pub
 
     def wait_matching(self, keys: list[str], timeout: float) -> None:
-        """Block until a subscriber is known for each key, so no first publication is filtered out."""
+        """Blocks on matching listeners: Zenoh filters a publication out until it knows a subscriber."""
         matched: queue.SimpleQueue[str] = queue.SimpleQueue()
         listeners = []
         missing = set()
@@ -131,8 +131,8 @@ class ZenohTransport(Transport):
 
     # ----- request / reply (session description, control) -----
 
-    def serve(self, key: str, handler: Callable[[Any], Any]) -> None:
-        """Answer requests on ``key`` with ``handler(message)``. The handler runs in a Zenoh thread."""
+    def serve(self, key: str, handler: RequestHandler) -> None:
+        """A queryable; ``handler`` runs in a Zenoh thread."""
 
         def on_query(query: zenoh.Query) -> None:  # answer on our own key: a wildcard query learns who answered
             message = codec.decode(query.payload.to_bytes()) if query.payload is not None else None
@@ -140,8 +140,7 @@ class ZenohTransport(Transport):
 
         self._entities.append(self.session.declare_queryable(key, on_query))
 
-    def request(self, key: str, message: Any, timeout: float = 10.0) -> Any:
-        """Ask whoever serves ``key``; the first answer wins."""
+    def request(self, key: str, message: Any, timeout: float) -> Any:
         for reply in self.session.get(key, payload=codec.encode(message), timeout=timeout):
             if reply.ok is not None:
                 return codec.decode(reply.ok.payload.to_bytes())
@@ -173,6 +172,12 @@ class ZenohTransport(Transport):
             q.put((handler, str(sample.key_expr), sample.kind == zenoh.SampleKind.PUT))
 
         self._entities.append(self.session.liveliness().declare_subscriber(key_expr, on_token, history=True))
+
+    def tokens(self, key_expr: str, timeout: float) -> list[str]:
+        """A liveliness query. With zenoh 1.10.2 one sent right after declaring a liveliness subscriber
+        on the same keys may miss tokens (docs/bus.md): watch them instead in that case."""
+        replies = self.session.liveliness().get(key_expr, timeout=timeout)
+        return sorted({str(reply.ok.key_expr) for reply in replies if reply.ok is not None})
 
     def dispatch(self, until: Callable[[], bool], timeout: float | None = None,
                  idle: Callable[[], None] | None = None) -> None:

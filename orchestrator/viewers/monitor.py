@@ -1,14 +1,17 @@
 """``orchestrator monitor``: watch a running simulation live, from this host or another one.
 
-    orchestrator monitor --connect tcp/127.0.0.1:7447              # the only simulation running there
+    orchestrator monitor                                           # the only simulation launched on this host
     orchestrator monitor --connect tcp/10.0.0.1:7447 --sim lab1 --json | jq .delta
+
+Without ``--connect`` it follows a simulation that this user's ``orchestrator launch`` listed on this
+host (``orchestrator.local_sims``); with it, one behind that router.
 
 The monitor only subscribes (``…/metrics/tick``, ``…/events/offloaded/*``, the orchestrator's
 liveliness token) and asks ``…/session``; it never publishes. Metrics and events travel on
 best-effort publishers that drop rather than block, so attaching or detaching at any time changes
 nothing in the run (docs/bus.md).
 
-Three layers: ``BusMonitor`` is the Zenoh side (discovery and subscriptions); ``DashboardState``
+Three layers: ``BusMonitor`` is the bus side (discovery and subscriptions, over any ``Transport``); ``DashboardState``
 folds the messages into a small state; ``render`` turns a state into a rich renderable, a pure
 function that tests drive with recorded messages and no terminal.
 """
@@ -18,7 +21,6 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import re
 import signal
 import sys
 import time
@@ -34,17 +36,17 @@ from rich.live import Live
 from rich.table import Table
 from rich.text import Text
 
+from node_runtime.runtime.cli_options import add_sim_options
 from node_runtime.runtime.codec import CodecError
-from node_runtime.runtime.keys import CHUNK, DEFAULT_PREFIX, Keys
+from node_runtime.runtime.keys import DEFAULT_PREFIX, Keys
 from node_runtime.runtime.process import ORCHESTRATOR
-from node_runtime.runtime.transport import Handler, TokenHandler, TransportError
+from node_runtime.runtime.transport import Handler, TokenHandler, Transport, TransportError
 from node_runtime.runtime.zenoh_bus import ZenohTransport
-from orchestrator.catalogue import Agg, Form, Metric, Out, shown
+from orchestrator import local_sims
+from orchestrator.catalogue import METRIC, Agg, Form, Metric, Out, shown
 from orchestrator.units import quantity
 
 EXIT_OK, EXIT_FAILED, EXIT_USAGE = 0, 1, 2
-DEFAULT_ENDPOINT = "tcp/127.0.0.1:7447"  # Zenoh's usual port, e.g. `launch --listen 0.0.0.0:7447`
-ENDPOINT = re.compile(r"^[a-z0-9]+/\S+$")
 WINDOW_TICKS = 100  # ticks behind the task rates, utilisation and offload flows
 RT_WINDOW = 1000  # samples (completions) behind the response-time percentiles
 RATE_WINDOW_S = 3.0  # wall seconds behind the measured tick rate
@@ -81,25 +83,27 @@ class SimInfo:
 
 
 class BusMonitor:
-    """A Zenoh client session that finds simulations and follows one of them, subscribing only."""
+    """A session on a bus that finds simulations and follows one of them, subscribing only.
 
-    def __init__(self, endpoint: str, prefix: str = DEFAULT_PREFIX) -> None:
-        if not ENDPOINT.match(endpoint):
-            raise MonitorError(f"--connect: expected an endpoint such as {DEFAULT_ENDPOINT}, not {endpoint!r}")
-        self.endpoint = endpoint
+    ``where`` names the bus in messages: the Zenoh endpoint, or "the in-process bus"."""
+
+    def __init__(self, transport: Transport, where: str, prefix: str = DEFAULT_PREFIX) -> None:
+        self.transport = transport
+        self.where = where
         self.prefix = prefix
+
+    @classmethod
+    def connect(cls, endpoint: str, prefix: str = DEFAULT_PREFIX) -> BusMonitor:
+        """A Zenoh client session to the router at ``endpoint``."""
         try:
-            self.transport = ZenohTransport.client(endpoint)
+            return cls(ZenohTransport.client(endpoint), endpoint, prefix)
         except Exception:  # zenoh.ZError: nothing listens there
             raise MonitorError(f"cannot reach {endpoint}: no Zenoh router answers there") from None
 
     def discover(self, timeout: float = DISCOVERY_TIMEOUT) -> list[SimInfo]:
         """Running simulations: the holders of ``{prefix}/<id>/alive/orchestrator`` tokens, by id."""
-        pattern = f"{self.prefix}/*/alive/{ORCHESTRATOR}"
-        ids = set()
-        for reply in self.transport.session.liveliness().get(pattern, timeout=timeout):
-            if reply.ok is not None:
-                ids.add(str(reply.ok.key_expr)[len(self.prefix) + 1:].split("/", 1)[0])
+        tokens = self.transport.tokens(f"{self.prefix}/*/alive/{ORCHESTRATOR}", timeout)
+        ids = {key[len(self.prefix) + 1:].split("/", 1)[0] for key in tokens}
         return [self.describe(sim_id) for sim_id in sorted(ids)]
 
     def describe(self, sim_id: str, timeout: float = DISCOVERY_TIMEOUT) -> SimInfo:
@@ -133,6 +137,7 @@ class BusMonitor:
 
 
 def choose(found: list[SimInfo], wanted: str | None, endpoint: str) -> SimInfo:
+    """The simulation to follow among those found behind ``endpoint``."""
     if wanted is not None:
         for info in found:
             if info.sim_id == wanted:
@@ -146,6 +151,30 @@ def choose(found: list[SimInfo], wanted: str | None, endpoint: str) -> SimInfo:
         raise MonitorError(f"{len(found)} simulations at {endpoint}: {', '.join(i.label() for i in found)}; "
                            "choose one with --sim ID")
     return found[0]
+
+
+def launched_here(wanted: str | None) -> local_sims.Entry:
+    """Without --connect: the simulation launched on this host (the only one, or --sim)."""
+    try:
+        entries = local_sims.running()
+    except local_sims.LocalSimsError as exc:
+        raise MonitorError(str(exc)) from None
+    listing = "".join(f"\n  {e.describe()}" for e in entries)
+    if wanted is not None:
+        entries = [e for e in entries if e.sim == wanted]
+        if not entries:
+            raise MonitorError(f"no simulation {wanted!r} launched on this host (give --connect ENDPOINT for "
+                               f"another host); running here:{listing or ' none'}")
+        if len(entries) > 1:
+            raise MonitorError(f"{len(entries)} simulations {wanted!r} on this host; choose one with --connect "
+                               f"ENDPOINT:{listing}")
+    elif not entries:
+        raise MonitorError("no simulation running on this host; start one with `orchestrator launch SCENARIO "
+                           "--serve`, or give --connect ENDPOINT to watch one on another host")
+    elif len(entries) > 1:
+        raise MonitorError(f"{len(entries)} simulations running on this host; choose one with --sim ID (or "
+                           f"--connect ENDPOINT):{listing}")
+    return entries[0]
 
 
 # ----- the dashboard's state -----
@@ -273,6 +302,18 @@ def breakdown(m: Metric, totals: dict[str, Any]) -> str:
                                                         for p in m.parts)
 
 
+def _percentiles(state: DashboardState, m: Metric, totals: dict[str, Any]) -> str:
+    """p50 and p95 of the recent samples of ``m`` (one per completion), or why there are none."""
+    pct = state.percentiles(m.key(Out.BUS))
+    if pct is not None:
+        return (f"p50 {quantity(pct[0], m.unit)}  p95 {quantity(pct[1], m.unit)}  "
+                f"(last {len(state.samples[m.key(Out.BUS)])} completions)")
+    completed = totals.get(METRIC["completed"].key(Out.BUS), 0)
+    if completed:  # the percentiles cover completions seen here; totals cover the episode
+        return f"no completion since attaching ({completed} earlier in this episode)"
+    return "no completion yet"
+
+
 def render(state: DashboardState, now: float) -> RenderableType:
     """The whole dashboard for ``state`` at wall time ``now`` (fits 80 columns)."""
     rec = state.record
@@ -307,10 +348,7 @@ def render(state: DashboardState, now: float) -> RenderableType:
                                   for m in metrics if m.agg is Agg.LEVEL))
     for m in metrics:
         if m.agg is Agg.SAMPLES:
-            pct = state.percentiles(m.key(Out.BUS))
-            head.add_row(m.label, "no completion yet" if pct is None else
-                         f"p50 {quantity(pct[0], m.unit)}  p95 {quantity(pct[1], m.unit)}  "
-                         f"(last {len(state.samples[m.key(Out.BUS)])} completions)")
+            head.add_row(m.label, _percentiles(state, m, tot))
     if state.missed:
         head.add_row("missed", Text(f"{state.missed} tick(s) lost on the way (best effort)", style="yellow"))
 
@@ -393,7 +431,7 @@ class Follower:
         except TimeoutError:  # it left between discovery and subscribing
             self.ended = True
             return
-        say(f"attached to {self.info.label()} at {bus.endpoint} (Ctrl-C to detach)")
+        say(f"attached to {self.info.label()} at {bus.where} (Ctrl-C to detach)")
         until = self.finished
         if self.as_json:
             bus.dispatch(until)
@@ -416,12 +454,13 @@ def cmd_monitor(args: argparse.Namespace) -> int:
     bus: BusMonitor | None = None
     sim = args.sim
     try:
-        if sim is not None and not CHUNK.match(sim):
-            raise MonitorError(f"--sim: expected letters, digits, '_', '.' or '-', not {sim!r}")
-        if not all(CHUNK.match(chunk) for chunk in args.prefix.split("/")):
-            raise MonitorError(f"--prefix: expected key chunks without wildcards, not {args.prefix!r}")
-        bus = BusMonitor(args.connect, args.prefix)
-        info = choose(bus.discover(), sim, args.connect)
+        endpoint = args.connect
+        if endpoint is None:
+            entry = launched_here(sim)
+            say(f"found on this host: {entry.describe()}")
+            endpoint, sim = entry.endpoint, entry.sim
+        bus = BusMonitor.connect(endpoint, args.prefix)
+        info = choose(bus.discover(), sim, endpoint)
         sim = info.sim_id
         follower = Follower(info, as_json=args.json, once=args.once, console=Console(highlight=False))
         follower.run(bus)
@@ -446,15 +485,15 @@ def cmd_monitor(args: argparse.Namespace) -> int:
 def add_parser(sub: Any) -> argparse.ArgumentParser:
     """Register ``monitor`` on the subparsers of ``orchestrator``."""
     p = sub.add_parser("monitor", help="watch a running simulation live (it is never disturbed)",
-                       description="Find the simulations running behind a Zenoh router and follow one: a live "
+                       description="Find the simulation launched on this host, or those running behind a Zenoh "
+                                   "router (--connect), and follow one: a live "
                                    "dashboard (tick rate, task rates, response times, per-node queues, offload "
                                    "flows), or one JSON metrics record per tick. It only subscribes, so it can "
                                    "attach and detach at any time. Ends on Ctrl-C or when the simulation ends.")
-    p.add_argument("--connect", metavar="ENDPOINT", default=DEFAULT_ENDPOINT,
-                   help=f"the router of the simulation, as printed by `orchestrator launch` (default "
-                        f"{DEFAULT_ENDPOINT})")
-    p.add_argument("--sim", metavar="ID", help="simulation id (default: the only one running)")
-    p.add_argument("--prefix", default=DEFAULT_PREFIX, help=f"key prefix of the simulations (default {DEFAULT_PREFIX})")
+    add_sim_options(p, required=False,
+                    connect_help="the router of the simulation, as printed by `orchestrator launch`, e.g. "
+                                 "tcp/10.0.0.1:7447 (default: the simulation launched on this host)",
+                    sim_help="simulation id (default: the only one running)")
     p.add_argument("--json", action="store_true",
                    help="print each tick's metrics record as one line of JSON (schema in docs/bus.md)")
     p.add_argument("--once", action="store_true", help="print one snapshot at the next tick and exit")

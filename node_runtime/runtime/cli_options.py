@@ -1,0 +1,41 @@
+"""Command-line options that name a simulation on the bus, defined once for ``orchestrator`` and
+``zenohedge-node``, so that every command reads and checks them the same way: a bad value is one
+``error: argument --sim: expected … (got '…')`` line and exit status 2."""
+
+from __future__ import annotations
+
+import argparse
+import re
+
+from node_runtime.runtime.keys import CHUNK, DEFAULT_PREFIX
+
+ENDPOINT = re.compile(r"^[a-z0-9]+/\S+$")  # Zenoh's <protocol>/<address>
+
+
+def endpoint(text: str) -> str:
+    """``type=`` of an option holding a Zenoh endpoint."""
+    if not ENDPOINT.match(text):
+        raise argparse.ArgumentTypeError(f"expected an endpoint such as tcp/10.0.0.1:7447 (got {text!r})")
+    return text
+
+
+def sim_id(text: str) -> str:
+    """``type=`` of an option holding a simulation id (one key chunk)."""
+    if not CHUNK.match(text):
+        raise argparse.ArgumentTypeError(f"expected letters, digits, '_', '.' or '-' (got {text!r})")
+    return text
+
+
+def prefix(text: str) -> str:
+    """``type=`` of ``--prefix``: key chunks, without wildcards."""
+    if not all(CHUNK.match(chunk) for chunk in text.split("/")):
+        raise argparse.ArgumentTypeError(f"expected key chunks without wildcards, such as zedge (got {text!r})")
+    return text
+
+
+def add_sim_options(parser: argparse.ArgumentParser, *, required: bool, connect_help: str, sim_help: str) -> None:
+    """``--connect ENDPOINT``, ``--sim ID`` and ``--prefix``: which simulation, behind which router."""
+    parser.add_argument("--connect", metavar="ENDPOINT", type=endpoint, required=required, help=connect_help)
+    parser.add_argument("--sim", metavar="ID", type=sim_id, required=required, help=sim_help)
+    parser.add_argument("--prefix", type=prefix, default=DEFAULT_PREFIX,
+                        help=f"key prefix of the simulation (default {DEFAULT_PREFIX})")
