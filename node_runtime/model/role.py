@@ -67,10 +67,6 @@ class Counters:
     # completions this tick: response times in seconds (drained by the host every tick)
     response_times: list[float] = field(default_factory=list)
 
-    @property
-    def dropped(self) -> int:
-        return self.queue_full + self.expired + self.node_failure + self.link_loss
-
 
 STAT_FIELDS: tuple[str, ...] = tuple(f.name for f in fields(Counters) if f.name != "response_times")
 read_stats = attrgetter(*STAT_FIELDS)  # Counters -> tuple of STAT_FIELDS, in one C call
