@@ -7,21 +7,63 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
-from collections.abc import Sequence
-from typing import Any
+import difflib
+import sys
+from collections.abc import Collection, Sequence
+from typing import Any, NoReturn
 
 import torch
 
 from agents import LEARNERS, LearnerConfig
 from env import ScenarioOverrides, ZenohEdgeEnv
+from orchestrator.scenario.errors import ScenarioError
+
+
+class Parser(argparse.ArgumentParser):
+    """The experiment CLIs' parser: a user's mistake is one line on stderr and exit status 2, no usage dump."""
+
+    def error(self, message: str) -> NoReturn:
+        usage_error(self.prog, message)
+
+
+def usage_error(prog: str, message: str) -> NoReturn:
+    """What the user must fix, as one line, and exit status 2 (argparse's for bad arguments)."""
+    print(f"{prog}: error: {message}", file=sys.stderr)
+    raise SystemExit(2)
+
+
+def _number(text: str, kind: type, ok: Any, expected: str) -> Any:
+    try:
+        value = kind(text)
+    except ValueError:
+        value = None
+    if value is None or not ok(value):
+        raise argparse.ArgumentTypeError(f"expected {expected}, not {text!r}")
+    return value
+
+
+def positive_int(text: str) -> int:
+    return _number(text, int, lambda v: v >= 1, "an integer >= 1")
+
+
+def natural(text: str) -> int:
+    return _number(text, int, lambda v: v >= 0, "an integer >= 0")
+
+
+def positive_number(text: str) -> float:
+    return _number(text, float, lambda v: 0 < v < float("inf"), "a number > 0")
+
+
+def rate(text: str) -> float:
+    return _number(text, float, lambda v: 0 <= v < float("inf"), "an arrival rate >= 0 (tasks/s per source)")
 
 
 def add_env_arguments(parser: argparse.ArgumentParser, scenario: bool = True) -> None:
     g = parser.add_argument_group("environment")
     if scenario:
         g.add_argument("--scenario", default="aot2", help="aot1..aot4 or a scenario YAML (default: aot2)")
-        g.add_argument("--lam", type=float, default=0.17, help="task arrival rate lambda per source (default 0.17)")
-    g.add_argument("--max-steps", type=int, default=None,
+        g.add_argument("--lam", type=rate, default=0.17, help="task arrival rate lambda per source (default 0.17)")
+    g.add_argument("--max-steps", type=positive_int, default=None,
                    help="decision steps per episode (default: the scenario's, 1000; rq1/rq2 --quick: 300)")
     g.add_argument("--reward", default="paper", choices=["paper", "sparse"],
                    help="paper (default: Eq. 1-5 of the paper) or sparse (completed - dropped)")
@@ -29,20 +71,27 @@ def add_env_arguments(parser: argparse.ArgumentParser, scenario: bool = True) ->
                    help="inproc (default: one process, same results as zenoh) or zenoh (node processes)")
 
 
-def add_learner_arguments(parser: argparse.ArgumentParser) -> None:
+def add_learner_arguments(parser: argparse.ArgumentParser, seeds: bool = False) -> None:
+    """The learners' options; with ``seeds``, ``--seed`` takes several training seeds (``args.seeds``)."""
     g = parser.add_argument_group("learning")
-    g.add_argument("--seed", type=int, default=0, help="training seed: network initialisation and episodes (default 0)")
-    g.add_argument("--hidden", type=int, nargs="+", default=None, help="hidden layer sizes (default 128 128)")
+    if seeds:
+        g.add_argument("--seed", dest="seeds", type=natural, nargs="+", default=[0], metavar="SEED",
+                       help="training seeds: every point of the sweep is run once per seed (default 0)")
+    else:
+        g.add_argument("--seed", type=natural, default=0,
+                       help="training seed: network initialisation and episodes (default 0)")
+    g.add_argument("--hidden", type=positive_int, nargs="+", default=None,
+                   help="hidden layer sizes (default 128 128)")
     g.add_argument("--set", dest="overrides", action="append", default=[], metavar="[ALGO.]FIELD=VALUE",
                    help="override a learner hyperparameter, e.g. --set ddqn.shared=true --set lr=1e-3 (repeatable)")
     g.add_argument("--device", default="cpu", help="cpu (default) or cuda (used only when available)")
-    g.add_argument("--threads", type=int, default=1,
+    g.add_argument("--threads", type=positive_int, default=1,
                    help="torch CPU threads (default 1: the networks are small, more threads only contend)")
     g.add_argument("--no-progress", dest="progress", action="store_false", help="no progress bars")
 
 
-def make_env(scenario: str, lam: float | None, max_steps: int, reward: str = "paper", transport: str = "inproc",
-             seed: int = 0) -> ZenohEdgeEnv:
+def make_env(scenario: str, lam: float | None, max_steps: int | None, reward: str = "paper",
+             transport: str = "inproc", seed: int = 0) -> ZenohEdgeEnv:
     """The environment every agent of a study runs in: padded spaces, so one network can serve all agents."""
     return ZenohEdgeEnv(scenario, transport=transport, overrides=ScenarioOverrides(arrival_rate=lam),
                         max_steps=max_steps, reward=reward, uniform_spaces=True, seed=seed)
@@ -54,18 +103,29 @@ def coerce(text: str, default: Any) -> Any:
         if text.lower() not in ("true", "false", "1", "0", "yes", "no"):
             raise ValueError(f"expected true or false, not {text!r}")
         return text.lower() in ("true", "1", "yes")
-    if isinstance(default, tuple):
-        return tuple(int(x) for x in text.split(","))
-    if isinstance(default, int):
-        return int(text)
-    if isinstance(default, float) or default is None:
-        return None if text.lower() == "none" else float(text)
+    try:
+        if isinstance(default, tuple):
+            return tuple(int(x) for x in text.split(","))
+        if isinstance(default, int):
+            return int(text)
+        if isinstance(default, float) or default is None:
+            return None if text.lower() == "none" else float(text)
+    except ValueError:
+        kind = "integers separated by commas" if isinstance(default, tuple) else (
+            "an integer" if isinstance(default, int) else "a number or none")
+        raise ValueError(f"expected {kind}, not {text!r}") from None
     return text
 
 
 def learner_config(algo: str, *, seed: int, hidden: Sequence[int] | None = None,
-                   base: dict[str, Any] | None = None, overrides: Sequence[str] = ()) -> LearnerConfig:
-    """``algo``'s config: its defaults, then ``base`` (e.g. quick mode's), hidden sizes, seed, then ``--set``s."""
+                   base: dict[str, Any] | None = None, overrides: Sequence[str] = (),
+                   chosen: Collection[str] = ()) -> LearnerConfig:
+    """``algo``'s config: its defaults, then ``base`` (e.g. quick mode's), hidden sizes, seed, then ``--set``s.
+
+    ``chosen`` are the algorithms this run trains (default: ``algo`` alone). An ``--set`` must reach one of them:
+    a prefix names one of them and a field it has, an unprefixed field belongs to at least one of them (and
+    applies to those that have it). Anything else is a ValueError with one line for the user."""
+    chosen = set(chosen) | {algo}
     cls = LEARNERS[algo].Config
     defaults = {f.name: f.default for f in dataclasses.fields(cls)}
     values: dict[str, Any] = dict(base or {})
@@ -76,17 +136,43 @@ def learner_config(algo: str, *, seed: int, hidden: Sequence[int] | None = None,
         key, sep, text = item.partition("=")
         if not sep:
             raise ValueError(f"--set {item!r}: expected [ALGO.]FIELD=VALUE")
-        target, _, field = key.rpartition(".")
+        target, _, name = key.rpartition(".")
         if target and target not in LEARNERS:
-            raise ValueError(f"--set {item!r}: unknown algorithm {target!r} ({', '.join(LEARNERS)})")
-        if target and target != algo:
+            raise ValueError(f"--set {item!r}: unknown algorithm {target!r}{_suggest(target, LEARNERS)} "
+                             f"(one of {', '.join(LEARNERS)})")
+        if target and target not in chosen:
+            raise ValueError(f"--set {item!r}: {target} is not trained in this run ({', '.join(sorted(chosen))})")
+        owners = [a for a in ([target] if target else sorted(chosen)) if name in _fields(a)]
+        if not owners:
+            others = [a for a in LEARNERS if a not in chosen and name in _fields(a)]
+            where = target or " and ".join(sorted(chosen))
+            known = set().union(*(_fields(a) for a in ([target] if target else chosen)))
+            raise ValueError(f"--set {item!r}: {where} has no field {name!r}" + (
+                f" (it is a field of {', '.join(others)})" if others else _suggest(name, known)))
+        if algo not in owners:
             continue
-        if field not in defaults:
-            if target or not any(field in {f.name for f in dataclasses.fields(c.Config)} for c in LEARNERS.values()):
-                raise ValueError(f"--set {item!r}: {target or 'no learner'} has no field {field!r}")
-            continue  # an unprefixed field applies to the learners that have it
-        values[field] = coerce(text, defaults[field])
+        try:
+            values[name] = coerce(text, defaults[name])
+        except ValueError as e:
+            raise ValueError(f"--set {item!r}: {e}") from None
     return cls(**values)
+
+
+def _fields(algo: str) -> set[str]:
+    return {f.name for f in dataclasses.fields(LEARNERS[algo].Config)}
+
+
+def _suggest(word: str, choices: Collection[str]) -> str:
+    hint = difflib.get_close_matches(word, list(choices), n=1)
+    return f" (did you mean {hint[0]!r}?)" if hint else ""
+
+
+def check_scenario(prog: str, scenario: str, lam: float | None) -> None:
+    """Load ``scenario`` once before any work starts; a file that is missing or wrong is the user's error."""
+    try:
+        make_env(scenario, lam, None).close()
+    except ScenarioError as e:
+        usage_error(prog, str(e).replace("\n", "; "))
 
 
 def set_threads(n: int) -> None:

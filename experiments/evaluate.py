@@ -2,27 +2,30 @@
 
     python -m experiments.evaluate least_queue --scenario aot2 --episodes 10
     python -m experiments.evaluate runs/ddqn-aot2/ddqn.pt --scenario aot2 --episodes 10 --csv runs/ddqn-eval.csv
+    python -m experiments.evaluate greedy --scenario aot2 --episodes 10 --marl-eval runs/marl_eval.json
 """
 
 from __future__ import annotations
 
-import argparse
 from collections.abc import Sequence
 from contextlib import nullcontext
 from pathlib import Path
 
-from agents import BASELINES, evaluate, load_learner
+from agents import BASELINES, Learner, evaluate, load_learner
 from agents.training import progress_bar, write_csv
-from experiments.common import add_env_arguments, make_env, set_threads
+from experiments import marl_eval
+from experiments.common import Parser, add_env_arguments, check_scenario, make_env, natural, positive_int, set_threads
 from experiments.plot import mean_ci
 
 
 def main(argv: Sequence[str] | None = None) -> None:
-    p = argparse.ArgumentParser(prog="python -m experiments.evaluate", description=__doc__.splitlines()[0])
+    p = Parser(prog="python -m experiments.evaluate", description=__doc__.splitlines()[0])
     p.add_argument("policy", help=f"a baseline ({', '.join(BASELINES)}) or a checkpoint file (.pt)")
-    p.add_argument("--episodes", type=int, default=10, help="evaluation episodes (default 10)")
-    p.add_argument("--seed", type=int, default=0, help="seed of the baselines' random choices (default 0)")
+    p.add_argument("--episodes", type=positive_int, default=10, help="evaluation episodes (default 10)")
+    p.add_argument("--seed", type=natural, default=0, help="seed of the baselines' random choices (default 0)")
     p.add_argument("--csv", type=Path, default=None, help="write one row per episode here")
+    p.add_argument("--marl-eval", type=Path, default=None, metavar="JSON",
+                   help="add the episodes to this marl-eval JSON file (created if missing; docs/agents.md)")
     p.add_argument("--device", default="cpu", help="cpu (default) or cuda, for checkpoints")
     p.add_argument("--no-progress", dest="progress", action="store_false", help="no progress bar")
     add_env_arguments(p)
@@ -33,7 +36,8 @@ def main(argv: Sequence[str] | None = None) -> None:
     elif Path(args.policy).is_file():
         policy = load_learner(args.policy, args.device)
     else:
-        p.error(f"{args.policy!r} is neither a baseline nor a checkpoint file")
+        p.error(f"{args.policy!r} is neither a baseline ({', '.join(BASELINES)}) nor a checkpoint file")
+    check_scenario(p.prog, args.scenario, args.lam)
     env = make_env(args.scenario, args.lam, args.max_steps, args.reward, args.transport, args.seed)
     progress = progress_bar() if args.progress else None
     with progress or nullcontext():
@@ -44,6 +48,13 @@ def main(argv: Sequence[str] | None = None) -> None:
         print(f"{metric:>22}: {mean:10.2f} ± {ci:.2f} (95% CI, {len(rows)} episodes)")
     if args.csv:
         write_csv(args.csv, rows)
+    if args.marl_eval:
+        # a checkpoint's run is its training seed; a baseline's, the seed of its random choices
+        seed, trained = (policy.config.seed, policy.env_steps) if isinstance(policy, Learner) else (args.seed, 0)
+        data: dict = {}
+        marl_eval.add_run(data, f"{args.scenario}-lam{args.lam:g}", policy.name, seed,
+                          marl_eval.run_entry(rows, trained))
+        marl_eval.write(args.marl_eval, data, merge=True)
 
 
 if __name__ == "__main__":

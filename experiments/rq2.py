@@ -9,6 +9,7 @@ from __future__ import annotations
 import re
 from collections.abc import Sequence
 
+from experiments.common import rate
 from experiments.sweep import Point, parser, run_study
 
 SCENARIOS = ("aot1", "aot2", "aot3", "aot4")
@@ -19,7 +20,7 @@ def main(argv: Sequence[str] | None = None) -> None:
     p = parser("rq2", "RQ2: how do the agents adapt to a fixed arrival rate and more nodes and agents?")
     p.add_argument("--scenarios", nargs="+", default=None,
                    help=f"topologies in order (default {' '.join(SCENARIOS)}; quick: {' '.join(QUICK_SCENARIOS)})")
-    p.add_argument("--lam", type=float, default=0.17, help="task arrival rate lambda per source (default 0.17)")
+    p.add_argument("--lam", type=rate, default=0.17, help="task arrival rate lambda per source (default 0.17)")
     args = p.parse_args(argv)
     scenarios = args.scenarios or (QUICK_SCENARIOS if args.quick else SCENARIOS)
     # aotN has N clusters; other scenarios are placed by their position in the list

@@ -2,14 +2,16 @@
 
 For each point of the sweep (a scenario and an arrival rate) the learning agents are trained from
 scratch, then every agent, learning or not, is evaluated on the same K episodes (the same seeds, so the
-same task arrivals). Outputs under ``--out``:
+same task arrivals); all of it once per training seed. Each (point, seed, agent) is one independent run,
+so the grid can run on Ray (experiments.distributed) with the same outputs. Outputs under ``--out``:
 
-    results.csv          one row per agent x sweep value x evaluation episode
-    summary.csv          mean and 95% CI half-width per agent and sweep value
+    results.csv          one row per training seed x agent x sweep value x evaluation episode
+    summary.csv          mean and 95% CI half-width per agent and sweep value (over seeds and episodes)
     timings.csv          wall time of every training and evaluation run
+    marl_eval.json       the evaluations in marl-eval's format (experiments.marl_eval)
     <study>.png          the paper's three panels
     config.json          the settings and learner configs used
-    train/<point>/<agent>.csv, checkpoints/<point>/<agent>.pt
+    train/<point>/seed<k>/<agent>.csv, checkpoints/<point>/seed<k>/<agent>.pt
 """
 
 from __future__ import annotations
@@ -25,11 +27,24 @@ from pathlib import Path
 from typing import Any
 
 from rich.console import Console
+from rich.progress import Progress
 from rich.table import Table
 
-from agents import BASELINES, LEARNERS, Policy, evaluate, train
+from agents import BASELINES, LEARNERS, LearnerConfig, Policy, evaluate, train
 from agents.training import progress_bar, write_csv
-from experiments.common import add_env_arguments, add_learner_arguments, learner_config, make_env, set_threads
+from experiments import marl_eval
+from experiments.common import (
+    Parser,
+    add_env_arguments,
+    add_learner_arguments,
+    check_scenario,
+    learner_config,
+    make_env,
+    positive_int,
+    set_threads,
+    usage_error,
+)
+from experiments.distributed import add_ray_arguments, ray_missing, run_on_ray, wants_ray
 from experiments.plot import plot_study, summarise
 
 AGENTS = ("ddqn", "a2c", "ppo", "local", "random", "least_queue", "greedy", "round_robin")
@@ -62,8 +77,34 @@ class Point:
     x: float  # abscissa in the figure
 
 
+@dataclass(frozen=True)
+class Run:
+    """One cell of the grid: train ``agent`` (when it learns) at ``point`` with ``seed``, then evaluate it."""
+
+    study: str
+    point: Point
+    agent: str
+    seed: int
+    settings: Settings
+    config: LearnerConfig | None  # None for a baseline
+    reward: str
+    transport: str
+    device: str
+    threads: int
+
+    def __str__(self) -> str:
+        return f"{self.point.label} seed {self.seed} {self.agent}"
+
+
+@dataclass
+class RunResult:
+    rows: list[dict[str, Any]]  # evaluate's, one per evaluation episode
+    timings: list[dict[str, Any]]
+    trained_steps: int  # environment steps the policy learnt from (0 for a baseline)
+
+
 def parser(study: str, description: str) -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(prog=f"python -m experiments.{study}", description=description)
+    p = Parser(prog=f"python -m experiments.{study}", description=description)
     p.add_argument("--quick", action="store_true",
                    help=f"a few minutes instead of hours: {QUICK.max_steps}-step episodes, {QUICK.train_episodes} "
                         f"training and {QUICK.eval_episodes} evaluation episodes, {QUICK.hidden} networks, fewer "
@@ -71,12 +112,13 @@ def parser(study: str, description: str) -> argparse.ArgumentParser:
     p.add_argument("--out", type=Path, default=Path(f"runs/{study}"), help=f"output directory (default runs/{study})")
     p.add_argument("--agents", nargs="+", default=list(AGENTS), choices=list(AGENTS), metavar="AGENT",
                    help=f"agents to run (default: all of {', '.join(AGENTS)})")
-    p.add_argument("--train-episodes", type=int, default=None,
+    p.add_argument("--train-episodes", type=positive_int, default=None,
                    help="training episodes per learner and point (default 300, quick 10)")
-    p.add_argument("--eval-episodes", type=int, default=None,
+    p.add_argument("--eval-episodes", type=positive_int, default=None,
                    help="evaluation episodes per agent and point (default 100, quick 5)")
     add_env_arguments(p, scenario=False)
-    add_learner_arguments(p)
+    add_learner_arguments(p, seeds=True)
+    add_ray_arguments(p)
     return p
 
 
@@ -90,58 +132,94 @@ def settings_from(args: argparse.Namespace) -> Settings:
 
 def run_study(study: str, points: Sequence[Point], x_key: str, xlabel: str, args: argparse.Namespace,
               xticklabels: dict[float, str] | None = None) -> list[dict[str, Any]]:
-    """Train and evaluate every agent at every point; write the CSVs and the figure; return the results rows."""
-    set_threads(args.threads)
+    """Train and evaluate every agent at every point for every seed, here or on Ray; write the CSVs, the
+    marl-eval JSON and the figure; return the results rows."""
+    prog = f"python -m experiments.{study}"
     settings = settings_from(args)
+    learners = [a for a in args.agents if a in LEARNERS]
+    if args.overrides and not learners:
+        usage_error(prog, f"--set {args.overrides[0]!r}: no learner among --agents")
+    try:
+        configs = {(a, seed): learner_config(a, seed=seed, hidden=settings.hidden, base=settings.learners.get(a),
+                                             overrides=args.overrides, chosen=learners)
+                   for seed in args.seeds for a in learners}
+    except ValueError as e:
+        usage_error(prog, str(e))
+    for point in {(p.scenario, p.lam): p for p in points}.values():
+        check_scenario(prog, point.scenario, point.lam)
+    if wants_ray(args) and (why := ray_missing()):
+        usage_error(prog, why)
+    set_threads(args.threads)
     out: Path = args.out
     out.mkdir(parents=True, exist_ok=True)
-    configs = {a: learner_config(a, seed=args.seed, hidden=settings.hidden, base=settings.learners.get(a),
-                                 overrides=args.overrides) for a in args.agents if a in LEARNERS}
     (out / "config.json").write_text(json.dumps({
-        "study": study, "quick": args.quick, "settings": dataclasses.asdict(settings), "seed": args.seed,
+        "study": study, "quick": args.quick, "settings": dataclasses.asdict(settings), "seeds": args.seeds,
         "reward": args.reward, "transport": args.transport, "device": args.device,
         "points": [dataclasses.asdict(p) for p in points],
-        "learners": {a: dataclasses.asdict(c) for a, c in configs.items()}}, indent=1))
-    console = Console()
-    rows: list[dict[str, Any]] = []
-    timings: list[dict[str, Any]] = []
-    progress = progress_bar() if args.progress else None
-    with progress or nullcontext():
-        for point in points:
-            env = make_env(point.scenario, point.lam, settings.max_steps, args.reward, args.transport, args.seed)
-            for agent in args.agents:
-                start = time.perf_counter()
-                policy: Policy
-                if agent in LEARNERS:
-                    policy = learner = LEARNERS[agent].for_env(env, configs[agent], args.device)
-                    train(env, learner, settings.train_episodes, seed=args.seed * settings.train_episodes,
-                          csv_path=out / "train" / point.label / f"{agent}.csv", progress=progress,
-                          label=f"{point.label} train {agent}")
-                    (out / "checkpoints" / point.label).mkdir(parents=True, exist_ok=True)
-                    learner.save(out / "checkpoints" / point.label / f"{agent}.pt")
-                    timings.append(_timing(point, agent, "train", settings.train_episodes, start))
-                    start = time.perf_counter()
-                else:
-                    policy = BASELINES[agent](args.seed)
-                for r in evaluate(env, policy, settings.eval_episodes, progress=progress,
-                                  label=f"{point.label} eval {agent}"):
-                    rows.append({"study": study, "scenario": point.scenario, "lambda": point.lam, x_key: point.x,
-                                 "agent": agent, **r})
-                timings.append(_timing(point, agent, "eval", settings.eval_episodes, start))
-            env.close()
+        "learners": {a: {k: v for k, v in dataclasses.asdict(configs[a, args.seeds[0]]).items() if k != "seed"}
+                     for a in learners}}, indent=1))
+    runs = [Run(study, point, agent, seed, settings, configs.get((agent, seed)), args.reward, args.transport,
+                args.device, args.threads) for seed in args.seeds for point in points for agent in args.agents]
+    if wants_ray(args):
+        results = run_on_ray(run_one, runs, out, args)
+    else:
+        progress = progress_bar() if args.progress else None
+        with progress or nullcontext():
+            results = [run_one(run, out, progress) for run in runs]
+    rows = [{"study": study, "scenario": run.point.scenario, "lambda": run.point.lam, x_key: run.point.x,
+             "agent": run.agent, "train_seed": run.seed, **r} for run, result in zip(runs, results, strict=True)
+            for r in result.rows]
+    marl: dict[str, Any] = {}
+    for run, result in zip(runs, results, strict=True):
+        marl_eval.add_run(marl, run.point.label, run.agent, run.seed,
+                          marl_eval.run_entry(result.rows, result.trained_steps))
     write_csv(out / "results.csv", rows)
     write_csv(out / "summary.csv", summarise(rows, x_key, args.agents))
-    write_csv(out / "timings.csv", timings)
+    write_csv(out / "timings.csv", [t for result in results for t in result.timings])
+    marl_eval.write(out / "marl_eval.json", marl)
     what = f"{settings.eval_episodes} evaluation episodes of {settings.max_steps} steps per point"
+    if len(args.seeds) > 1:
+        what += f" and each of {len(args.seeds)} training seeds"
     plot_study(rows, x_key, xlabel, args.agents, f"{study.upper()}: {what}, 95% confidence bands",
                out / f"{study}.png", xticklabels)
+    console = Console()
     _print_summary(console, rows, x_key, args.agents)
-    console.print(f"wrote {out / 'results.csv'}, {out / 'summary.csv'} and {out / f'{study}.png'}")
+    console.print(f"wrote {out / 'results.csv'}, {out / 'summary.csv'}, {out / 'marl_eval.json'} and "
+                  f"{out / f'{study}.png'}")
     return rows
 
 
-def _timing(point: Point, agent: str, phase: str, episodes: int, start: float) -> dict[str, Any]:
-    return {"point": point.label, "agent": agent, "phase": phase, "episodes": episodes,
+def run_one(run: Run, out: Path, progress: Progress | None = None) -> RunResult:
+    """One run of the grid, writing its training log and checkpoint under ``out``."""
+    set_threads(run.threads)
+    s = run.settings
+    env = make_env(run.point.scenario, run.point.lam, s.max_steps, run.reward, run.transport, run.seed)
+    timings = []
+    trained_steps = 0
+    try:
+        start = time.perf_counter()
+        policy: Policy
+        if run.config is not None:
+            policy = learner = LEARNERS[run.agent].for_env(env, run.config, run.device)
+            where = Path(run.point.label) / f"seed{run.seed}"
+            train(env, learner, s.train_episodes, seed=run.seed * s.train_episodes,
+                  csv_path=out / "train" / where / f"{run.agent}.csv", progress=progress, label=f"{run} train")
+            (out / "checkpoints" / where).mkdir(parents=True, exist_ok=True)
+            learner.save(out / "checkpoints" / where / f"{run.agent}.pt")
+            trained_steps = learner.env_steps
+            timings.append(_timing(run, "train", s.train_episodes, start))
+            start = time.perf_counter()
+        else:
+            policy = BASELINES[run.agent](run.seed)
+        rows = evaluate(env, policy, s.eval_episodes, progress=progress, label=f"{run} eval")
+        timings.append(_timing(run, "eval", s.eval_episodes, start))
+    finally:
+        env.close()
+    return RunResult(rows, timings, trained_steps)
+
+
+def _timing(run: Run, phase: str, episodes: int, start: float) -> dict[str, Any]:
+    return {"point": run.point.label, "seed": run.seed, "agent": run.agent, "phase": phase, "episodes": episodes,
             "wall_s": round(time.perf_counter() - start, 2)}
 
 

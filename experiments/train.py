@@ -6,7 +6,6 @@
 
 from __future__ import annotations
 
-import argparse
 import dataclasses
 import json
 from collections.abc import Sequence
@@ -15,21 +14,34 @@ from pathlib import Path
 
 from agents import LEARNERS, train
 from agents.training import progress_bar
-from experiments.common import add_env_arguments, add_learner_arguments, learner_config, make_env, set_threads
+from experiments.common import (
+    Parser,
+    add_env_arguments,
+    add_learner_arguments,
+    check_scenario,
+    learner_config,
+    make_env,
+    positive_int,
+    set_threads,
+)
 
 
 def main(argv: Sequence[str] | None = None) -> None:
-    p = argparse.ArgumentParser(prog="python -m experiments.train", description=__doc__.splitlines()[0])
+    p = Parser(prog="python -m experiments.train", description=__doc__.splitlines()[0])
     p.add_argument("algo", choices=list(LEARNERS))
-    p.add_argument("--episodes", type=int, default=50, help="training episodes (default 50)")
+    p.add_argument("--episodes", type=positive_int, default=50, help="training episodes (default 50)")
     p.add_argument("--out", type=Path, default=None, help="output directory (default runs/<algo>-<scenario>)")
     add_env_arguments(p)
     add_learner_arguments(p)
     args = p.parse_args(argv)
+    try:
+        config = learner_config(args.algo, seed=args.seed, hidden=args.hidden, overrides=args.overrides)
+    except ValueError as e:
+        p.error(str(e))
+    check_scenario(p.prog, args.scenario, args.lam)
     set_threads(args.threads)
     out = args.out or Path("runs") / f"{args.algo}-{Path(args.scenario).stem}"
     out.mkdir(parents=True, exist_ok=True)
-    config = learner_config(args.algo, seed=args.seed, hidden=args.hidden, overrides=args.overrides)
     env = make_env(args.scenario, args.lam, args.max_steps, args.reward, args.transport, args.seed)
     learner = LEARNERS[args.algo].for_env(env, config, args.device)
     (out / "config.json").write_text(json.dumps({"algo": args.algo, "scenario": args.scenario, "lambda": args.lam,
