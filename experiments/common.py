@@ -145,9 +145,10 @@ def learner_config(algo: str, *, seed: int, hidden: Sequence[int] | None = None,
         owners = [a for a in ([target] if target else sorted(chosen)) if name in _fields(a)]
         if not owners:
             others = [a for a in LEARNERS if a not in chosen and name in _fields(a)]
-            where = target or " and ".join(sorted(chosen))
             known = set().union(*(_fields(a) for a in ([target] if target else chosen)))
-            raise ValueError(f"--set {item!r}: {where} has no field {name!r}" + (
+            lacks = (f"{target or next(iter(chosen))} has no field" if target or len(chosen) == 1 else
+                     f"none of {', '.join(sorted(chosen))} has a field")
+            raise ValueError(f"--set {item!r}: {lacks} {name!r}" + (
                 f" (it is a field of {', '.join(others)})" if others else _suggest(name, known)))
         if algo not in owners:
             continue

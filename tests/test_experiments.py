@@ -3,7 +3,12 @@
 from __future__ import annotations
 
 import csv
+import json
+import math
+import subprocess
+import sys
 from pathlib import Path
+from typing import Any
 
 import pytest
 
@@ -35,9 +40,44 @@ def check_outputs(out: Path, study: str, key: str, values: list[str]) -> None:
         assert (out / "checkpoints" / point / "seed0" / f"{agent}.pt").is_file()
 
 
+def check_marl_eval(data: dict[str, Any], tasks: set[str], algorithms: set[str], seeds: set[int]) -> None:
+    """marl-eval's documented raw-data format (its README, "Data Structure for Raw Experiment data"), and the
+    conditions its DiagnoseData checks: the same algorithms in every task, the same runs for every algorithm,
+    the same steps in every run, the same metrics in every step, no comma in an algorithm's name."""
+    assert list(data) == ["zenohedge"]
+    assert set(data["zenohedge"]) == tasks
+    metrics: set[str] | None = None
+    for algos in data["zenohedge"].values():
+        assert set(algos) == algorithms and not any("," in a for a in algos)
+        for runs in algos.values():
+            assert set(runs) == {f"seed_{k}" for k in seeds}
+            for run in runs.values():
+                assert set(run) == {"step_0", "absolute_metrics"}
+                step, absolute = run["step_0"], run["absolute_metrics"]
+                assert isinstance(step["step_count"], int) and step["step_count"] >= 0
+                metrics = metrics or set(step) - {"step_count"}
+                assert set(step) - {"step_count"} == metrics == set(absolute)
+                lengths = {len(v) for v in [*absolute.values(), *(step[m] for m in metrics)]}
+                assert len(lengths) == 1
+                assert all(isinstance(x, float) for m in metrics for x in step[m])
+    assert metrics and {"return", "response_time_mean", "dropped", "overloaded_node_ticks"} <= metrics
+    assert not metrics & {"episode", "seed", "wall_s"}
+
+
+def same(a: float, b: float) -> bool:
+    return a == b or (math.isnan(a) and math.isnan(b))
+
+
 def test_rq1_quick_writes_csv_and_figure(tmp_path):
     rq1.main([*TINY, "--scenario", "aot1", "--lambdas", "0.1", "0.3", "--out", str(tmp_path)])
     check_outputs(tmp_path, "rq1", "lambda", ["0.1", "0.3"])
+    marl = json.loads((tmp_path / "marl_eval.json").read_text())
+    check_marl_eval(marl, {"aot1-lam0.1", "aot1-lam0.3"}, set(AGENTS), {0})
+    for r in read_csv(tmp_path / "results.csv"):
+        step = marl["zenohedge"][f"aot1-lam{r['lambda']}"][r["agent"]]["seed_0"]["step_0"]
+        assert same(step["response_time_mean"][int(r["episode"])], float(r["response_time_mean"]))
+        assert step["dropped"][int(r["episode"])] == float(r["dropped"])
+        assert step["step_count"] == (25 if r["agent"] in LEARNERS else 0)  # 1 training episode of 25 steps
     train_log = read_csv(tmp_path / "train" / "aot1-lam0.1" / "seed0" / "ddqn.csv")
     assert len(train_log) == 1 and {"return", "epsilon", "response_time_mean"} <= set(train_log[0])
 
@@ -54,6 +94,65 @@ def test_train_then_evaluate_command_lines(tmp_path, capsys):
                    "--csv", str(tmp_path / "eval.csv"), "--no-progress"])
     assert "response_time_mean" in capsys.readouterr().out
     assert len(read_csv(tmp_path / "eval.csv")) == 2
+
+
+def test_evaluate_adds_its_runs_to_a_marl_eval_file(tmp_path):
+    train.main(["a2c", "--scenario", "aot1", "--episodes", "1", "--max-steps", "20", "--seed", "3",
+                "--out", str(tmp_path), "--no-progress"])
+    common = ["--scenario", "aot1", "--lam", "0.2", "--episodes", "2", "--max-steps", "20", "--no-progress",
+              "--marl-eval", str(tmp_path / "marl.json")]
+    evaluate.main([str(tmp_path / "a2c.pt"), *common])
+    for seed in ("0", "1"):
+        evaluate.main(["random", "--seed", seed, *common])
+    data = json.loads((tmp_path / "marl.json").read_text())
+    assert set(data["zenohedge"]["aot1-lam0.2"]) == {"a2c", "random"}
+    assert set(data["zenohedge"]["aot1-lam0.2"]["a2c"]) == {"seed_3"}  # the checkpoint's training seed
+    assert data["zenohedge"]["aot1-lam0.2"]["a2c"]["seed_3"]["step_0"]["step_count"] == 20
+    assert set(data["zenohedge"]["aot1-lam0.2"]["random"]) == {"seed_0", "seed_1"}
+    check_marl_eval({"zenohedge": {"t": {"random": data["zenohedge"]["aot1-lam0.2"]["random"]}}},
+                    {"t"}, {"random"}, {0, 1})
+
+
+@pytest.mark.parametrize(("cli", "argv", "message"), [
+    (train, ["ddqn", "--set", "clip_coef=0.1"],
+     "--set 'clip_coef=0.1': ddqn has no field 'clip_coef' (it is a field of ppo)"),
+    (train, ["ppo", "--set", "clip=0.1"], "--set 'clip=0.1': ppo has no field 'clip' (did you mean 'clip_coef'?)"),
+    (train, ["ddqn", "--set", "ppo.clip_coef=0.1"], "--set 'ppo.clip_coef=0.1': ppo is not trained in this run"),
+    (rq1, ["--set", "epsilon=1"], "--set 'epsilon=1': none of a2c, ddqn, ppo has a field 'epsilon'"),
+    (rq1, ["--agents", "ddqn", "--set", "clip_coef=0.1"], "ddqn has no field 'clip_coef' (it is a field of ppo)"),
+    (rq1, ["--agents", "local", "--set", "lr=1"], "--set 'lr=1': no learner among --agents"),
+    (train, ["a2c", "--scenario", "aot9"], "aot9: no such file or bundled scenario (did you mean 'aot4'?); "
+                                           "bundled: aot1, aot2, aot3, aot4, "),
+    (rq2, ["--scenarios", "aot1", "nowhere.yaml"], "nowhere.yaml: no such file or bundled scenario"),
+    (evaluate, ["greedy", "--scenario", "aot5"], "aot5: no such file or bundled scenario"),
+    (evaluate, ["nothing.pt"], "'nothing.pt' is neither a baseline (local, random,"),
+    (rq1, ["--lambdas", "0.1", "-1"], "argument --lambdas: expected an arrival rate >= 0 (tasks/s per source), "
+                                      "not '-1'"),
+    (rq2, ["--lam", "-1"], "argument --lam: expected an arrival rate >= 0"),
+    (evaluate, ["greedy", "--lam", "fast"], "argument --lam: expected an arrival rate >= 0"),
+    (train, ["a2c", "--episodes", "0"], "argument --episodes: expected an integer >= 1, not '0'"),
+    (rq1, ["--eval-episodes", "-2"], "argument --eval-episodes: expected an integer >= 1, not '-2'"),
+    (rq1, ["--max-steps", "1.5"], "argument --max-steps: expected an integer >= 1, not '1.5'"),
+    (rq1, ["--seed", "0", "-1"], "argument --seed: expected an integer >= 0, not '-1'"),
+    (rq1, ["--cpus-per-run", "0"], "argument --cpus-per-run: expected a number > 0, not '0'"),
+])
+def test_user_errors_are_one_line_and_exit_2(cli, argv, message, capsys, tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)  # where the default output directories would go
+    with pytest.raises(SystemExit) as e:
+        cli.main([*argv, "--no-progress"])
+    assert e.value.code == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and f"experiments.{cli.__name__.rpartition('.')[2]}: error: " in err
+    assert message in err
+    assert not list(tmp_path.iterdir())
+
+
+def test_a_user_error_prints_no_traceback():
+    proc = subprocess.run([sys.executable, "-m", "experiments.train", "ppo", "--set", "ppo.clip=0.1"],
+                          capture_output=True, text=True, timeout=120)
+    assert proc.returncode == 2 and proc.stdout == ""
+    assert proc.stderr == ("python -m experiments.train: error: --set 'ppo.clip=0.1': ppo has no field 'clip' "
+                           "(did you mean 'clip_coef'?)\n")
 
 
 def test_overrides_reach_the_right_learner():
