@@ -36,8 +36,14 @@ def wants_ray(args: argparse.Namespace) -> bool:
     return bool(args.ray or args.ray_address)
 
 
-def ray_missing() -> str | None:
-    """Why Ray cannot be used here, as one line for the user; None when it can."""
+def ray_problem(args: argparse.Namespace) -> str | None:
+    """What is wrong with the Ray options, as one line for the user; None when they can be followed."""
+    if args.ray_cpus is not None and not args.ray:
+        return "--ray-cpus sizes the local Ray of --ray"
+    if not wants_ray(args):
+        return None
+    if args.ray and args.ray_address:
+        return "--ray starts a local Ray, --ray-address joins a running one: give one of them"
     try:
         import ray  # noqa: F401
     except ImportError:

@@ -3,19 +3,60 @@
     python -m experiments.evaluate least_queue --scenario aot2 --episodes 10
     python -m experiments.evaluate runs/ddqn-aot2/ddqn.pt --scenario aot2 --episodes 10 --csv runs/ddqn-eval.csv
     python -m experiments.evaluate greedy --scenario aot2 --episodes 10 --marl-eval runs/marl_eval.json
+    python -m experiments.evaluate runs/ddqn-aot2/ddqn.pt --episodes 100 --ray   # one Ray task per episode
 """
 
 from __future__ import annotations
 
+import pickle
 from collections.abc import Sequence
 from contextlib import nullcontext
+from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
-from agents import BASELINES, Learner, evaluate, load_learner
-from agents.training import progress_bar, write_csv
+from agents import BASELINES, Learner, Policy, evaluate, load_learner
+from agents.training import EVAL_SEED, progress_bar, write_csv
 from experiments import marl_eval
 from experiments.common import Parser, add_env_arguments, check_scenario, make_env, natural, positive_int, set_threads
+from experiments.distributed import add_ray_arguments, ray_problem, run_on_ray, wants_ray
 from experiments.plot import mean_ci
+
+
+@dataclass(frozen=True)
+class Episode:
+    """One evaluation episode as a Ray task: the policy travels as a baseline's name or a checkpoint's bytes."""
+
+    k: int  # the episode's index: its seed is EVAL_SEED + k
+    baseline: str | None
+    checkpoint: bytes | None
+    seed: int
+    device: str
+    scenario: str
+    lam: float
+    max_steps: int | None
+    reward: str
+    transport: str
+
+    def __str__(self) -> str:
+        return f"episode {self.k}"
+
+
+def run_episode(job: Episode, scratch: Path) -> dict[str, Any]:
+    set_threads(1)
+    policy: Policy
+    if job.checkpoint is None:
+        policy = BASELINES[job.baseline](job.seed)
+    else:
+        (scratch / "policy.pt").write_bytes(job.checkpoint)
+        policy = load_learner(scratch / "policy.pt", job.device)
+        (scratch / "policy.pt").unlink()  # not an output
+    env = make_env(job.scenario, job.lam, job.max_steps, job.reward, job.transport, job.seed)
+    try:
+        (row,) = evaluate(env, policy, 1, seed=EVAL_SEED + job.k)
+    finally:
+        env.close()
+    return {**row, "episode": job.k}
 
 
 def main(argv: Sequence[str] | None = None) -> None:
@@ -29,20 +70,34 @@ def main(argv: Sequence[str] | None = None) -> None:
     p.add_argument("--device", default="cpu", help="cpu (default) or cuda, for checkpoints")
     p.add_argument("--no-progress", dest="progress", action="store_false", help="no progress bar")
     add_env_arguments(p)
+    add_ray_arguments(p)
     args = p.parse_args(argv)
     set_threads(1)
+    policy: Policy
     if args.policy in BASELINES:
         policy = BASELINES[args.policy](args.seed)
     elif Path(args.policy).is_file():
-        policy = load_learner(args.policy, args.device)
+        try:
+            policy = load_learner(args.policy, args.device)
+        except (OSError, RuntimeError, ValueError, KeyError, pickle.UnpicklingError) as e:
+            p.error(f"{args.policy}: not a checkpoint of this project's learners ({str(e).splitlines()[0]})")
     else:
         p.error(f"{args.policy!r} is neither a baseline ({', '.join(BASELINES)}) nor a checkpoint file")
     check_scenario(p.prog, args.scenario, args.lam)
-    env = make_env(args.scenario, args.lam, args.max_steps, args.reward, args.transport, args.seed)
-    progress = progress_bar() if args.progress else None
-    with progress or nullcontext():
-        rows = evaluate(env, policy, args.episodes, progress=progress, label=f"evaluate {policy.name}")
-    env.close()
+    if why := ray_problem(args):
+        p.error(why)
+    if wants_ray(args):
+        checkpoint = None if args.policy in BASELINES else Path(args.policy).read_bytes()
+        jobs = [Episode(k, args.policy if checkpoint is None else None, checkpoint, args.seed, args.device,
+                        args.scenario, args.lam, args.max_steps, args.reward, args.transport)
+                for k in range(args.episodes)]
+        rows = run_on_ray(run_episode, jobs, Path.cwd(), args)
+    else:
+        env = make_env(args.scenario, args.lam, args.max_steps, args.reward, args.transport, args.seed)
+        progress = progress_bar() if args.progress else None
+        with progress or nullcontext():
+            rows = evaluate(env, policy, args.episodes, progress=progress, label=f"evaluate {policy.name}")
+        env.close()
     for metric in ("response_time_mean", "dropped", "overloaded_node_ticks", "completed", "return"):
         mean, ci = mean_ci([r[metric] for r in rows])
         print(f"{metric:>22}: {mean:10.2f} ± {ci:.2f} (95% CI, {len(rows)} episodes)")

@@ -44,7 +44,7 @@ from experiments.common import (
     set_threads,
     usage_error,
 )
-from experiments.distributed import add_ray_arguments, ray_missing, run_on_ray, wants_ray
+from experiments.distributed import add_ray_arguments, ray_problem, run_on_ray, wants_ray
 from experiments.plot import plot_study, summarise
 
 AGENTS = ("ddqn", "a2c", "ppo", "local", "random", "least_queue", "greedy", "round_robin")
@@ -137,6 +137,8 @@ def run_study(study: str, points: Sequence[Point], x_key: str, xlabel: str, args
     prog = f"python -m experiments.{study}"
     settings = settings_from(args)
     learners = [a for a in args.agents if a in LEARNERS]
+    if len(set(args.seeds)) < len(args.seeds):
+        usage_error(prog, f"--seed {' '.join(map(str, args.seeds))}: a seed is given more than once")
     if args.overrides and not learners:
         usage_error(prog, f"--set {args.overrides[0]!r}: no learner among --agents")
     try:
@@ -147,7 +149,7 @@ def run_study(study: str, points: Sequence[Point], x_key: str, xlabel: str, args
         usage_error(prog, str(e))
     for point in {(p.scenario, p.lam): p for p in points}.values():
         check_scenario(prog, point.scenario, point.lam)
-    if wants_ray(args) and (why := ray_missing()):
+    if why := ray_problem(args):
         usage_error(prog, why)
     set_threads(args.threads)
     out: Path = args.out

@@ -135,6 +135,9 @@ def test_evaluate_adds_its_runs_to_a_marl_eval_file(tmp_path):
     (rq1, ["--max-steps", "1.5"], "argument --max-steps: expected an integer >= 1, not '1.5'"),
     (rq1, ["--seed", "0", "-1"], "argument --seed: expected an integer >= 0, not '-1'"),
     (rq1, ["--cpus-per-run", "0"], "argument --cpus-per-run: expected a number > 0, not '0'"),
+    (rq1, ["--seed", "1", "2", "1"], "--seed 1 2 1: a seed is given more than once"),
+    (rq1, ["--ray-cpus", "2"], "--ray-cpus sizes the local Ray of --ray"),
+    (rq2, ["--ray", "--ray-address", "auto"], "--ray starts a local Ray, --ray-address joins a running one"),
 ])
 def test_user_errors_are_one_line_and_exit_2(cli, argv, message, capsys, tmp_path, monkeypatch):
     monkeypatch.chdir(tmp_path)  # where the default output directories would go

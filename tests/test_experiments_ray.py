@@ -14,8 +14,9 @@ import uuid
 from pathlib import Path
 
 import psutil
+import ray
 
-from experiments import rq1
+from experiments import evaluate, rq1, train
 from tests.launcher import TIMEOUT, assert_all_gone
 
 GRID = ["--quick", "--train-episodes", "1", "--eval-episodes", "2", "--max-steps", "25", "--no-progress",
@@ -95,3 +96,15 @@ def test_rq1_on_a_local_ray_writes_what_a_local_run_writes_and_leaves_no_process
     ddqn0, ddqn1 = ((tmp_path / "ray" / "checkpoints" / "aot1-lam0.1" / f"seed{s}" / "ddqn.pt").read_bytes()
                     for s in (0, 1))
     assert ddqn0 != ddqn1  # the seeds are different runs
+
+
+def test_evaluate_on_ray_gives_the_episodes_of_a_local_evaluation(tmp_path):
+    train.main(["ppo", "--scenario", "aot1", "--episodes", "1", "--max-steps", "25", "--out", str(tmp_path),
+                "--no-progress"])
+    common = [str(tmp_path / "ppo.pt"), "--scenario", "aot1", "--lam", "0.3", "--episodes", "3", "--max-steps", "25",
+              "--no-progress"]
+    evaluate.main([*common, "--csv", str(tmp_path / "local.csv")])
+    evaluate.main([*common, "--csv", str(tmp_path / "ray.csv"), "--ray", "--ray-cpus", "2"])
+    local, remote = csv_without_wall_clock(tmp_path / "local.csv"), csv_without_wall_clock(tmp_path / "ray.csv")
+    assert [r["episode"] for r in remote] == ["0", "1", "2"] and remote == local
+    assert not ray.is_initialized()
