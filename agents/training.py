@@ -35,6 +35,9 @@ def episode_metrics(episode: Mapping[str, Any] | None) -> dict[str, float]:
         "response_time_mean": _number(rt["mean"]), "response_time_p50": _number(rt["p50"]),
         "response_time_p95": _number(rt["p95"]), "overloaded_node_ticks": episode["overloaded"]["node_ticks"],
         "overloaded_mean_nodes": episode["overloaded"]["mean_nodes"], "energy_j": episode["energy_j"]["total"],
+        "completion_ratio": _number(episode["completion_ratio"]),
+        "completion_ratio_settled": _number(episode["completion_ratio_settled"]),
+        "penalised_response_time": _number(episode["penalised_response_time"]),
     }
 
 

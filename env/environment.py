@@ -29,7 +29,7 @@ from pettingzoo import ParallelEnv
 from env.actions import ActionRules
 from env.observations import DictObservation, ObservationBuilder, ObservationLayout
 from env.overrides import ScenarioOverrides
-from env.reward import PaperWeights, RewardContext, RewardFn, RewardTerms, paper_terms, resolve_reward
+from env.reward import PaperWeights, RewardContext, RewardFn, RewardTerms, nominal_arrivals, paper_terms, resolve_reward
 from node_runtime.model.plugins import load
 from node_runtime.model.role import role_id
 from node_runtime.model.spec import Scenario
@@ -56,7 +56,7 @@ class ZenohEdgeEnv(ParallelEnv):
         seed: seed of the first episode (later resets without a seed draw from a stream it seeds).
         transport: "zenoh" (node processes over a Zenoh router) or "inproc" (same code, one process).
         layout: "per-role" (default for zenoh), "per-node", or "single" (default for inproc).
-        reward: "paper" (Eq. 1–5, see docs/reward.md), "sparse", a callable ``f(RewardContext)`` or its
+        reward: "paper" (Eq. 1–5, see docs/reward.md), "reference", "sparse", a callable ``f(RewardContext)`` or its
             import path (default: the scenario's ``reward`` key, else "paper").
         observation: an ``ObservationBuilder`` subclass or its import path (default: the scenario's
             ``observation`` key, else the documented Dict observation).
@@ -110,6 +110,7 @@ class ZenohEdgeEnv(ParallelEnv):
         self.layout = layout
         self.reward_fn = resolve_reward(reward or sc.extra.get("reward") or "paper")
         self.weights = reward_weights or PaperWeights()
+        self.arrivals = nominal_arrivals(sc)
         self.max_steps = max_steps or sc.episode_ticks // sc.decision_interval
         self.render_mode = render_mode
         self.connect = connect
@@ -220,7 +221,7 @@ class ZenohEdgeEnv(ParallelEnv):
             delta = deltas[row]
             agent_terms = terms.get(agent, ())
             ctx = RewardContext(agent, self.node_of[agent], before[agent], resolved.actions[agent], self._raw[agent],
-                                agent_terms, delta, dt)
+                                agent_terms, delta, dt, self.weights, self.arrivals)
             rewards[agent] = float(self.reward_fn(ctx))
             infos[agent] = {"tick": tick, "node": nodes[row],
                             "reward_terms": [t.as_dict() for t in agent_terms],

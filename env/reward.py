@@ -1,4 +1,5 @@
-"""Rewards: the paper's Eq. 1–5, a sparse alternative, user callables, potential-based shaping.
+"""Rewards: the paper's Eq. 1–5, the reference implementation's variant, a sparse alternative, user
+callables, potential-based shaping.
 
 The paper's reward for agent i placing task k on target a (i itself when kept local) is
 
@@ -16,16 +17,21 @@ It leaves choices open; docs/reward.md states and justifies each one, all in sec
   Q'_a = min(max(0, Q_a - phi_a) + 1, Qmax_a), where Q_a is the target's buffer occupancy (minus
   this task itself when local, since it already sits in that buffer), phi_a the tasks it can finish
   in one tick (capacity * dt / cycles_k), ln the natural log and epsilon = 1e-3.
+
+``reference`` is what PeersimGym's own code computed (docs/reward.md, "The reference implementation"):
+the chi weights cap the times instead of scaling them, and the overload term uses log10 and the
+expected arrivals.
 """
 
 from __future__ import annotations
 
 import math
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from typing import Any
 
 from node_runtime.model.plugins import is_import_path, load
+from node_runtime.model.spec import Scenario
 from node_runtime.model.view import Observation, TaskView
 
 
@@ -76,6 +82,49 @@ def paper_terms(obs: Observation, task: TaskView, action: int, dt: float,
                        w.utility - (delay + w.overload * overload))
 
 
+def reference_terms(obs: Observation, task: TaskView, action: int, dt: float, arrivals: Mapping[str, float],
+                    w: PaperWeights = PaperWeights()) -> RewardTerms:
+    """PeersimGym's reward as its code ran it; docs/reward.md tabulates how it differs from the paper.
+    ``arrivals``: each node's nominal task arrival rate (tasks/s, ``nominal_arrivals``)."""
+    own = obs.own
+    local = action == 0
+    target = own if local else obs.neighbours[action - 1]
+    if not local and own.occupancy <= 1:  # offloading from a near-empty buffer: no cost is modelled
+        return RewardTerms(w.utility, 0.0, 0.0, 0.0, 0.0, 0.0, w.utility)
+    cap = w.utility
+    # queue length in tasks over a capacity in cycles/s: the reference's units, hence near 0
+    t_wait = own.occupancy / own.capacity + (0.0 if local else target.occupancy / target.capacity)
+    t_wait = min(t_wait, cap * w.wait)
+    t_comm = 0.0 if local else min(8.0 * task.input_bytes / target.rate_bps, cap * w.comm)
+    t_exc = task.cycles / target.capacity - task.cycles / own.capacity
+    t_exc = max(min(t_exc, cap * w.exc), -cap * w.exc)
+    delay = t_wait + t_comm + t_exc
+    expected = (target.occupancy + (0 if local else 1) + arrivals.get(target.node, 0.0) * dt
+                - target.capacity * dt / task.cycles)
+    q_next = max(min(expected, float(target.buffer)), 0.0)
+    p = max(w.epsilon, (target.buffer - q_next) / target.buffer)
+    overload = -math.log10(p) / 3.0 * cap * w.overload
+    return RewardTerms(w.utility, t_wait, t_comm, t_exc, delay, overload, w.utility - (delay + overload))
+
+
+def nominal_arrivals(sc: Scenario) -> dict[str, float]:
+    """Tasks per second each worker receives from clients on average: a client's mean rate (its own
+    constant, the schedule's mean, or its trace rows over the episode), split evenly over its targets."""
+    a = sc.workload.arrival
+    mean = {"constant": a.rate, "linear": (a.start + a.end) / 2}.get(a.kind, (a.low + a.high) / 2)
+    fixed = dict(sc.workload.client_rates)
+    rows: dict[str, int] = {}
+    for row in sc.workload.trace or ():
+        rows[row.client] = rows.get(row.client, 0) + 1
+    horizon = sc.episode_ticks * sc.dt
+    out: dict[str, float] = {}
+    for client, targets in sc.targets.items():
+        rate = rows.get(client, 0) / horizon if sc.workload.trace is not None else fixed.get(client, mean)
+        for node in targets:
+            out[node] = out.get(node, 0.0) + rate / len(targets)
+    return out
+
+
 @dataclass(slots=True)
 class RewardContext:
     """Everything a reward function may look at for one agent and one step."""
@@ -88,6 +137,8 @@ class RewardContext:
     terms: tuple[RewardTerms, ...]  # paper terms of each task placed by this action
     node_delta: dict[str, float]  # change of the node's counters during the step (completed, dropped, ...)
     dt: float
+    weights: PaperWeights  # the env's r_u and chi weights
+    arrivals: Mapping[str, float]  # each node's nominal task arrival rate, tasks/s (``nominal_arrivals``)
 
 
 RewardFn = Callable[[RewardContext], float]
@@ -98,12 +149,21 @@ def paper_reward(ctx: RewardContext) -> float:
     return sum(t.reward for t in ctx.terms)
 
 
+def reference_reward(ctx: RewardContext) -> float:
+    """Sum of the reference implementation's reward over the tasks placed (0 when nothing was decided)."""
+    if ctx.obs is None or not ctx.obs.tasks:
+        return 0.0
+    actions = ctx.action if isinstance(ctx.action, list) else [ctx.action]
+    return sum(reference_terms(ctx.obs, t, a, ctx.dt, ctx.arrivals, ctx.weights).reward
+               for t, a in zip(ctx.obs.tasks, actions, strict=False))
+
+
 def sparse_reward(ctx: RewardContext) -> float:
     """Tasks completed minus tasks dropped at the agent's node during the step."""
     return ctx.node_delta["completed"] - ctx.node_delta["dropped"]
 
 
-REWARDS: dict[str, RewardFn] = {"paper": paper_reward, "sparse": sparse_reward}
+REWARDS: dict[str, RewardFn] = {"paper": paper_reward, "reference": reference_reward, "sparse": sparse_reward}
 
 
 def resolve_reward(reward: str | RewardFn) -> RewardFn:

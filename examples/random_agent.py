@@ -1,11 +1,13 @@
 """Random masked actions on the default scenario (aot1 over Zenoh, one process per role)."""
 
+from rich.progress import track
+
 from env import ZenohEdgeEnv
 
 env = ZenohEdgeEnv(max_steps=200)
 observations, infos = env.reset(seed=42)
 total = dict.fromkeys(env.possible_agents, 0.0)
-while env.agents:
+for _ in track(range(env.max_steps), description="one episode"):  # a progress bar on a terminal
     actions = {agent: env.action_space(agent).sample(observations[agent]["action_mask"]) for agent in env.agents}
     observations, rewards, terminations, truncations, infos = env.step(actions)
     for agent, reward in rewards.items():

@@ -65,7 +65,7 @@ def add_env_arguments(parser: argparse.ArgumentParser, scenario: bool = True) ->
         g.add_argument("--lam", type=rate, default=0.17, help="task arrival rate lambda per source (default 0.17)")
     g.add_argument("--max-steps", type=positive_int, default=None,
                    help="decision steps per episode (default: the scenario's, 1000; rq1/rq2 --quick: 300)")
-    g.add_argument("--reward", default="paper", choices=["paper", "sparse"],
+    g.add_argument("--reward", default="paper", choices=["paper", "reference", "sparse"],
                    help="paper (default: Eq. 1-5 of the paper) or sparse (completed - dropped)")
     g.add_argument("--transport", default="inproc", choices=["inproc", "zenoh"],
                    help="inproc (default: one process, same results as zenoh) or zenoh (node processes)")

@@ -98,7 +98,8 @@ def main(argv: Sequence[str] | None = None) -> None:
         with progress or nullcontext():
             rows = evaluate(env, policy, args.episodes, progress=progress, label=f"evaluate {policy.name}")
         env.close()
-    for metric in ("response_time_mean", "dropped", "overloaded_node_ticks", "completed", "return"):
+    for metric in ("response_time_mean", "completion_ratio", "penalised_response_time", "dropped",
+                   "overloaded_node_ticks", "completed", "return"):
         mean, ci = mean_ci([r[metric] for r in rows])
         print(f"{metric:>22}: {mean:10.2f} ± {ci:.2f} (95% CI, {len(rows)} episodes)")
     if args.csv:

@@ -16,6 +16,9 @@ import numpy as np
 
 PANELS = (("overloaded_node_ticks", "Overloaded nodes", "node-ticks overloaded per episode"),
           ("response_time_mean", "Response time", "mean response time of completed tasks [s]"),
+          ("completion_ratio", "Completion ratio", "completed / generated tasks"),
+          ("penalised_response_time", "Penalised response time",
+           "mean over generated tasks, a lost one = its deadline [s]"),
           ("dropped", "Dropped tasks", "tasks dropped per episode"))
 LEARNING = ("ddqn", "a2c", "ppo")  # drawn as solid lines, the baselines dashed
 MARKERS = ("o", "^", "D", "s", "v", "P", "X", "*")
@@ -49,7 +52,8 @@ def summarise(rows: Sequence[Mapping[str, Any]], x_key: str, agents: Sequence[st
         for x in sorted({r[x_key] for r in rows if r["agent"] == agent}):
             sel = [r for r in rows if r["agent"] == agent and r[x_key] == x]
             row: dict[str, Any] = {"agent": agent, x_key: x, "episodes": len(sel)}
-            for metric in ("response_time_mean", "dropped", "overloaded_node_ticks", "completed"):
+            for metric in ("response_time_mean", "completion_ratio", "penalised_response_time", "dropped",
+                           "overloaded_node_ticks", "completed"):
                 row[metric], row[f"{metric}_ci95"] = mean_ci([float(r[metric]) for r in sel])
             out.append(row)
     return out
@@ -57,9 +61,9 @@ def summarise(rows: Sequence[Mapping[str, Any]], x_key: str, agents: Sequence[st
 
 def plot_study(rows: Sequence[Mapping[str, Any]], x_key: str, xlabel: str, agents: Sequence[str], title: str,
                path: str | Path, xticklabels: Mapping[float, str] | None = None) -> None:
-    """Three panels side by side, lines with markers and shaded 95% confidence bands, a shared legend."""
+    """The panels side by side, lines with markers and shaded 95% confidence bands, a shared legend."""
     summary = summarise(rows, x_key, agents)
-    fig, axes = plt.subplots(1, 3, figsize=(15, 4.6), constrained_layout=True)
+    fig, axes = plt.subplots(1, len(PANELS), figsize=(5 * len(PANELS), 4.6), constrained_layout=True)
     colours = plt.get_cmap("tab10").colors
     xs = sorted({float(r[x_key]) for r in rows})
     # Agents that behave alike (greedy and local on the AoT networks) would hide each other: shift each

@@ -228,9 +228,12 @@ def _timing(run: Run, phase: str, episodes: int, start: float) -> dict[str, Any]
 def _print_summary(console: Console, rows: list[dict[str, Any]], x_key: str, agents: Sequence[str]) -> None:
     for x in sorted({r[x_key] for r in rows}):
         table = Table(title=f"{x_key} = {x:g}")
-        for col in ("agent", "response time [s]", "dropped", "overloaded node-ticks", "completed"):
+        for col in ("agent", "response time [s]", "completion ratio", "penalised resp. time [s]", "dropped",
+                    "overloaded node-ticks", "completed"):
             table.add_column(col, justify="left" if col == "agent" else "right")
         for s in summarise([r for r in rows if r[x_key] == x], x_key, agents):
-            table.add_row(s["agent"], *(f"{s[m]:.1f} ± {s[m + '_ci95']:.1f}" for m in
-                                        ("response_time_mean", "dropped", "overloaded_node_ticks", "completed")))
+            table.add_row(s["agent"], *(f"{s[m]:.2f} ± {s[m + '_ci95']:.2f}" if m == "completion_ratio"
+                                        else f"{s[m]:.1f} ± {s[m + '_ci95']:.1f}" for m in
+                                        ("response_time_mean", "completion_ratio", "penalised_response_time",
+                                         "dropped", "overloaded_node_ticks", "completed")))
         console.print(table)

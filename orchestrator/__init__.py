@@ -1,0 +1,1 @@
+"""The orchestrator: owns the simulated clock, launches and supervises node processes, gathers metrics."""

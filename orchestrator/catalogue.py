@@ -8,7 +8,7 @@ and the environment's infos are all built by iterating ``CATALOGUE``: a new metr
 the model and one entry here (docs/extending.md, "Adding a metric").
 
 Each output lists its metrics in catalogue order, with three exceptions that keep the files as they
-have always been: a row ends with its samples' mean; a node's row starts with its levels (what it
+have always been: a row ends with its samples' mean, then its ratios; a node's row starts with its levels (what it
 holds now, then what it did); and summary.json groups metrics in sections (``totals`` for task
 counts), each section in the place of its first metric, its single counts first, then the counts
 broken down by part, then the levels.
@@ -32,6 +32,7 @@ class Agg(Enum):
     LEVEL = "level"  # the value at the end of the tick
     SHARE = "share"  # cycles used / cycles the workers have: of the tick in a row, of the episode in the summary
     SAMPLES = "samples"  # one value per completion: a row shows their mean, the summary count, mean, p50, p95, max
+    RATIO = "ratio"  # cumulative ``fields`` / cumulative ``of`` (None while the latter is 0), in every output
 
 
 class Out(Flag):
@@ -90,11 +91,12 @@ class Metric:
     dtype: type = int  # of its values (SHARE and SAMPLES are always float)
     episode_mean: bool = False  # LEVEL: the summary gives its mean over the episode's ticks, not its last value
     share_of: str | None = None  # the table also gives it as a percentage of this metric
+    of: tuple[str, ...] = ()  # RATIO: the counters of its denominator
 
     def __post_init__(self) -> None:
         if not self.fields and self.agg is not Agg.SAMPLES:
             object.__setattr__(self, "fields", tuple(p.field for p in self.parts) or (self.name,))
-        if self.agg in (Agg.SHARE, Agg.SAMPLES):
+        if self.agg in (Agg.SHARE, Agg.SAMPLES, Agg.RATIO):
             object.__setattr__(self, "dtype", float)
         problems = [
             *(f"a form for {o.name}, which it does not show" for o in self.forms if o not in self.show),
@@ -102,6 +104,7 @@ class Metric:
             *(["MONITOR without a bus output"] if Out.MONITOR in self.show and not self.show & BUS_ANY else []),
             *(["TABLE without SUMMARY"] if Out.TABLE in self.show and Out.SUMMARY not in self.show else []),
             *(["a SHARE reads exactly one counter"] if self.agg is Agg.SHARE and len(self.fields) != 1 else []),
+            *(["a RATIO needs its denominator's counters (of)"] if (self.agg is Agg.RATIO) != bool(self.of) else []),
         ]
         if problems:
             raise ValueError(f"metric {self.name}: {'; '.join(problems)}")
@@ -146,6 +149,18 @@ CATALOGUE: tuple[Metric, ...] = (
            Out.SUMMARY | Out.SUMMARY_NODES | Out.TICKS | Out.BUS | Out.MONITOR | Out.TABLE,
            names={Out.TICKS: "response_time_mean", Out.SUMMARY_NODES: "response_time_mean",
                   Out.BUS: "response_times"}),
+    # completed / generated so far: the share of the tasks created that came back in time
+    Metric("completion_ratio", "ratio", Agg.RATIO, "completion ratio", "c/g",
+           Out.SUMMARY | Out.SUMMARY_NODES | Out.TICKS | Out.BUS | Out.MONITOR | Out.TABLE,
+           fields=("completed",), of=("generated",)),
+    # completed / (completed + dropped): the same over the tasks whose fate is settled (in_system left out)
+    Metric("completion_ratio_settled", "ratio", Agg.RATIO, "completion ratio (settled)", "c/s",
+           Out.SUMMARY | Out.SUMMARY_NODES | Out.TICKS | Out.TABLE,
+           fields=("completed",), of=("completed", *(p.field for p in DROP_PARTS))),
+    # mean over the generated tasks of the response time if completed, else the penalty (docs/model.md)
+    Metric("penalised_response_time", "s", Agg.RATIO, "penalised response time", "prt",
+           Out.SUMMARY | Out.SUMMARY_NODES | Out.TICKS | Out.BUS | Out.MONITOR | Out.TABLE,
+           fields=("penalised_s",), of=("generated",)),
     # tasks lost, each by exactly one cause
     Metric("dropped", "tasks", Agg.COUNT, "dropped", "drops",
            Out.SUMMARY | Out.SUMMARY_NODES | Out.TICKS | Out.NODES | Out.BUS | Out.BUS_DELTA | Out.BUS_NODES
@@ -199,7 +214,8 @@ def _summary_order(metrics: list[Metric]) -> list[Metric]:
 
 def _in_rows(out: Out) -> Callable[[Metric], Any]:
     node_view, row = bool(out & NODE_VIEWS), bool(out & ROWS)
-    return lambda m: (node_view and m.agg is not Agg.LEVEL, row and m.agg is Agg.SAMPLES)
+    return lambda m: (node_view and m.agg is not Agg.LEVEL, row and m.agg in (Agg.SAMPLES, Agg.RATIO),
+                      row and m.agg is Agg.RATIO)
 
 
 def shown(out: Out) -> tuple[Metric, ...]:

@@ -106,20 +106,41 @@ def cmd_launch(args: argparse.Namespace) -> int:
                           f"ZenohEdgeEnv(connect=\"{sim.endpoint}\", sim_id=\"{sim.keys.sim_id}\")", markup=False)
         for episode in range(args.episodes):
             where = out if args.episodes == 1 else out / f"episode-{episode}"
-            summary = run_episode(sim, ticks, None if seed is None else seed + episode, args, console)
+            try:
+                summary = run_episode(sim, ticks, None if seed is None else seed + episode, args, console)
+            except (KeyboardInterrupt, Terminated, ClockError, ConservationError) as exc:
+                keep_partial(sim, where, exc, t0, console)
+                raise
             summary["run"]["total_wall_s"] = round(time.perf_counter() - t0, 3)
             sim.metrics.write(where, summary)
             if args.json:
                 print(json.dumps(summary, indent=2))
             else:
-                out = Console(highlight=False)
-                out.print(summary_table(summary))
+                screen = Console(highlight=False)
+                screen.print(summary_table(summary))
                 if (note := local_note(summary["policy"])) is not None:
-                    out.print(note, soft_wrap=True)
+                    screen.print(note, soft_wrap=True)
             console.print(f"results: {where}/summary.json, ticks.csv, nodes.csv")
         if args.serve:
             sim.server.wait(ready=lambda: console.print("serving until Ctrl-C"))
     return EXIT_OK
+
+
+INTERRUPTIONS = {KeyboardInterrupt: "interrupted (Ctrl-C)", Terminated: "terminated (SIGTERM)"}
+
+
+def keep_partial(sim: Simulation, where: Path, exc: BaseException, t0: float, console: Console) -> None:
+    """Write what an episode that did not finish measured: summary.json marked ``incomplete`` (why, and
+    the last tick recorded) and the CSV rows so far."""
+    if not sim.metrics.ticks:
+        return
+    summary = sim.summary()
+    summary["incomplete"] = {"reason": INTERRUPTIONS.get(type(exc)) or f"{type(exc).__name__}: {exc}",
+                             "last_tick": sim.metrics.ticks[-1]}
+    summary["run"]["total_wall_s"] = round(time.perf_counter() - t0, 3)
+    sim.metrics.write(where, summary)
+    console.print(f"partial results ({len(sim.metrics.ticks)} ticks): {where}/summary.json, ticks.csv, nodes.csv",
+                  markup=False)
 
 
 @contextlib.contextmanager

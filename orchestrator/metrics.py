@@ -8,6 +8,10 @@ summed per node and in total, and checked:
     generated = completed + dropped + (queued + undecided + in flight)
 
 A violation stops the run: a task was lost or invented, and no result after that can be trusted.
+
+Two more columns are the orchestrator's own, kept per role like the counters so that nodes and totals
+sum them alike: the sum of the response times of a client's completed tasks, and ``penalised_s``, that
+sum plus ``penalty_s`` for every task it generated that has not completed (docs/model.md, "Metrics").
 """
 
 from __future__ import annotations
@@ -23,13 +27,17 @@ from typing import Any
 import numpy as np
 
 from node_runtime.model.role import STAT_FIELDS, role_node
+from node_runtime.model.spec import Scenario
 from node_runtime.runtime.layout import ProcessLayout
 from node_runtime.runtime.protocol import Done
 from orchestrator.catalogue import CHANGES, METRIC, Agg, Form, Metric, Out, shown
 
-FIELDS = (*STAT_FIELDS, "in_flight")  # in_flight: tasks and results a role sent that have not arrived yet
+# in_flight: tasks and results a role sent that have not arrived yet; response_time_sum and penalised_s:
+# seconds, for the penalised response time
+FIELDS = (*STAT_FIELDS, "in_flight", "response_time_sum", "penalised_s")
 F = {name: i for i, name in enumerate(FIELDS)}
-IN_FLIGHT = F["in_flight"]
+IN_FLIGHT, RT_SUM, PENALISED = F["in_flight"], F["response_time_sum"], F["penalised_s"]
+GENERATED, COMPLETED = F["generated"], F["completed"]
 N_STATS = len(STAT_FIELDS)
 # generated = completed + dropped + in_system, counter by counter
 CONSERVED = tuple(f for name in ("completed", "dropped", "in_system") for f in METRIC[name].fields)
@@ -53,6 +61,34 @@ def total(m: Metric, rows: np.ndarray) -> Any:
     for c in cols[1:]:
         out = out + rows[..., c]
     return out
+
+
+def penalty_s(sc: Scenario) -> float:
+    """What a task that never completes costs the penalised response time: the scenario's longest
+    deadline (of its task types, or of its trace's rows), so it is never less than a completion's time."""
+    deadlines = [row.deadline for row in sc.workload.trace or ()] or [t.deadline for t in sc.workload.task_types]
+    return max(deadlines, default=0.0)
+
+
+@cache
+def denominators(m: Metric) -> tuple[int, ...]:
+    """The columns of FIELDS that a RATIO ``m`` divides by."""
+    return tuple(F[f] for f in m.of)
+
+
+def ratio(m: Metric, rows: np.ndarray) -> Any:
+    """A RATIO of cumulative counters, for one row (a float, None while the denominator is 0) or several (a list)."""
+    num = total(m, rows)
+    cols = denominators(m)
+    den = rows[..., cols[0]]
+    for c in cols[1:]:
+        den = den + rows[..., c]
+    if np.ndim(den) == 0:
+        return float(num / den) if den else None
+    with np.errstate(divide="ignore", invalid="ignore"):
+        values = num / den
+    return [float(v) if d else None for v, d in zip(values.ravel(), den.ravel(), strict=True)] \
+        if den.ndim == 1 else [ratio(m, r) for r in rows]
 
 
 def share(used: Any, capacity: Any) -> Any:
@@ -81,6 +117,8 @@ def output_values(out: Out, level: np.ndarray, change: np.ndarray, capacity: Any
                 shown_values[m.key(out)] = samples(m)
         elif m.agg is Agg.SHARE:
             shown_values[m.key(out)] = share(change[..., counters(m)[0]], capacity).tolist()
+        elif m.agg is Agg.RATIO:
+            shown_values[m.key(out)] = ratio(m, level)
         else:
             put(shown_values, m.key(out), m, m.form(out), counts if m.agg is Agg.COUNT else level)
     return shown_values
@@ -146,6 +184,7 @@ class Metrics:
             incidence[sc.index[role_node(r)], i] = 1.0
         self.incidence = incidence
         self.capacity = np.array([n.capacity * sc.dt if n.has("worker") else 0.0 for n in sc.nodes])
+        self.penalty = penalty_s(sc)
         self.reset()
 
     def reset(self) -> None:
@@ -175,7 +214,9 @@ class Metrics:
         for d in dones:  # completions, in canonical role order within each process
             for role, times in d.response_times.items():
                 rts.extend(times)
+                m[role, RT_SUM] += sum(times)
                 self.rt_by_node.setdefault(role_node(self.roles[role]), []).extend(times)
+        m[:, PENALISED] = m[:, RT_SUM] + self.penalty * (m[:, GENERATED] - m[:, COMPLETED])
         totals = m.sum(axis=0)
         nodes = self.incidence @ m
         self.check(tick, totals)
@@ -240,6 +281,8 @@ class Metrics:
                              "p95": float(np.percentile(rt, 95)), "max": float(rt.max())}
             else:
                 into[key] = {"count": 0, "mean": None, "p50": None, "p95": None, "max": None}
+        elif m.agg is Agg.RATIO:
+            into[key] = ratio(m, end)
         elif m.agg is Agg.SHARE:
             capacity = capacity * len(levels)
             into[key] = float(end[counters(m)[0]] / capacity) if capacity else 0.0

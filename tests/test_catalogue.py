@@ -123,7 +123,9 @@ def test_a_metric_added_to_the_catalogue_alone_reaches_every_output(tmp_path, mo
     out = run(tmp_path)
     s = out["summary"]
     header, ticks = out["ticks"]
-    assert header[-1] == "response_time_mean" and header[-2] == "cycles"  # a row still ends with its samples
+    ratios = [m.key(Out.TICKS) for m in shown(Out.TICKS) if m.agg is Agg.RATIO]
+    # a row still ends with its samples, then its ratios
+    assert header[-len(ratios) - 2:] == ["cycles", "response_time_mean", *ratios]
     per_tick = np.array([float(r["cycles"]) for r in ticks])
     assert per_tick.sum() > 0
     assert s["cycles"] == pytest.approx(per_tick.sum())  # the summary's total is the sum of the ticks' changes

@@ -45,3 +45,9 @@ def test_zenohedge_node_checks_the_same_options_the_same_way(capsys):
     assert exc.value.code == 2
     assert capsys.readouterr().err.strip().splitlines()[-1] == (
         "zenohedge-node: error: argument --sim: expected letters, digits, '_', '.' or '-' (got 'a/b')")
+
+
+def test_several_episodes_each_get_their_folder(tmp_path):
+    assert main(["launch", "aot1", "--transport", "inproc", "--steps", "3", "--episodes", "2", "-q",
+                 "--out", str(tmp_path)]) == 0
+    assert all((tmp_path / f"episode-{i}" / "summary.json").exists() for i in (0, 1))

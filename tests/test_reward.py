@@ -6,7 +6,7 @@ import math
 
 import pytest
 
-from env.reward import PaperWeights, paper_terms, shaped
+from env.reward import PaperWeights, nominal_arrivals, paper_terms, reference_terms, shaped
 from node_runtime.model.view import NodeView, Observation, TaskView
 
 # An rpi3-like node (1 core at 4e6 cycles/s, buffer 3, holding 3 tasks of which 2 queued) next to a
@@ -56,3 +56,70 @@ def test_weights_are_configurable():
 
 def test_shaping_formula():
     assert shaped(1.0, potential_before=2.0, potential_after=3.0, gamma=0.5) == pytest.approx(1.0 + 1.5 - 2.0)
+
+
+# ----- the reference implementation's reward (docs/reward.md, "The reference implementation") -----
+# Same situation; nominal arrivals 0.5 task/s at a and 1 task/s at b. Default weights: U = 2, so the
+# caps are U * chi = 40 s and the overload scale U * chi_O = 300.
+ARRIVALS = {"a": 0.5, "b": 1.0}
+
+
+def test_reference_keeping_the_task_local():
+    t = reference_terms(OBS, TASK, 0, dt=1.0, arrivals=ARRIVALS)
+    assert t.t_wait == pytest.approx(7.5e-7)  # 3 tasks / 4e6 cycles/s: the reference's units, near 0
+    assert (t.t_comm, t.t_exc) == (0.0, 0.0)
+    # Q' = 3 (the task is in the buffer already) + 0.5 arrivals - 4e6/8e7 = 3.45 -> capped at Qmax = 3
+    # p = max(1e-3, 0) = 1e-3; O = -log10(1e-3) / 3 * 300 = 300
+    assert t.overload == pytest.approx(300.0)
+    assert t.reward == pytest.approx(2 - (7.5e-7 + 300))  # -298.00000075
+
+
+def test_reference_offloading_to_a_faster_neighbour():
+    t = reference_terms(OBS, TASK, 1, dt=1.0, arrivals=ARRIVALS)
+    assert t.t_wait == pytest.approx(3 / 4e6 + 5 / 3.2e7)  # own queue, then the target's: 9.0625e-7 s
+    assert t.t_comm == pytest.approx(8e7 / 3e7)  # one way, the input only: 2.6667 s
+    assert t.t_exc == pytest.approx(-17.5)  # 2.5 - 20, inside [-40, 40]
+    assert t.delay == pytest.approx(9.0625e-7 + 8 / 3 - 17.5)  # unweighted sum: -14.833332
+    # Q' = 5 + 1 (this task) + 1.0 arrivals - 3.2e7/8e7 = 6.6; p = (54 - 6.6)/54 = 0.877778
+    # O = -log10(0.877778) / 3 * 300 = 0.0566150 * 100 = 5.66150
+    assert t.overload == pytest.approx(5.66150, rel=1e-5)
+    assert t.reward == pytest.approx(2 - (-14.833332 + 5.66150), rel=1e-5)  # 11.17183
+
+
+def test_reference_caps_the_times_at_utility_times_chi():
+    slow = NodeView("b", queue=5, occupancy=5, buffer=54, capacity=4e5, tier=1, rate_bps=1e6, age=1, worker=True)
+    t = reference_terms(Observation(10, "a", OWN, 1, [TASK], [slow]), TASK, 1, dt=1.0, arrivals=ARRIVALS)
+    assert t.t_comm == pytest.approx(40.0)  # 8e7 bits / 1e6 bit/s = 80 s, capped at 2 * 20
+    assert t.t_exc == pytest.approx(40.0)  # 8e7/4e5 - 8e7/4e6 = 200 - 20 = 180 s, capped at 40
+
+
+def test_reference_offloading_from_a_near_empty_buffer_earns_the_utility():
+    alone = NodeView("a", queue=0, occupancy=1, buffer=3, capacity=4e6, tier=0, rate_bps=0.0, age=1, worker=True)
+    t = reference_terms(Observation(10, "a", alone, 0, [TASK], [NUC]), TASK, 1, dt=1.0, arrivals=ARRIVALS)
+    assert t.reward == 2.0  # +U, whatever the target
+
+
+def test_nominal_arrivals_split_a_clients_rate_over_its_targets():
+    from orchestrator.scenario import load_scenario
+
+    sc = load_scenario("aot2")
+    arrivals = nominal_arrivals(sc)
+    assert sum(arrivals.values()) == pytest.approx(sc.workload.arrival.rate * len(sc.clients))
+
+
+def test_the_env_selects_the_reference_reward_by_name():
+    from env import ZenohEdgeEnv
+
+    env = ZenohEdgeEnv("aot1", transport="inproc", reward="reference", max_steps=30, seed=3)
+    try:
+        env.reset(seed=3)
+        placed = []
+        for _ in range(30):
+            _, rewards, *_ = env.step({a: 0 for a in env.agents})
+            placed.extend(r for r in rewards.values() if r != 0.0)
+            if not env.agents:
+                break
+        assert placed, "no task was placed in 30 steps"
+        assert all(r <= 2.0 for r in placed)  # U - (D + O) with D, O >= 0 when kept local
+    finally:
+        env.close()

@@ -162,7 +162,7 @@ class _Resolver:
             checks[("simulation.policy", cfg.simulation.policy)] = (Policy, False)
         if cfg.workload.source:
             checks[("workload.source", cfg.workload.source)] = (TaskSource, False)
-        if cfg.reward and cfg.reward not in ("paper", "sparse"):
+        if cfg.reward and cfg.reward not in ("paper", "reference", "sparse"):
             checks[("reward", cfg.reward)] = (None, True)
         if checks or cfg.observation:
             importable_from(self.base)

@@ -217,7 +217,7 @@ class ScenarioFile(Strict):
     name: str | None = None
     description: str = ""
     roles: RolesCfg = RolesCfg()
-    reward: str | None = None  # for the environment: "paper", "sparse", or an import path of a callable
+    reward: str | None = None  # for the environment: "paper", "reference", "sparse", or an import path of a callable
     observation: str | None = None  # for the environment: import path of an observation builder class
     simulation: SimulationCfg = SimulationCfg()
     network: NetworkCfg = NetworkCfg()

@@ -349,6 +349,9 @@ def render(state: DashboardState, now: float) -> RenderableType:
     for m in metrics:
         if m.agg is Agg.SAMPLES:
             head.add_row(m.label, _percentiles(state, m, tot))
+    ratios = [m for m in metrics if m.agg is Agg.RATIO]  # beside response time, so that drops are not hidden
+    if ratios:
+        head.add_row("episode", "  ".join(f"{m.label} {quantity(tot[m.key(Out.BUS)], m.unit)}" for m in ratios))
     if state.missed:
         head.add_row("missed", Text(f"{state.missed} tick(s) lost on the way (best effort)", style="yellow"))
 

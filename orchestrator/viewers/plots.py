@@ -30,7 +30,7 @@ from matplotlib.figure import Figure
 from matplotlib.ticker import MaxNLocator
 
 from orchestrator.catalogue import METRIC, Out, columns
-from orchestrator.units import prefix, si
+from orchestrator.units import prefix, quantity, si
 from orchestrator.viewers.draw import TIER_COLOURS
 from orchestrator.viewers.summary import policy_text, rows
 
@@ -305,17 +305,22 @@ def panel_system(ax: Axes, run: Run) -> None:
 
 def panel_response(ax: Axes, run: Run, *, points: bool = True) -> None:
     rt = run.ticks["response_time_mean"]
-    _time_axes(ax, run, "response time of completed tasks", "response time (s)")
+    ratio = run.summary.get("completion_ratio")
+    done = f" ({quantity(ratio, 'ratio')} of the generated)" if ratio is not None else ""
+    _time_axes(ax, run, f"response time of completed tasks{done}", "response time (s)")
     if np.all(np.isnan(rt)):
         _empty(ax, "no task completed")
         return
+    penalised = run.ticks["penalised_response_time"]  # so far; drops and unfinished tasks charged the penalty
     w = window(len(run.x))
     smooth = rolling_response(run, w)
     if points:
         ax.scatter(run.x, rt, s=7, color=C_RESPONSE, alpha=0.3, linewidths=0, label="mean of one tick's completions")
     ax.plot(run.x, smooth, color=C_RESPONSE, linewidth=1.8, label=f"rolling mean ({w} ticks)")
+    ax.plot(run.x, penalised, color="#333333", linewidth=1.4,
+            label="penalised response time so far (every generated task)")
     r = run.summary.get("response_time", {})
-    top = float(np.nanmax(rt if points else smooth))
+    top = max(float(np.nanmax(rt if points else smooth)), float(np.nanmax(penalised)))
     for key, style in (("p50", ":"), ("p95", "--")):
         if r.get(key) is not None:
             ax.axhline(r[key], color="#333333", linestyle=style, linewidth=1, label=f"{key} of the run: {r[key]:.3g} s")

@@ -1,0 +1,82 @@
+"""An episode that does not finish keeps what it measured: summary.json marked incomplete (why, last
+tick) and the CSV rows so far, whether a node dies or the orchestrator is interrupted."""
+
+from __future__ import annotations
+
+import csv
+import json
+import signal
+import subprocess
+import sys
+import textwrap
+from pathlib import Path
+
+import pytest
+
+from tests.conftest import ROOT, write_scenario
+from tests.launcher import TIMEOUT, Launch
+
+WORKERS = '''
+import sys
+
+from node_runtime import Worker
+
+
+class FailingWorker(Worker):
+    """Dies in tick ``fail_at``: its node process exits and the clock reports it."""
+
+    def tick(self, t, inbox, out):
+        if t == int(self.node.param("fail_at")):
+            raise RuntimeError(f"battery flat at tick {t}")
+        super().tick(t, inbox, out)
+
+
+class MarkingWorker(Worker):
+    """Says on stderr that tick ``mark_at`` ran: an event a test can wait for (in-process runs only)."""
+
+    def tick(self, t, inbox, out):
+        if t == int(self.node.param("mark_at")):
+            print(f"mark {t}", file=sys.stderr, flush=True)
+        super().tick(t, inbox, out)
+'''
+
+
+def scenario(tmp_path: Path, worker: str, **params: object) -> Path:
+    (tmp_path / "partial_workers.py").write_text(textwrap.dedent(WORKERS))
+    return write_scenario(tmp_path, {
+        "simulation": {"steps": 100000},
+        "topology": {"nodes": [{"id": "a", "client": True, "controller": True,
+                                "roles": {"worker": f"partial_workers:{worker}"}, "params": params},
+                               {"id": "b"}], "links": [["a", "b"]]}})
+
+
+def read(out: Path) -> tuple[dict, list[dict]]:
+    summary = json.loads((out / "summary.json").read_text())
+    with (out / "ticks.csv").open() as fh:
+        return summary, list(csv.DictReader(fh))
+
+
+@pytest.mark.zenoh
+def test_a_dead_node_keeps_the_ticks_before_it_died(tmp_path):
+    path = scenario(tmp_path, "FailingWorker", fail_at=40)
+    proc = subprocess.run([sys.executable, "-m", "orchestrator.cli", "launch", str(path), "--out",
+                           str(tmp_path / "out"), "-q"], cwd=ROOT, capture_output=True, text=True, timeout=TIMEOUT)
+    assert proc.returncode == 1, proc.stderr
+    summary, ticks = read(tmp_path / "out")
+    assert summary["incomplete"]["last_tick"] == 39
+    assert "worker-a" in summary["incomplete"]["reason"]
+    assert summary["ticks"] == len(ticks) == 40
+    assert [int(r["tick"]) for r in ticks] == list(range(40))
+
+
+@pytest.mark.parametrize(("signum", "reason"), [(signal.SIGINT, "interrupted (Ctrl-C)"),
+                                                 (signal.SIGTERM, "terminated (SIGTERM)")])
+def test_an_interrupted_run_keeps_its_ticks(tmp_path, signum, reason):
+    path = scenario(tmp_path, "MarkingWorker", mark_at=30)
+    run = Launch(str(path), "--transport", "inproc", "--tick-rate", "200", "--out", str(tmp_path / "out"), "-q")
+    run.wait_for("mark 30", timeout=TIMEOUT)
+    run.proc.send_signal(signum)
+    assert run.finish(TIMEOUT) == 130
+    summary, ticks = read(tmp_path / "out")
+    assert summary["incomplete"]["reason"] == reason
+    assert summary["ticks"] == len(ticks) == summary["incomplete"]["last_tick"] + 1 >= 30  # tick 30 was running
