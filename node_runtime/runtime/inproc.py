@@ -11,6 +11,7 @@ from collections import deque
 from collections.abc import Callable
 from typing import Any
 
+from node_runtime.runtime.rejections import Rejections
 from node_runtime.runtime.transport import Handler, Monitored, TokenHandler, Transport, TransportError
 
 
@@ -107,6 +108,7 @@ class InprocEndpoint(Transport):
     def __init__(self, bus: InprocBus) -> None:
         self.bus = bus
         self._tokens: list[str] = []
+        self.rejections = Rejections()
 
     def publish(self, key: str, message: Any) -> None:
         self.bus.publish(key, message)

@@ -21,6 +21,7 @@ from typing import Any, Literal
 import zenoh
 
 from node_runtime.runtime import codec
+from node_runtime.runtime.rejections import Rejections
 from node_runtime.runtime.transport import Handler, Monitored, TokenHandler, Transport, TransportError
 
 Mode = Literal["router", "client", "peer"]
@@ -77,6 +78,7 @@ class ZenohTransport(Transport):
         self._pubs: dict[str, zenoh.Publisher] = {}
         self._entities: list[Any] = []
         self._closed = False
+        self.rejections = Rejections()
 
     @classmethod
     def router(cls, endpoint: str, connect: list[str] | None = None) -> ZenohTransport:
@@ -135,7 +137,11 @@ class ZenohTransport(Transport):
         """Answer requests on ``key`` with ``handler(message)``. The handler runs in a Zenoh thread."""
 
         def on_query(query: zenoh.Query) -> None:  # answer on our own key: a wildcard query learns who answered
-            message = codec.decode(query.payload.to_bytes()) if query.payload is not None else None
+            try:
+                message = codec.decode(query.payload.to_bytes()) if query.payload is not None else None
+            except codec.CodecError as exc:
+                self.rejections.add(key, exc.reason, str(exc))
+                return
             query.reply(key, codec.encode(handler(message)))
 
         self._entities.append(self.session.declare_queryable(key, on_query))
@@ -192,7 +198,11 @@ class ZenohTransport(Transport):
                     idle()
                 continue
             if isinstance(data, bytes):
-                data = codec.decode(data)
+                try:
+                    data = codec.decode(data)
+                except codec.CodecError as exc:
+                    self.rejections.add(key, exc.reason, str(exc))
+                    continue
             handler(key, data)
 
     def close(self) -> None:
