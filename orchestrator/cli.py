@@ -30,7 +30,7 @@ from node_runtime.model.policies import POLICIES
 from node_runtime.runtime.keys import CHUNK, new_sim_id
 from node_runtime.runtime.layout import LAYOUTS, ProcessLayout
 from orchestrator.arguments import COUNT, NON_NEGATIVE, POSITIVE, integer
-from orchestrator.clock import ClockError
+from orchestrator.clock import ClockError, ProcessFailed
 from orchestrator.metrics import ConservationError, TickReport
 from orchestrator.placement import load_placement
 from orchestrator.scenario import ScenarioError, load_scenario
@@ -39,6 +39,7 @@ from orchestrator.viewers import monitor
 from orchestrator.viewers.progress import progress_steps
 
 EXIT_OK, EXIT_FAILED, EXIT_USAGE, EXIT_INTERRUPTED = 0, 1, 2, 130
+TRACE_LINES = 12  # of a failed node's traceback, shown under the error
 
 
 
@@ -367,6 +368,9 @@ def main(argv: list[str] | None = None) -> int:
         return EXIT_USAGE
     except (ClockError, ConservationError) as exc:
         fail(f"error: {exc}")
+        if isinstance(exc, ProcessFailed) and exc.trace:  # the node's own traceback, its end
+            for line in exc.trace.strip().splitlines()[1:][-TRACE_LINES:]:
+                fail(f"  {line}")
         return EXIT_FAILED
     except (KeyboardInterrupt, Terminated):
         fail("interrupted: every node process has been stopped")

@@ -28,6 +28,7 @@ from node_runtime.runtime.host import Host
 from node_runtime.runtime.inproc import InprocBus
 from node_runtime.runtime.keys import DEFAULT_PREFIX, Keys, new_sim_id
 from node_runtime.runtime.layout import Layout, ProcessLayout
+from node_runtime.runtime.process import ORCHESTRATOR
 from node_runtime.runtime.protocol import Done
 from node_runtime.runtime.transport import Transport
 from node_runtime.runtime.zenoh_bus import ZenohTransport, free_port
@@ -77,6 +78,7 @@ class Simulation:
         else:
             router, self.endpoint = open_router(listen_host, port, join)
             self.transport = router
+            router.rejections.who = ORCHESTRATOR
             try:
                 self.supervisor = Supervisor(router, self.keys, self.plan)
                 self.clock = Clock(router, self.keys, self.plan, timeout, health=self.supervisor.check)
@@ -133,6 +135,7 @@ class Simulation:
         self._run_started = time.perf_counter()
         self.transport = transport
         self.attached = driver
+        transport.rejections.who = driver
         try:
             self.supervisor = Supervisor(transport, keys, self.plan, token=driver)
             self.supervisor.wait_ready(timeout)
@@ -209,6 +212,9 @@ class Simulation:
             "wall_time_s": round(wall, 3),
             "ticks_per_s": round(self._ticks_run / wall, 1) if wall > 0 else None,
             "finished_at": dt.datetime.now(dt.UTC).isoformat(timespec="seconds"),
+            # messages refused on the bus since the simulation started (docs/bus.md, "Rejected messages")
+            "rejected_messages": {"orchestrator": dict(sorted(self.transport.rejections.counts.items())),
+                                  "nodes": self.clock.node_rejected()},
         }
         return s
 

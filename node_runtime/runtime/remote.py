@@ -19,6 +19,7 @@ import threading
 
 from node_runtime.model.spec import Scenario
 from node_runtime.runtime import process as node_process
+from node_runtime.runtime.codec import CodecError
 from node_runtime.runtime.forkserver import ForkServer
 from node_runtime.runtime.keys import DEFAULT_PREFIX, Keys
 from node_runtime.runtime.process import ORCHESTRATOR, ProcSpec
@@ -34,6 +35,10 @@ def run_group(endpoint: str, keys: Keys, group: str, timeout: float = 30.0) -> i
     try:
         try:
             info = transport.request(keys.session(), {"type": "session?"}, timeout=timeout)
+        except CodecError as exc:  # most likely another ZenohEdge version there
+            print(f"zenohedge-node: simulation {keys.sim_id!r} at {endpoint} answers in a form this host cannot "
+                  f"read: {exc}", file=sys.stderr)
+            return EXIT_USAGE
         except Exception:
             print(f"zenohedge-node: no simulation {keys.sim_id!r} answers at {endpoint}", file=sys.stderr)
             return EXIT_USAGE
@@ -54,7 +59,12 @@ def run_group(endpoint: str, keys: Keys, group: str, timeout: float = 30.0) -> i
         transport.watch_tokens(keys.alive(ORCHESTRATOR), lambda key, alive: alive or gone.set())
         transport.dispatch(until=lambda: gone.is_set() or not forks.wait(pids, 0.0))
         left = forks.wait(pids, 10.0)
-        failed = [pid for pid in pids if (forks.exit_status(pid) or 0) not in (0, node_process.EXIT_ORPHANED)]
+        failed = [(proc, pid) for proc, pid in zip(procs, pids, strict=True)
+                  if (forks.exit_status(pid) or 0) not in (0, node_process.EXIT_ORPHANED)]
+        for proc, pid in failed:
+            why = forks.account(pid).strip()
+            print(f"zenohedge-node: process {proc} exited with status {forks.exit_status(pid)}"
+                  f"{': ' + why.splitlines()[0] if why else ''}", file=sys.stderr)
         return EXIT_FAILED if left or failed else EXIT_OK
     except KeyboardInterrupt:
         return EXIT_OK
