@@ -34,7 +34,7 @@ from orchestrator.clock import ClockError, ProcessFailed
 from orchestrator.metrics import ConservationError, TickReport
 from orchestrator.placement import load_placement
 from orchestrator.scenario import ScenarioError, load_scenario
-from orchestrator.session import Simulation
+from orchestrator.session import SimIdInUse, Simulation
 from orchestrator.viewers import monitor
 from orchestrator.viewers.progress import progress_steps
 
@@ -363,7 +363,7 @@ def main(argv: list[str] | None = None) -> int:
         for line in exc.errors:
             fail(line)
         return EXIT_USAGE
-    except UsageError as exc:
+    except (UsageError, SimIdInUse) as exc:
         fail(f"orchestrator: {exc}")
         return EXIT_USAGE
     except (ClockError, ConservationError) as exc:

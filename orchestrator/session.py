@@ -40,6 +40,11 @@ from orchestrator.version import code_version
 
 TransportName = Literal["zenoh", "inproc"]
 ROUTER_ATTEMPTS = 5
+QUERY_TIMEOUT_S = 5.0  # upper bound of the liveliness query at start; it answers at once when no other has the id
+
+
+class SimIdInUse(RuntimeError):
+    """Another orchestrator on the same Zenoh network already uses this simulation id."""
 
 
 def open_router(host: str = "127.0.0.1", port: int | None = None,
@@ -54,6 +59,15 @@ def open_router(host: str = "127.0.0.1", port: int | None = None,
         except Exception as exc:  # zenoh raises ZError when the port is taken
             last = exc
     raise RuntimeError(f"could not open a Zenoh router on {host}: {last}")
+
+
+def refuse_taken_id(router: ZenohTransport, keys: Keys) -> None:
+    """Two orchestrators with one simulation id on joined routers would take each other's messages
+    for their own: look for the other's liveliness token before declaring anything."""
+    if any(r.ok is not None for r in router.session.liveliness().get(keys.alive(ORCHESTRATOR),
+                                                                     timeout=QUERY_TIMEOUT_S)):
+        raise SimIdInUse(f"simulation id {keys.sim_id!r} is already in use on this Zenoh network (an orchestrator "
+                         "with that id runs at a joined router): choose another --sim-id")
 
 
 class Simulation:
@@ -80,6 +94,7 @@ class Simulation:
             self.transport = router
             router.rejections.who = ORCHESTRATOR
             try:
+                refuse_taken_id(router, self.keys)
                 self.supervisor = Supervisor(router, self.keys, self.plan)
                 self.clock = Clock(router, self.keys, self.plan, timeout, health=self.supervisor.check)
                 self.live = router.monitored(self.keys.metrics())
