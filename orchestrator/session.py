@@ -87,6 +87,7 @@ class Simulation:
             bus = InprocBus()
             self.drivers = [HostDriver(Host(p, self.plan), bus.endpoint(), self.keys) for p in self.plan.procs]
             self.transport: Transport = bus.endpoint()
+            self.transport.rejections.who = ORCHESTRATOR
             self.clock = Clock(self.transport, self.keys, self.plan, timeout)
             self.live = self.transport.monitored(self.keys.metrics())
         else:

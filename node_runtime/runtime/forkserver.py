@@ -232,5 +232,7 @@ class ForkServer:
         self._reader.join(2.0)
 
 
-if __name__ == "__main__":
-    serve()
+if __name__ == "__main__":  # run the importable module's server: its ChildFailed is the one children raise
+    from node_runtime.runtime import forkserver
+
+    forkserver.serve()
