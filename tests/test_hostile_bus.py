@@ -19,7 +19,8 @@ from hypothesis import strategies as st
 from env import ZenohEdgeEnv
 from node_runtime.model.messages import Decision, Envelope, Kind, NodeState, Task
 from node_runtime.model.role import STAT_FIELDS
-from node_runtime.runtime import codec
+from node_runtime.runtime import codec, remote
+from node_runtime.runtime.keys import Keys
 from node_runtime.runtime.protocol import SCHEMA_VERSION, Batch, Done, Tick
 from node_runtime.runtime.zenoh_bus import ZenohTransport, zenoh_config
 from orchestrator.clock import ProcessFailed
@@ -257,4 +258,22 @@ def test_a_served_run_logs_garbage_and_serves_on(tmp_path):
     run.proc.send_signal(signal.SIGTERM)
     assert run.finish(30) == 130
     assert not any("Traceback" in line for line in run.err), "".join(run.err)
+    assert_all_gone(children)
+
+
+@pytest.mark.zenoh
+def test_another_schema_version_is_refused_with_its_reason(tmp_path, monkeypatch, capsys):
+    """A zenohedge-node of another ZenohEdge version (its messages carry another schema version) is told why."""
+    run = Launch("aot1", "--serve", "--episodes", "0", "--out", str(tmp_path))
+    run.wait_for("serving until Ctrl-C")
+    children = run.descendants()
+    endpoint, sim = served(run)
+    monkeypatch.setattr(codec, "SCHEMA_VERSION", SCHEMA_VERSION + 1)
+    assert remote.run_group(endpoint, Keys(sim), "edge", timeout=30) == remote.EXIT_USAGE
+    assert capsys.readouterr().err.strip() == (
+        f"zenohedge-node: simulation '{sim}' at {endpoint}: zedge/{sim}/session refused the request: schema version "
+        f"{SCHEMA_VERSION + 1}, expected {SCHEMA_VERSION}: every host needs the same ZenohEdge version")
+    run.wait_for(f"zenohedge: orchestrator rejected a message on zedge/{sim}/session: schema_version")
+    run.proc.send_signal(signal.SIGTERM)
+    assert run.finish(30) == 130
     assert_all_gone(children)

@@ -19,7 +19,6 @@ import threading
 
 from node_runtime.model.spec import Scenario
 from node_runtime.runtime import process as node_process
-from node_runtime.runtime.codec import CodecError
 from node_runtime.runtime.forkserver import ForkServer
 from node_runtime.runtime.keys import DEFAULT_PREFIX, Keys
 from node_runtime.runtime.process import ORCHESTRATOR, ProcSpec
@@ -35,12 +34,8 @@ def run_group(endpoint: str, keys: Keys, group: str, timeout: float = 30.0) -> i
     try:
         try:
             info = transport.request(keys.session(), {"type": "session?"}, timeout=timeout)
-        except CodecError as exc:  # most likely another ZenohEdge version there
-            print(f"zenohedge-node: simulation {keys.sim_id!r} at {endpoint} answers in a form this host cannot "
-                  f"read: {exc}", file=sys.stderr)
-            return EXIT_USAGE
-        except Exception:
-            print(f"zenohedge-node: no simulation {keys.sim_id!r} answers at {endpoint}", file=sys.stderr)
+        except Exception as exc:  # no answer; or a refusal, e.g. from another ZenohEdge version
+            print(f"zenohedge-node: simulation {keys.sim_id!r} at {endpoint}: {exc}", file=sys.stderr)
             return EXIT_USAGE
         placement = info.get("placement") or {}
         if group not in placement:

@@ -139,8 +139,9 @@ class ZenohTransport(Transport):
         def on_query(query: zenoh.Query) -> None:  # answer on our own key: a wildcard query learns who answered
             try:
                 message = codec.decode(query.payload.to_bytes()) if query.payload is not None else None
-            except codec.CodecError as exc:
+            except codec.CodecError as exc:  # plain text: the asker may not read our msgpack either
                 self.rejections.add(key, exc.reason, str(exc))
+                query.reply_err(str(exc).encode())
                 return
             query.reply(key, codec.encode(handler(message)))
 
@@ -148,9 +149,13 @@ class ZenohTransport(Transport):
 
     def request(self, key: str, message: Any, timeout: float = 10.0) -> Any:
         """Ask whoever serves ``key``; the first answer wins."""
+        refused = ""
         for reply in self.session.get(key, payload=codec.encode(message), timeout=timeout):
             if reply.ok is not None:
                 return codec.decode(reply.ok.payload.to_bytes())
+            refused = reply.err.payload.to_bytes().decode(errors="replace")
+        if refused:
+            raise TransportError(f"{key} refused the request: {refused}")
         raise TransportError(f"no answer from {key} within {timeout:.0f} s")
 
     # ----- best-effort publications for monitors -----
