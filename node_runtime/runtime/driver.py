@@ -20,7 +20,6 @@ from __future__ import annotations
 from collections import defaultdict
 
 from node_runtime.model.messages import Kind
-from node_runtime.model.role import role_id
 from node_runtime.runtime.forkserver import account
 from node_runtime.runtime.host import Host
 from node_runtime.runtime.keys import Keys
@@ -51,9 +50,7 @@ class HostDriver:
         self.rejections.who = self.proc
         # who may publish to this process, and where the envelopes they carry may go
         topics = plan.topics_of(self.proc)
-        broadcasters = (plan.proc_of.get(role_id("worker", topic.split("/", 1)[1])) for topic in topics)
-        self.senders = frozenset(p for p in plan.procs if self.proc in plan.destinations(p)) | {
-            p for p in broadcasters if p is not None}
+        self.senders = frozenset(p for p in plan.procs if self.proc in plan.recipients(p))
         self.hosted = frozenset(host.by_id)
         self.topics = frozenset(topics)
         # one detector per node covers every event kind, users' own included; publishers come lazily
