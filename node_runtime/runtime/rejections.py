@@ -8,6 +8,7 @@ here. Recording happens only for refused messages, so the hot path pays nothing 
 from __future__ import annotations
 
 import logging
+import os
 import threading
 import time
 
@@ -30,12 +31,13 @@ log = logging.getLogger("zenohedge.bus")
 class Rejections:
     """Counts of refused messages by reason, and their rate-limited log.
 
-    ``who`` names the refusing side in log lines (a process name, or "clock"). ``changed`` tells a
-    node process to put its counts in its next ``Done``. Safe to call from Zenoh's threads too.
+    ``who`` names the refusing side in log lines: a node process's name, "orchestrator", a driver's
+    name (the default names the OS process). ``changed`` tells a node process to put its counts in its
+    next ``Done``. Safe to call from Zenoh's threads too.
     """
 
-    def __init__(self, who: str = "", interval: float = LOG_INTERVAL) -> None:
-        self.who = who
+    def __init__(self, who: str | None = None, interval: float = LOG_INTERVAL) -> None:
+        self.who = who or f"process {os.getpid()}"
         self.interval = interval
         self.counts: dict[str, int] = {}
         self.changed = False
@@ -61,7 +63,7 @@ class Rejections:
                 return
             self._logged[slot] = (now, 0)
         more = f" [+{since} more on this key since the last line]" if since else ""
-        log.warning("zenohedge: %s rejected a message on %s: %s (%s)%s", self.who or "?", key[:LONGEST],
+        log.warning("zenohedge: %s rejected a message on %s: %s (%s)%s", self.who, key[:LONGEST],
                     reason, why, more)
 
     def line(self) -> str:
