@@ -27,6 +27,16 @@ from orchestrator.clock import ProcessFailed
 EXIT_NOTICE_S = 2.0  # how long a vanished token waits for its local process's exit notice, which says why
 
 
+def how(status: int) -> str:
+    """An exit status as a person reads it: 'status 1', 'killed by SIGKILL'."""
+    if status >= 0:
+        return f"status {status}"
+    try:
+        return f"killed by {signal.Signals(-status).name}"
+    except ValueError:
+        return f"killed by signal {-status}"
+
+
 class Supervisor:
     """Watches the processes of a simulation; starts the local ones when asked.
 
@@ -72,11 +82,9 @@ class Supervisor:
     def _exited(self, proc: str, pid: int) -> None:
         """Raise the error for a local child that exited: its status, and its own reason when it gave one."""
         status = self.forks.exit_status(pid)
-        how = f"killed by {signal.Signals(-status).name}" if status < 0 else f"status {status}"
         why = self.forks.account(pid)
-        first = why.strip().splitlines()[0] if why.strip() else ""
-        raise ProcessFailed(proc, self.nodes(proc), f"exited unexpectedly ({how}){': ' + first if first else ''}",
-                            why)
+        first = f": {why.strip().splitlines()[0]}" if why.strip() else ""
+        raise ProcessFailed(proc, self.nodes(proc), f"exited unexpectedly ({how(status)}){first}", why)
 
     def start(self, scenario: Scenario, layout: Layout, endpoint: str, procs: tuple[str, ...] | None = None,
               timeout: float = 60.0) -> float:
