@@ -102,11 +102,13 @@ class Clock:
         if done.proc in self.dones:
             return WRONG_TICK, f"a second done for tick {t}"
         hosted = self.hosted[i]
-        if not (done.stats.keys() <= hosted and done.flights.keys() <= hosted and done.response_times.keys() <= hosted
-                and done.obs.keys() <= hosted and done.sent.keys() <= self.receivers[i]):
+        stats, flights, times, obs, sent = done.stats, done.flights, done.response_times, done.obs, done.sent
+        if not ((not stats or hosted.issuperset(stats)) and (not flights or hosted.issuperset(flights))
+                and (not times or hosted.issuperset(times)) and (not obs or hosted.issuperset(obs))
+                and (not sent or self.receivers[i].issuperset(sent))):
             return UNKNOWN_SENDER, (f"a report on roles {done.proc} does not host, or on mail to processes it "
                                     "never sends to")
-        for arrivals in done.flights.values():
+        for arrivals in flights.values():
             if min(arrivals, default=t + 1) <= t:
                 return WRONG_TICK, f"tasks on links that arrive at tick {min(arrivals)}, sent in tick {t}"
         return None

@@ -52,6 +52,7 @@ class HostDriver:
         topics = plan.topics_of(self.proc)
         self.senders = frozenset(p for p in plan.procs if self.proc in plan.recipients(p))
         self.hosted = frozenset(host.by_id)
+        self.proc_of = plan.proc_of
         self.topics = frozenset(topics)
         # one detector per node covers every event kind, users' own included; publishers come lazily
         self.listeners = [transport.monitored(keys.events("*", node)) for node in host.nodes]
@@ -123,7 +124,7 @@ class HostDriver:
         if batch.episode > self.episode + 1 or (batch.episode == self.episode and batch.tick < self.tick):
             return WRONG_TICK, (f"sent in tick {batch.tick} of episode {batch.episode}; this process ran tick "
                                 f"{self.tick} of episode {self.episode}")
-        proc_of = self.host.plan.proc_of
+        proc_of = self.proc_of
         for env in batch.envelopes:
             if env.dst not in self.hosted and not (env.kind is Kind.STATE and env.dst in self.topics):
                 return UNKNOWN_SENDER, f"an envelope for {env.dst!r}, which is not here"
