@@ -63,7 +63,7 @@ class Clock:
         # what each process may report on: its done key, its roles, the processes it sends to
         self.done_keys = {keys.done(p): i for i, p in enumerate(self.procs)}
         self.hosted = [frozenset(plan.role_index[r] for r in plan.roles_of[p]) for p in self.procs]
-        self.receivers = [frozenset(plan.proc_index[q] for q in plan.recipients(p)) for p in self.procs]
+        self.receivers = [frozenset(plan.proc_index[q] for q in plan.recipients[p]) for p in self.procs]
         self.rejections = transport.rejections
         self.node_rejections: dict[int, dict[str, int]] = {}  # process index -> what it refused, by reason
         transport.subscribe(keys.done(), self.on_done)

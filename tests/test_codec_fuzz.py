@@ -20,7 +20,7 @@ from node_runtime.runtime.protocol import SCHEMA_VERSION, Batch, Done, Tick
 from node_runtime.runtime.rejections import BAD_MSGPACK, WRONG_SHAPE
 from node_runtime.runtime.rejections import SCHEMA_VERSION as OTHER_SCHEMA
 
-FUZZ = settings(max_examples=300, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+FUZZ = settings(max_examples=200, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 
 TASK = Task((3 << 32) | 9, "rpi3_0", 12, 8e7, 1.5e8, 1.5e8, 1.0, 100.0, 1, ("rpi3_0", "nuc_0"))
 OBS = Observation(5, "a", NodeView("a", 1, 2, 3, 4e6, 0, 0.0, 1, True), 2,

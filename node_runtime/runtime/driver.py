@@ -50,7 +50,7 @@ class HostDriver:
         self.rejections.who = self.proc
         # who may publish to this process, and where the envelopes they carry may go
         topics = plan.topics_of(self.proc)
-        self.senders = frozenset(p for p in plan.procs if self.proc in plan.recipients(p))
+        self.senders = frozenset(p for p, them in plan.recipients.items() if self.proc in them)
         self.hosted = frozenset(host.by_id)
         self.proc_of = plan.proc_of
         self.topics = frozenset(topics)

@@ -110,11 +110,15 @@ class ProcessLayout:
         procs.pop(proc, None)
         return tuple(procs)
 
-    def recipients(self, proc: str) -> frozenset[str]:
-        """Processes this one may publish to: those it may mail, and those hearing its workers' broadcasts."""
-        heard = (self.proc_of[r] for w in self.roles_of[proc] if role_kind(w) == "worker"
-                 for r in self.subscribers.get(state_topic(role_node(w)), ()))
-        return frozenset(self.destinations(proc)).union(heard) - {proc}
+    @cached_property
+    def recipients(self) -> dict[str, frozenset[str]]:
+        """Processes each process may publish to: those it may mail, and those hearing its workers' broadcasts."""
+        out = {}
+        for proc in self.procs:
+            heard = (self.proc_of[r] for w in self.roles_of[proc] if role_kind(w) == "worker"
+                     for r in self.subscribers.get(state_topic(role_node(w)), ()))
+            out[proc] = frozenset(self.destinations(proc)).union(heard) - {proc}
+        return out
 
     def node_of_proc(self, proc: str) -> tuple[str, ...]:
         """Nodes whose roles a process hosts (for error messages naming a node)."""
