@@ -61,10 +61,15 @@ _is_int = int.__instancecheck__  # isinstance(x, int) without a Python frame: th
 _is_str = str.__instancecheck__
 
 
-def _nums(a: Any) -> bool:
-    """Numbers only (bool counts as one): of what msgpack decodes, ``sum`` refuses everything else, in C."""
+def _number_rows(rows: Any, length: int | None = None) -> bool:
+    """Lists of numbers, of ``length`` each if given. Of what msgpack decodes, ``sum`` refuses anything
+    but numbers (bool counts as one), and does it in C."""
+    if not all(map(list.__instancecheck__, rows)):
+        return False
+    if length is not None and not all(map(length.__eq__, map(len, rows))):
+        return False
     try:
-        sum(a)
+        sum(map(sum, rows))
     except TypeError:
         return False
     return True
@@ -76,13 +81,11 @@ def _int_map(m: Any) -> bool:
 
 
 def _stats(m: Any) -> bool:
-    return type(m) is dict and (not m or (all(map(_is_int, m)) and all(
-        type(v) is list and len(v) == N_STATS and _nums(v) for v in m.values())))
+    return type(m) is dict and (not m or (all(map(_is_int, m)) and _number_rows(m.values(), N_STATS)))
 
 
 def _times(m: Any) -> bool:
-    return type(m) is dict and (not m or (all(map(_is_int, m)) and all(
-        type(v) is list and _nums(v) for v in m.values())))
+    return type(m) is dict and (not m or (all(map(_is_int, m)) and _number_rows(m.values())))
 
 
 def _flights(m: Any) -> bool:
