@@ -34,17 +34,20 @@ from node_runtime.runtime.keys import new_sim_id
 from node_runtime.runtime.layout import LAYOUTS, ProcessLayout
 from orchestrator import local_sims
 from orchestrator.arguments import COUNT, NON_NEGATIVE, POSITIVE, integer
-from orchestrator.clock import ClockError
+from orchestrator.clock import ClockError, ProcessFailed
 from orchestrator.metrics import ConservationError, TickReport
 from orchestrator.placement import load_placement
 from orchestrator.scenario import ScenarioError, load_scenario
-from orchestrator.session import Simulation, node_policies
+from orchestrator.session import SimIdInUse, Simulation, node_policies
 from orchestrator.viewers import monitor
 from orchestrator.viewers.progress import progress_steps
 from orchestrator.viewers.summary import policy_text, rows
 
 EXIT_OK, EXIT_FAILED, EXIT_USAGE, EXIT_INTERRUPTED = 0, 1, 2, 130
 LOCAL = "local"  # the node-side policy that keeps every task on its own node
+
+TRACE_LINES = 12  # of a failed node's traceback, shown under the error
+
 
 
 def fail(message: str) -> None:
@@ -393,11 +396,14 @@ def main(argv: list[str] | None = None) -> int:
         for line in exc.errors:
             fail(line)
         return EXIT_USAGE
-    except UsageError as exc:
+    except (UsageError, SimIdInUse) as exc:
         fail(f"orchestrator: {exc}")
         return EXIT_USAGE
     except (ClockError, ConservationError) as exc:
         fail(f"error: {exc}")
+        if isinstance(exc, ProcessFailed) and exc.trace:  # the node's own traceback, its end
+            for line in exc.trace.strip().splitlines()[1:][-TRACE_LINES:]:
+                fail(f"  {line}")
         return EXIT_FAILED
     except (KeyboardInterrupt, Terminated):
         fail("interrupted: every node process has been stopped")

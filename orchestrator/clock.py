@@ -6,6 +6,13 @@ tick for has reported ``Done(t)``. It opens it only for the processes that have 
 or said in their last ``Done`` that they have work at t: the others sleep, and their last reports
 stand. A reset opens tick 0 for all. A process that reports an error, dies, or stays silent past the
 timeout ends the run with an error that names it and the nodes it hosted.
+
+Anyone on the bus can publish on ``…/clock/done/*``, so a ``Done`` counts only if it comes on the key
+of a process the tick was opened for, names that process, is for the current episode and tick, is
+the first for it, and reports only on the roles the process hosts and the processes it may send to.
+Anything else is refused, counted and logged (docs/bus.md, "Rejected messages"); an error in a
+refused ``Done`` ends nothing. Without authentication that is as far as the bus allows: a forgery
+that passes every check is indistinguishable from the process's own report.
 """
 
 from __future__ import annotations
@@ -16,6 +23,7 @@ from typing import Any
 from node_runtime.runtime.keys import Keys
 from node_runtime.runtime.layout import ProcessLayout
 from node_runtime.runtime.protocol import Done, Tick
+from node_runtime.runtime.rejections import UNKNOWN_SENDER, WRONG_SHAPE, WRONG_TICK
 from node_runtime.runtime.transport import Transport
 
 
@@ -24,11 +32,14 @@ class ClockError(RuntimeError):
 
 
 class ProcessFailed(ClockError):
-    def __init__(self, proc: str, nodes: tuple[str, ...], why: str) -> None:
+    """A node process failed; ``trace`` is its own account (a traceback), when it could give one."""
+
+    def __init__(self, proc: str, nodes: tuple[str, ...], why: str, trace: str = "") -> None:
         what = f"node {nodes[0]}" if len(nodes) == 1 else f"nodes {', '.join(nodes)}"
         super().__init__(f"process {proc} ({what}) {why}")
         self.proc = proc
         self.nodes = nodes
+        self.trace = trace
 
 
 class Clock:
@@ -48,16 +59,67 @@ class Clock:
         self.actors = {role: plan.proc_index[plan.proc_of[role]] for role in plan.roles}
         self.tick_keys = [keys.tick(p) for p in self.procs]  # process index -> its own tick key
         self.dones: dict[str, Done] = {}
+        self.opened: frozenset[int] = frozenset()  # the processes the current tick was opened for
+        # what each process may report on: its done key, its roles, the processes it sends to
+        self.done_keys = {keys.done(p): i for i, p in enumerate(self.procs)}
+        self.hosted = [frozenset(plan.role_index[r] for r in plan.roles_of[p]) for p in self.procs]
+        self.receivers = [frozenset(plan.proc_index[q] for q in plan.recipients[p]) for p in self.procs]
+        self.rejections = transport.rejections
+        self.node_rejections: dict[int, dict[str, int]] = {}  # process index -> what it refused, by reason
         transport.subscribe(keys.done(), self.on_done)
 
     def on_done(self, key: str, done: Done) -> None:
-        self.latest = max(self.latest, done.episode)
+        if type(done) is not Done:
+            self.rejections.add(key, WRONG_SHAPE, f"a {type(done).__name__} where a done was expected")
+            return
+        i = self.done_keys.get(key)
+        if i is None or self.procs[i] != done.proc:
+            self.rejections.add(key, UNKNOWN_SENDER, f"a done of {done.proc!r}, which does not publish on this key")
+            return
+        if done.episode != self.episode:
+            if self.episode < done.episode <= self.latest + 1:  # another driver's episode (launch --serve)
+                self.latest = done.episode
+            else:
+                self.rejections.add(key, WRONG_TICK, f"episode {done.episode}; the clock is in episode {self.episode}")
+            return
+        why = self.untrusted(i, done)
+        if why is not None:
+            self.rejections.add(key, *why)
+            return
         if done.error is not None:
             first = done.error.strip().splitlines()[0]
-            raise ProcessFailed(done.proc, self.plan.node_of_proc(done.proc), f"failed in tick {done.tick}: {first}"
-                                ) from RuntimeError(done.error)
-        if done.episode == self.episode and done.tick == self.tick:
-            self.dones[done.proc] = done
+            raise ProcessFailed(done.proc, self.plan.node_of_proc(done.proc), f"failed in tick {done.tick}: {first}",
+                                done.error)
+        if done.rejected:
+            self.node_rejections[i] = done.rejected
+        self.dones[done.proc] = done
+
+    def untrusted(self, i: int, done: Done) -> tuple[str, str] | None:
+        """Why a done of the current episode from process ``i`` cannot be its report (reason, detail), or None."""
+        t = self.tick
+        if done.tick != t or i not in self.opened:
+            return WRONG_TICK, f"tick {done.tick}; the clock waits for tick {t} from other processes"
+        if done.proc in self.dones:
+            return WRONG_TICK, f"a second done for tick {t}"
+        hosted = self.hosted[i]
+        stats, flights, times, obs, sent = done.stats, done.flights, done.response_times, done.obs, done.sent
+        if not ((not stats or hosted.issuperset(stats)) and (not flights or hosted.issuperset(flights))
+                and (not times or hosted.issuperset(times)) and (not obs or hosted.issuperset(obs))
+                and (not sent or self.receivers[i].issuperset(sent))):
+            return UNKNOWN_SENDER, (f"a report on roles {done.proc} does not host, or on mail to processes it "
+                                    "never sends to")
+        for arrivals in flights.values():
+            if min(arrivals, default=t + 1) <= t:
+                return WRONG_TICK, f"tasks on links that arrive at tick {min(arrivals)}, sent in tick {t}"
+        return None
+
+    def node_rejected(self) -> dict[str, int]:
+        """What the node processes refused so far, by reason, as their latest reports say."""
+        total: dict[str, int] = {}
+        for counts in self.node_rejections.values():
+            for reason, n in counts.items():
+                total[reason] = total.get(reason, 0) + n
+        return dict(sorted(total.items()))
 
     def reset(self, seed: int, external: list[str] | None = None, policy: str | None = None) -> list[Done]:
         """Start a new episode: every process resets its roles, then runs tick 0."""
@@ -65,6 +127,7 @@ class Clock:
         self.latest = self.episode
         self.tick = 0
         self.dones = {}
+        self.opened = frozenset(range(len(self.procs)))
         self.transport.publish(self.keys.tick(), Tick(self.episode, 0, "reset", seed=seed,
                                                       external=list(external or ()), policy=policy))
         return self._collect(range(len(self.procs)))
@@ -80,6 +143,7 @@ class Clock:
         opened = [i for i, wake in enumerate(self.wake)
                   if i in expect or i in mine or (wake is not None and wake <= t)]
         self.dones = {}
+        self.opened = frozenset(opened)
         if len(opened) == len(self.procs):  # one publication reaches them all
             self.transport.publish(self.keys.tick(), Tick(self.episode, t, "run", expect, actions or {}))
         else:
@@ -103,9 +167,12 @@ class Clock:
         except TimeoutError:
             silent = [self.procs[i] for i in opened if self.procs[i] not in self.dones]
             nodes = sorted({nd for p in silent for nd in self.plan.node_of_proc(p)})
+            last = self.rejections.last
+            refused = [f"{p}: {last[k]}" for p in silent if (k := self.keys.done(p)) in last]
             raise ClockError(f"tick {self.tick}: no report within {self.timeout:.0f} s from "
                              f"{', '.join(silent[:8])}{' ...' if len(silent) > 8 else ''} "
-                             f"(nodes {', '.join(nodes[:8])})") from None
+                             f"(nodes {', '.join(nodes[:8])})"
+                             + (f"; refused from them: {'; '.join(refused[:3])}" if refused else "")) from None
         dones = [self.dones[self.procs[i]] for i in opened]
         expect: dict[int, int] = {}
         for i, d in zip(opened, dones, strict=True):

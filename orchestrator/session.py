@@ -42,6 +42,11 @@ from orchestrator.version import code_version
 
 TransportName = Literal["zenoh", "inproc"]
 ROUTER_ATTEMPTS = 5
+QUERY_TIMEOUT_S = 5.0  # upper bound of the liveliness query at start; it answers at once when no other has the id
+
+
+class SimIdInUse(RuntimeError):
+    """Another orchestrator on the same Zenoh network already uses this simulation id."""
 
 
 def open_router(host: str = "127.0.0.1", port: int | None = None,
@@ -62,6 +67,14 @@ def node_policies(scenario: Scenario, policy: str | None = None) -> str | list[s
     """The controllers' node-side policy as summary.json records it: ``policy`` where it overrides them
     all, else the scenario's policies, sorted, each once."""
     return policy or sorted({n.policy for n in scenario.nodes if n.has("controller")})
+
+
+def refuse_taken_id(router: ZenohTransport, keys: Keys) -> None:
+    """Two orchestrators with one simulation id on joined routers would take each other's messages
+    for their own: look for the other's liveliness token before declaring anything."""
+    if router.tokens(keys.alive(ORCHESTRATOR), QUERY_TIMEOUT_S):
+        raise SimIdInUse(f"simulation id {keys.sim_id!r} is already in use on this Zenoh network (an orchestrator "
+                         "with that id runs at a joined router): choose another --sim-id")
 
 
 class Simulation:
@@ -85,13 +98,16 @@ class Simulation:
                 host.declare_token(self.keys.alive(proc))  # ready, as a node process says once it is
             self.transport: Transport = bus.endpoint()
             self.transport.declare_token(self.keys.alive(ORCHESTRATOR))
+            self.transport.rejections.who = ORCHESTRATOR
             self.clock = Clock(self.transport, self.keys, self.plan, timeout)
             self.live = self.transport.monitored(self.keys.metrics())
             self.server = Server(self.transport, self.keys, self.plan, self.clock)
         else:
             router, self.endpoint = open_router(listen_host, port, join)
             self.transport = router
+            router.rejections.who = ORCHESTRATOR
             try:
+                refuse_taken_id(router, self.keys)
                 self.supervisor = Supervisor(router, self.keys, self.plan)
                 self.clock = Clock(router, self.keys, self.plan, timeout, health=self.supervisor.check)
                 self.live = router.monitored(self.keys.metrics())
@@ -151,6 +167,7 @@ class Simulation:
         self._run_started = time.perf_counter()
         self.transport = transport
         self.attached = driver
+        transport.rejections.who = driver
         try:
             self.supervisor = Supervisor(transport, keys, self.plan, token=driver)
             self.supervisor.wait_ready(timeout)
@@ -227,6 +244,9 @@ class Simulation:
             "wall_time_s": round(wall, 3),
             "ticks_per_s": round(self._ticks_run / wall, 1) if wall > 0 else None,
             "finished_at": dt.datetime.now(dt.UTC).isoformat(timespec="seconds"),
+            # messages refused on the bus since the simulation started (docs/bus.md, "Rejected messages")
+            "rejected_messages": {"orchestrator": dict(sorted(self.transport.rejections.counts.items())),
+                                  "nodes": self.clock.node_rejected()},
         }
         return s
 

@@ -3,7 +3,8 @@
 Processes come from the node fork server, which has already imported zenoh, numpy and msgpack
 (70 processes start in under a second that way; docs/protocol.md, "Process life"). Readiness is each
 process's liveliness token; death is the token vanishing (any host) or the process's exit (local ones, checked when
-idle). Every child also dies with the fork server and when the orchestrator's token goes.
+idle). The error names the process and, for a local one, gives its own account of the failure.
+Every child also dies with the fork server and when the orchestrator's token goes.
 """
 
 from __future__ import annotations
@@ -22,6 +23,18 @@ from node_runtime.runtime.layout import Layout, ProcessLayout
 from node_runtime.runtime.process import ORCHESTRATOR, ProcSpec
 from node_runtime.runtime.transport import Transport
 from orchestrator.clock import ProcessFailed
+
+EXIT_NOTICE_S = 2.0  # how long a vanished token waits for its local process's exit notice, which says why
+
+
+def how(status: int) -> str:
+    """An exit status as a person reads it: 'status 1', 'killed by SIGKILL'."""
+    if status >= 0:
+        return f"status {status}"
+    try:
+        return f"killed by {signal.Signals(-status).name}"
+    except ValueError:
+        return f"killed by signal {-status}"
 
 
 class Supervisor:
@@ -53,6 +66,9 @@ class Supervisor:
             self.ready.add(proc)
         elif proc in self.ready and not self.stopping:
             self.ready.discard(proc)
+            pid = self.children.get(proc)
+            if pid is not None and self.forks is not None and not self.forks.wait([pid], EXIT_NOTICE_S):
+                self._exited(proc, pid)  # a local child: its exit notice says why
             raise ProcessFailed(proc, self.nodes(proc), "died: its liveliness token vanished")
 
     def check(self) -> None:
@@ -60,9 +76,15 @@ class Supervisor:
         if self.stopping or self.forks is None:
             return
         for proc, pid in self.children.items():
-            status = self.forks.exit_status(pid)
-            if status is not None:
-                raise ProcessFailed(proc, self.nodes(proc), f"exited unexpectedly (status {status})")
+            if self.forks.exit_status(pid) is not None:
+                self._exited(proc, pid)
+
+    def _exited(self, proc: str, pid: int) -> None:
+        """Raise the error for a local child that exited: its status, and its own reason when it gave one."""
+        status = self.forks.exit_status(pid)
+        why = self.forks.account(pid)
+        first = f": {why.strip().splitlines()[0]}" if why.strip() else ""
+        raise ProcessFailed(proc, self.nodes(proc), f"exited unexpectedly ({how(status)}){first}", why)
 
     def start(self, scenario: Scenario, layout: Layout, endpoint: str, procs: tuple[str, ...] | None = None,
               timeout: float = 60.0) -> float:

@@ -33,7 +33,8 @@ def test_tick_and_done_roundtrip():
     obs = Observation(5, "a", NodeView("a", 1, 2, 3, 4e6, 0, 0.0, 1, True), 2,
                       [TaskView(7, 8e7, 1.0, 2.0, 1.0, 100.0, 95.0, 2, "a")],
                       [NodeView("b", 0, 0, 26, 4e6, 1, 3e7, 1, True)])
-    done = Done("node-a", 2, 17, {1: 1}, {0: [1, 2.5, 0]}, {1: [7.0]}, {0: {19: 2, 21: 1}}, 18, {2: obs})
+    stats = [1, 0, 0, 0, 0, 0, 0, 0, 0, 0, 2.5, 0.0, 0.0, 0.0, 1, 0, 0]
+    done = Done("node-a", 2, 17, {1: 1}, {0: stats}, {1: [7.0]}, {0: {19: 2, 21: 1}}, 18, {2: obs})
     assert codec.decode(codec.encode(done)) == done
 
 

@@ -3,21 +3,139 @@
 Every payload is a map with ``v`` (schema version) and ``type``. Model envelopes inside a batch
 are compact arrays: [kind, src, dst, seq, sent, arrive, body]. Decoding rebuilds the same
 dataclasses the roles use, so a role cannot tell which transport delivered its mail.
+
+Anyone who reaches the router can publish, so decoding checks the shape of every protocol message
+(fields present, of the right types, arrays of the right length) and raises ``CodecError`` with the
+reason for anything else: handlers only ever see well-formed messages. Whether a well-formed
+message may be trusted (its sender, its tick) is for the handlers to decide.
 """
 
 from __future__ import annotations
 
-from typing import Any
+from typing import Any, NoReturn
 
 import msgpack
 
 from node_runtime.model.messages import Decision, Envelope, Kind, NodeState, Pending, Result, Task
+from node_runtime.model.role import STAT_FIELDS
 from node_runtime.model.view import Observation
 from node_runtime.runtime.protocol import SCHEMA_VERSION, Batch, Done, Tick
+from node_runtime.runtime.rejections import BAD_MSGPACK, WRONG_SHAPE
+from node_runtime.runtime.rejections import SCHEMA_VERSION as OTHER_SCHEMA
 
 
 class CodecError(ValueError):
-    pass
+    """A payload that cannot be encoded, or decoded into a well-formed message; ``reason`` says why
+    in the vocabulary of ``rejections``."""
+
+    def __init__(self, message: str, reason: str = WRONG_SHAPE) -> None:
+        super().__init__(message)
+        self.reason = reason
+
+
+def _malformed(what: str) -> NoReturn:
+    raise CodecError(what)
+
+
+# ----- shapes: what each array and map may hold (bool passes for int, as in Python) -----
+
+NUM = (int, float)
+TASK = (int, str, int, NUM, NUM, NUM, NUM, NUM, int, list)
+RESULT = (list, str, int, int)
+DECISION = (int, str)
+PENDING = (int, str, int, NUM, NUM, NUM, NUM, NUM, int)
+STATE = (str, NUM, NUM)
+ENVELOPE = (int, str, str, int, int, int, object)
+NODE_VIEW = (str, NUM, NUM, NUM, NUM, NUM, NUM, NUM, bool)
+TASK_VIEW = (int, NUM, NUM, NUM, NUM, NUM, NUM, NUM, str)
+OBSERVATION = (int, str, list, int, list, list)
+N_STATS = len(STAT_FIELDS)
+
+
+def _fits(a: Any, shape: tuple) -> bool:
+    """An array of exactly these element types."""
+    return type(a) is list and len(a) == len(shape) and all(map(isinstance, a, shape))
+
+
+_is_int = int.__instancecheck__  # isinstance(x, int) without a Python frame: these run for every message
+_is_str = str.__instancecheck__
+
+
+def _number_rows(rows: Any, length: int | None = None) -> bool:
+    """Lists of numbers, of ``length`` each if given. Of what msgpack decodes, ``sum`` refuses anything
+    but numbers (bool counts as one), and does it in C."""
+    if not all(map(list.__instancecheck__, rows)):
+        return False
+    if length is not None and not all(map(length.__eq__, map(len, rows))):
+        return False
+    try:
+        sum(map(sum, rows))
+    except TypeError:
+        return False
+    return True
+
+
+def _int_map(m: Any) -> bool:
+    """A map int -> int (process or role index -> count, tick -> count)."""
+    return type(m) is dict and (not m or (all(map(_is_int, m)) and all(map(_is_int, m.values()))))
+
+
+def _stats(m: Any) -> bool:
+    return type(m) is dict and (not m or (all(map(_is_int, m)) and _number_rows(m.values(), N_STATS)))
+
+
+def _times(m: Any) -> bool:
+    return type(m) is dict and (not m or (all(map(_is_int, m)) and _number_rows(m.values())))
+
+
+def _flights(m: Any) -> bool:
+    return type(m) is dict and (not m or (all(map(_is_int, m)) and all(map(_int_map, m.values()))))
+
+
+def _observations(m: Any) -> bool:
+    return type(m) is dict and (not m or (all(map(_is_int, m)) and all(
+        _fits(o, OBSERVATION) and _fits(o[2], NODE_VIEW) and all(_fits(t, TASK_VIEW) for t in o[4])
+        and all(_fits(n, NODE_VIEW) for n in o[5]) for o in m.values())))
+
+
+def _actions(m: Any) -> bool:
+    """Controller role -> an int, or a list of ints in batch mode."""
+    return type(m) is dict and (not m or (all(map(_is_str, m)) and all(
+        isinstance(a, int) or (type(a) is list and all(map(_is_int, a))) for a in m.values())))
+
+
+def _str_list(a: Any) -> bool:
+    return type(a) is list and all(map(_is_str, a))
+
+
+def _counts(m: Any) -> bool:
+    """Reason -> count."""
+    return type(m) is dict and (not m or (all(map(_is_str, m)) and all(map(_is_int, m.values()))))
+
+
+def _maybe_int(x: Any) -> bool:
+    return x is None or isinstance(x, int)
+
+
+def _maybe_str(x: Any) -> bool:
+    return x is None or isinstance(x, str)
+
+
+COMMANDS = ("run", "reset", "stop")
+TICK_FIELDS = (("e", _is_int), ("t", _is_int), ("cmd", COMMANDS.__contains__), ("expect", _int_map),
+               ("actions", _actions), ("seed", _is_int), ("external", _str_list), ("policy", _maybe_str))
+DONE_FIELDS = (("proc", _is_str), ("e", _is_int), ("t", _is_int), ("sent", _int_map), ("stats", _stats),
+               ("rt", _times), ("fl", _flights), ("wake", _maybe_int), ("obs", _observations), ("error", _maybe_str))
+# "rej" (optional) comes last: a done that passes every field above is malformed there
+BATCH_FIELDS = (("e", _is_int), ("t", _is_int), ("src", _is_str), ("msgs", list.__instancecheck__))
+
+
+def _diagnose(d: dict[str, Any], kind: str, fields: tuple) -> NoReturn:
+    """Name the first field of a malformed message that is not of its documented shape (docs/bus.md)."""
+    for name, ok in fields:
+        if not ok(d[name]):
+            _malformed(f"{kind} field {name!r} is not of the documented shape")
+    _malformed(f"{kind} field 'rej' is not of the documented shape")
 
 
 # ----- model bodies -----
@@ -27,7 +145,9 @@ def _task(t: Task) -> list:
             t.hops, list(t.path)]
 
 
-def _untask(a: list) -> Task:
+def _untask(a: Any) -> Task:
+    if not (_fits(a, TASK) and _str_list(a[9])):
+        _malformed("a task that is not [id, origin, created, instructions, input, output, cpi, deadline, hops, path]")
     return Task(a[0], a[1], a[2], a[3], a[4], a[5], a[6], a[7], a[8], tuple(a[9]))
 
 
@@ -50,22 +170,33 @@ def _unbody(kind: Kind, a: Any) -> Any:
     if kind == Kind.TASK:
         return _untask(a)
     if kind == Kind.RESULT:
+        if not _fits(a, RESULT):
+            _malformed("a result that is not [task, executor, finished, hop]")
         return Result(_untask(a[0]), a[1], a[2], a[3])
     if kind == Kind.DECISION:
+        if not (type(a) is list and all(_fits(d, DECISION) for d in a)):
+            _malformed("decisions that are not [[task id, target], ...]")
         return [Decision(i, target) for i, target in a]
     if kind == Kind.REPORT:
+        if not (type(a) is list and all(_fits(p, PENDING) for p in a)):
+            _malformed("a report that is not a list of pending tasks")
         return [Pending(*p) for p in a]
-    if kind == Kind.STATE:
-        return NodeState(a[0], a[1], a[2])
-    raise CodecError(f"no decoding for message kind {kind!r}")
+    if not _fits(a, STATE):  # Kind.STATE: the kinds are exhausted
+        _malformed("a state that is not [node, queue, occupancy]")
+    return NodeState(a[0], a[1], a[2])
 
 
 def _envelope(e: Envelope) -> list:
     return [int(e.kind), e.src, e.dst, e.seq, e.sent, e.arrive, _body(e.kind, e.body)]
 
 
-def _unenvelope(a: list) -> Envelope:
-    kind = Kind(a[0])
+KINDS = {int(k): k for k in Kind}
+
+
+def _unenvelope(a: Any) -> Envelope:
+    if not _fits(a, ENVELOPE) or a[0] not in KINDS:
+        _malformed("an envelope that is not [kind 1-5, src, dst, seq, sent, arrive, body]")
+    kind = KINDS[a[0]]
     return Envelope(kind, a[1], a[2], a[3], a[4], a[5], _unbody(kind, a[6]))
 
 
@@ -79,9 +210,12 @@ def to_wire(msg: Any) -> dict[str, Any]:
         return {"type": "tick", "e": msg.episode, "t": msg.tick, "cmd": msg.command, "expect": msg.expect,
                 "actions": msg.actions, "seed": msg.seed, "external": msg.external, "policy": msg.policy}
     if isinstance(msg, Done):
-        return {"type": "done", "proc": msg.proc, "e": msg.episode, "t": msg.tick, "sent": msg.sent,
-                "stats": msg.stats, "rt": msg.response_times, "fl": msg.flights, "wake": msg.wake,
-                "obs": {k: o.to_wire() for k, o in msg.obs.items()}, "error": msg.error}
+        d = {"type": "done", "proc": msg.proc, "e": msg.episode, "t": msg.tick, "sent": msg.sent,
+             "stats": msg.stats, "rt": msg.response_times, "fl": msg.flights, "wake": msg.wake,
+             "obs": {k: o.to_wire() for k, o in msg.obs.items()}, "error": msg.error}
+        if msg.rejected:
+            d["rej"] = msg.rejected
+        return d
     if isinstance(msg, dict):
         if "type" not in msg:
             raise CodecError("a plain message needs a 'type' field")
@@ -90,15 +224,54 @@ def to_wire(msg: Any) -> dict[str, Any]:
 
 
 def from_wire(d: dict[str, Any]) -> Any:
+    """The protocol message a map stands for (its shape checked), or the map itself for other types."""
     kind = d.get("type")
-    if kind == "batch":
-        return Batch(d["e"], d["t"], d["src"], [_unenvelope(a) for a in d["msgs"]])
-    if kind == "tick":
-        return Tick(d["e"], d["t"], d["cmd"], d["expect"], d["actions"], d["seed"], d["external"], d["policy"])
-    if kind == "done":
-        return Done(d["proc"], d["e"], d["t"], d["sent"], d["stats"], d["rt"], d["fl"], d["wake"],
-                    {k: Observation.from_wire(o) for k, o in d["obs"].items()}, d["error"])
+    try:
+        if kind == "done":
+            return _done(d)
+        if kind == "batch":
+            return _batch(d)
+        if kind == "tick":
+            return _tick(d)
+    except KeyError as exc:
+        raise CodecError(f"{kind} without field {exc}") from None
     return d
+
+
+# Each reader tests every field in one expression (the common case: a well-formed message, mostly
+# empty maps), and only when that fails walks the fields one by one to say which is wrong.
+EMPTY: dict = {}  # compared with ==, so only an empty map matches; never mutated
+NONE: list = []
+
+
+def _done(d: dict[str, Any]) -> Done:
+    proc, e, t, sent, stats, rt, fl = d["proc"], d["e"], d["t"], d["sent"], d["stats"], d["rt"], d["fl"]
+    wake, obs, error, rejected = d["wake"], d["obs"], d["error"], d.get("rej", EMPTY)
+    if not (isinstance(proc, str) and isinstance(e, int) and isinstance(t, int)
+            and (wake is None or isinstance(wake, int)) and (error is None or isinstance(error, str))
+            and (sent == EMPTY or _int_map(sent))
+            and (stats == EMPTY or _stats(stats)) and (rt == EMPTY or _times(rt)) and (fl == EMPTY or _flights(fl))
+            and (obs == EMPTY or _observations(obs)) and (rejected is EMPTY or _counts(rejected))):
+        _diagnose(d, "done", DONE_FIELDS)
+    return Done(proc, e, t, sent, stats, rt, fl, wake, {k: Observation.from_wire(o) for k, o in obs.items()},
+                error, rejected)
+
+
+def _batch(d: dict[str, Any]) -> Batch:
+    e, t, src, msgs = d["e"], d["t"], d["src"], d["msgs"]
+    if not (isinstance(e, int) and isinstance(t, int) and isinstance(src, str) and type(msgs) is list):
+        _diagnose(d, "batch", BATCH_FIELDS)
+    return Batch(e, t, src, [_unenvelope(a) for a in msgs])
+
+
+def _tick(d: dict[str, Any]) -> Tick:
+    e, t, cmd, expect, actions = d["e"], d["t"], d["cmd"], d["expect"], d["actions"]
+    seed, external, policy = d["seed"], d["external"], d["policy"]
+    if not (isinstance(e, int) and isinstance(t, int) and cmd in COMMANDS and (expect == EMPTY or _int_map(expect))
+            and (actions == EMPTY or _actions(actions)) and isinstance(seed, int)
+            and (external == NONE or _str_list(external)) and (policy is None or isinstance(policy, str))):
+        _diagnose(d, "tick", TICK_FIELDS)
+    return Tick(e, t, cmd, expect, actions, seed, external, policy)
 
 
 def encode(msg: Any) -> bytes:
@@ -108,8 +281,14 @@ def encode(msg: Any) -> bytes:
 
 
 def decode(data: bytes) -> Any:
-    d = msgpack.unpackb(data, raw=False, strict_map_key=False)
-    if not isinstance(d, dict) or d.get("v") != SCHEMA_VERSION:
-        raise CodecError(f"unsupported payload (schema {d.get('v') if isinstance(d, dict) else '?'}, "
-                         f"expected {SCHEMA_VERSION})")
+    """Bytes from the bus -> a message; ``CodecError`` (and nothing else) for anything that is not one."""
+    try:
+        d = msgpack.unpackb(data, raw=False, strict_map_key=False)
+    except Exception as exc:  # msgpack raises ValueError, TypeError, StackError, UnicodeDecodeError, ...
+        raise CodecError(f"not msgpack: {type(exc).__name__}{f': {exc}' if str(exc) else ''}", BAD_MSGPACK) from None
+    if type(d) is not dict:
+        _malformed(f"a msgpack {type(d).__name__}, not a map")
+    if d.get("v") != SCHEMA_VERSION:
+        raise CodecError(f"schema version {d.get('v')!r}, expected {SCHEMA_VERSION}: every host needs the same "
+                         "ZenohEdge version", OTHER_SCHEMA)
     return from_wire(d)

@@ -5,17 +5,29 @@ in tick t - 1 number ``expect[self]``; deliver them; run the roles; publish the 
 ``Done``. Ticks in which it has neither mail nor work due never reach it.
 Publications can overtake the tick that announces them, or belong to an episode this process has
 not started yet, so they are buffered by (episode, sent tick) until their turn.
+
+Anyone on the bus can publish on this process's keys, so what cannot be trusted is refused, counted
+and logged (docs/bus.md, "Rejected messages"): a tick of another episode or one already run, mail
+from a process that never sends here or for roles that are not here, mail that comes after its tick
+ran, a second batch from the same sender on the same key in one tick, a tick that gives this process
+nothing to do or skips the tick it has work due in. Mail that passes every check
+but outnumbers what the clock announced cannot be told from the genuine mail: the process then
+stops with an error rather than run with it.
 """
 
 from __future__ import annotations
 
-import traceback
 from collections import defaultdict
 
+from node_runtime.model.messages import Kind
+from node_runtime.runtime.forkserver import account
 from node_runtime.runtime.host import Host
 from node_runtime.runtime.keys import Keys
 from node_runtime.runtime.protocol import Batch, Done, Tick
+from node_runtime.runtime.rejections import UNKNOWN_SENDER, WRONG_SHAPE, WRONG_TICK
 from node_runtime.runtime.transport import Monitored, Transport
+
+NOTHING: dict = {}  # no mail (never mutated)
 
 
 class HostDriver:
@@ -24,37 +36,103 @@ class HostDriver:
         self.transport = transport
         self.keys = keys
         self.proc = host.proc
-        self.proc_index = host.plan.proc_index[host.proc]
+        plan = host.plan
+        self.proc_index = plan.proc_index[host.proc]
         self.episode = -1
+        self.tick = -1  # the last tick run in this episode
+        self.wake: int | None = None  # the next tick with work due, as the last Done told the clock
         self.pending: Tick | None = None
         self.stopped = False
         self.failed: str | None = None
-        self.buffer: defaultdict[tuple[int, int], list[Batch]] = defaultdict(list)
+        # (episode, sent tick) -> {(sending process, key): its batch}: one per sender and key in a tick
+        self.buffer: defaultdict[tuple[int, int], dict[tuple[str, str], Batch]] = defaultdict(dict)
+        self.rejections = transport.rejections
+        self.rejections.who = self.proc
+        # who may publish to this process, and where the envelopes they carry may go
+        topics = plan.topics_of(self.proc)
+        self.senders = frozenset(p for p, them in plan.recipients.items() if self.proc in them)
+        self.hosted = frozenset(host.by_id)
+        self.proc_of = plan.proc_of
+        self.topics = frozenset(topics)
         # one detector per node covers every event kind, users' own included; publishers come lazily
         self.listeners = [transport.monitored(keys.events("*", node)) for node in host.nodes]
         self.monitors: dict[tuple[str, str], Monitored] = {}
         # the keys this process publishes on, built once rather than every tick
         self.done_key = keys.done(self.proc)
-        self.inbox_keys = {p: keys.inbox(p) for p in host.plan.destinations(self.proc)}
+        self.inbox_keys = {p: keys.inbox(p) for p in plan.destinations(self.proc)}
         self.topic_keys = {topic: keys.topic(topic) for topic in host.published_topics()}
         transport.subscribe(keys.tick(), self.on_tick)
         transport.subscribe(keys.tick(self.proc), self.on_tick)
         transport.subscribe(keys.inbox(self.proc), self.on_batch)
-        for topic in host.plan.topics_of(self.proc):
+        for topic in topics:
             transport.subscribe(keys.topic(topic), self.on_batch)
 
     def on_tick(self, key: str, cmd: Tick) -> None:
+        if type(cmd) is not Tick:
+            self.rejections.add(key, WRONG_SHAPE, f"a {type(cmd).__name__} where a tick was expected")
+            return
         if cmd.command == "stop":
             self.stopped = True
+            return
+        why = self.unexpected(cmd)
+        if why is not None:
+            self.rejections.add(key, WRONG_TICK, why)
             return
         self.pending = cmd
         self.advance()
 
+    def unexpected(self, cmd: Tick) -> str | None:
+        """Why the clock cannot have sent this tick to this process, or None. It opens a tick for a
+        process only with mail announced, actions for its roles, or work due; it never skips work due."""
+        if cmd.command == "reset":  # episode numbers only grow, whoever drives the clock
+            if cmd.episode > self.episode:
+                return None
+            return f"a reset to episode {cmd.episode}; this process is in episode {self.episode}"
+        t, wake = cmd.tick, self.wake
+        if cmd.episode != self.episode or t <= self.tick:
+            return f"tick {t} of episode {cmd.episode}; this process ran tick {self.tick} of episode {self.episode}"
+        if self.pending is not None:
+            return f"tick {t} while tick {self.pending.tick} waits for its mail"
+        if wake is not None and t > max(wake, self.tick + 1):
+            return f"tick {t}; this process has work due in tick {wake}, which the clock would not skip"
+        if not ((wake is not None and wake <= t) or cmd.expect.get(self.proc_index, 0) > 0
+                or not self.hosted.isdisjoint(cmd.actions)):
+            return f"tick {t} with nothing for this process: no mail announced, no action, no work due"
+        return None
+
     def on_batch(self, key: str, batch: Batch) -> None:
-        if batch.src == self.proc or batch.episode < self.episode:
+        if type(batch) is not Batch:
+            self.rejections.add(key, WRONG_SHAPE, f"a {type(batch).__name__} where a batch was expected")
             return
-        self.buffer[(batch.episode, batch.tick)].append(batch)
+        if batch.src == self.proc or batch.episode < self.episode:  # our own broadcast; mail of a finished episode
+            return
+        why = self.untrusted(batch)
+        if why is not None:
+            self.rejections.add(key, *why)
+            return
+        slot = self.buffer[(batch.episode, batch.tick)]
+        if (batch.src, key) in slot:
+            self.rejections.add(key, WRONG_TICK, f"a second batch from {batch.src} sent in tick {batch.tick}")
+            return
+        slot[(batch.src, key)] = batch
         self.advance()
+
+    def untrusted(self, batch: Batch) -> tuple[str, str] | None:
+        """Why a batch cannot be this process's mail (reason, detail), or None."""
+        if batch.src not in self.senders:
+            return UNKNOWN_SENDER, f"process {batch.src!r} never sends to {self.proc}"
+        if batch.episode > self.episode + 1 or (batch.episode == self.episode and batch.tick < self.tick):
+            return WRONG_TICK, (f"sent in tick {batch.tick} of episode {batch.episode}; this process ran tick "
+                                f"{self.tick} of episode {self.episode}")
+        proc_of = self.proc_of
+        for env in batch.envelopes:
+            if env.dst not in self.hosted and not (env.kind is Kind.STATE and env.dst in self.topics):
+                return UNKNOWN_SENDER, f"an envelope for {env.dst!r}, which is not here"
+            if proc_of.get(env.src) != batch.src:
+                return UNKNOWN_SENDER, f"an envelope from {env.src!r}, which {batch.src} does not host"
+            if env.arrive <= batch.tick:
+                return WRONG_TICK, f"an envelope sent in tick {batch.tick} that arrives at tick {env.arrive}"
+        return None
 
     def advance(self) -> None:
         cmd = self.pending
@@ -68,29 +146,50 @@ class HostDriver:
             self.host.reset(cmd.episode, cmd.seed, frozenset(cmd.external), cmd.policy)
             self.run(cmd)
             return
-        arrived = self.buffer.get((self.episode, cmd.tick - 1), ())
-        if len(arrived) < cmd.expect.get(self.proc_index, 0):
+        due = (self.episode, cmd.tick - 1)
+        arrived = self.buffer.get(due, NOTHING)
+        expected = cmd.expect.get(self.proc_index, 0)
+        if len(arrived) < expected:
             return
         self.pending = None
-        for key in sorted(k for k in self.buffer if k[0] == self.episode and k[1] < cmd.tick):
-            for batch in self.buffer.pop(key):
-                self.host.deliver(batch.envelopes)
+        if len(arrived) > expected:
+            self.fail(cmd.tick, f"received {len(arrived)} publications sent in tick {cmd.tick - 1}, {expected} "
+                                "announced: another publisher is on the bus (see the rejected-message log)")
+            return
+        for key in [k for k in self.buffer if k[0] == self.episode and k[1] < cmd.tick]:
+            batches = self.buffer.pop(key)
+            if key == due:
+                for batch in batches.values():
+                    self.host.deliver(batch.envelopes)
+            else:  # a process sent mail always takes part in the next tick: nobody sent these
+                for src, where in batches:
+                    self.rejections.add(where, WRONG_TICK, f"a batch from {src} sent in tick {key[1]}, due in "
+                                                           f"tick {key[1] + 1}, which this process did not run")
         self.run(cmd)
 
+    def fail(self, t: int, why: str) -> None:
+        """Report a failure, then stop: the orchestrator names this process and shows ``why``."""
+        self.failed = why
+        self.transport.publish(self.done_key, Done(self.proc, self.episode, t, {}, {}, error=why))
+
     def run(self, cmd: Tick) -> None:
-        t = cmd.tick
+        t = self.tick = cmd.tick
         self.host.events_on = any(m.listened for m in self.listeners)
         try:
             out = self.host.run(t, cmd.actions)
-        except Exception as exc:  # report, then stop: the orchestrator names this process
-            self.failed = f"{type(exc).__name__}: {exc}\n{traceback.format_exc()}"
-            self.transport.publish(self.done_key, Done(self.proc, self.episode, t, {}, {}, error=self.failed))
+        except Exception as exc:
+            self.fail(t, account(exc))
             return
+        done = out.done
+        self.wake = done.wake
+        if self.rejections.changed:  # rare: only after something was refused
+            self.rejections.changed = False
+            done.rejected = dict(self.rejections.counts)
         for proc, envelopes in out.batches.items():
             self.transport.publish(self.inbox_keys[proc], Batch(self.episode, t, self.proc, envelopes))
         for topic, envelopes in out.topics.items():
             self.transport.publish(self.topic_keys[topic], Batch(self.episode, t, self.proc, envelopes))
-        self.transport.publish(self.done_key, out.done)
+        self.transport.publish(self.done_key, done)
         for kind, node, fields in out.events:  # best effort: monitors never slow the emulation down
             monitor = self.monitors.get((kind, node))
             fresh = monitor is None  # a new publisher may not have heard of its subscribers yet

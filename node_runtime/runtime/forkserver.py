@@ -9,10 +9,15 @@ forkserver it never runs the caller's main module, so a training script needs no
 Hygiene: the server exits, killing its children, when its stdin reaches EOF — which happens however
 the orchestrator ends, even by SIGKILL. Children also get PR_SET_PDEATHSIG from the server.
 
+A child that fails says why: when ``target`` raises, the child writes its account (the exception,
+then the traceback; for ``ChildFailed``, its message) to a pipe its server reads when it exits, and
+the exit notice carries it. The orchestrator's error then shows the node's own reason, not just a
+status.
+
 Wire format on the pipes: 4-byte big-endian length, then a pickle. Requests: ("start", name, job)
 where ``job`` pickles (target, args) and ``target`` is an importable module-level function that ends
-the child with os._exit; replies and notices: ("started", name, pid), ("failed", name, why) and
-("exited", name, pid, status).
+the child with os._exit (or raises); replies and notices: ("started", name, pid), ("failed", name, why)
+and ("exited", name, pid, status, account), ``account`` empty unless the child raised.
 """
 
 from __future__ import annotations
@@ -27,10 +32,16 @@ import struct
 import subprocess
 import sys
 import threading
+import traceback
 from collections.abc import Callable
 from typing import Any
 
 HEADER = struct.Struct(">I")
+ACCOUNT_BYTES = 8192  # at most this much of a child's account: it must fit the pipe, which is read after the exit
+
+
+class ChildFailed(Exception):
+    """Raised by a target whose failure is already written up: its message is the whole account."""
 
 
 def _write(fd: int, obj: Any) -> None:
@@ -56,6 +67,33 @@ def _read(fd: int) -> Any | None:
     return None if body is None else pickle.loads(body)
 
 
+def account(exc: BaseException) -> str:
+    """What a failed child tells its parent: 'Type: message', then the traceback."""
+    if isinstance(exc, ChildFailed):
+        return str(exc)
+    return f"{type(exc).__name__}: {exc}\n{''.join(traceback.format_exception(exc))}"
+
+
+def _report(fd: int, text: str) -> None:
+    data = text.encode(errors="replace")
+    if len(data) > ACCOUNT_BYTES:  # keep the first line (the summary) and the end of the traceback
+        head = data.split(b"\n", 1)[0][:1024] + b"\n...\n"
+        data = head + data[len(head) - ACCOUNT_BYTES:]
+    with contextlib.suppress(OSError):
+        while data:
+            data = data[os.write(fd, data):]
+
+
+def _drain(fd: int) -> str:
+    """All a dead child wrote on its account pipe."""
+    chunks = []
+    with contextlib.suppress(OSError):
+        while chunk := os.read(fd, 65536):
+            chunks.append(chunk)
+    os.close(fd)
+    return b"".join(chunks).decode(errors="replace")
+
+
 # ----- the server process -----
 
 def serve() -> None:
@@ -65,6 +103,7 @@ def serve() -> None:
     requests, replies = sys.stdin.fileno(), os.dup(sys.stdout.fileno())
     os.dup2(sys.stderr.fileno(), sys.stdout.fileno())  # children's prints go to the orchestrator's stderr
     children: dict[int, str] = {}
+    accounts: dict[int, int] = {}  # pid -> read end of the pipe its account comes on
     sel = selectors.DefaultSelector()
     sel.register(requests, selectors.EVENT_READ)
     try:
@@ -79,21 +118,30 @@ def serve() -> None:
                 except Exception as exc:  # e.g. a target defined in the caller's __main__
                     _write(replies, ("failed", name, f"{type(exc).__name__}: {exc}"))
                     continue
+                readable, writable = os.pipe()
                 pid = os.fork()
                 if pid == 0:
-                    os.close(requests)
-                    os.close(replies)
+                    for fd in (requests, replies, readable, *accounts.values()):
+                        os.close(fd)
                     try:
                         target(*args)
+                    except BaseException as exc:
+                        _report(writable, account(exc))
                     finally:
+                        with contextlib.suppress(Exception):
+                            sys.stdout.flush()
+                            sys.stderr.flush()
                         os._exit(1)  # a target that returns or raises instead of exiting
+                os.close(writable)
                 children[pid] = name
+                accounts[pid] = readable
                 _write(replies, ("started", name, pid))
             while children:
                 pid, status = os.waitpid(-1, os.WNOHANG)
                 if pid == 0:
                     break
-                _write(replies, ("exited", children.pop(pid, "?"), pid, os.waitstatus_to_exitcode(status)))
+                why = _drain(accounts.pop(pid)) if pid in accounts else ""
+                _write(replies, ("exited", children.pop(pid, "?"), pid, os.waitstatus_to_exitcode(status), why))
     finally:
         for pid in children:
             with contextlib.suppress(ProcessLookupError):
@@ -112,6 +160,7 @@ class ForkServer:
         self.server = subprocess.Popen([sys.executable, "-m", "node_runtime.runtime.forkserver"],
                                        stdin=subprocess.PIPE, stdout=subprocess.PIPE, close_fds=True)
         self.exits: dict[int, int] = {}  # pid -> exit status
+        self.accounts: dict[int, str] = {}  # pid -> what it said when it failed ("" if nothing)
         self._started: dict[str, list[int]] = {}
         self._failed: dict[str, str] = {}
         self._cond = threading.Condition()
@@ -136,6 +185,7 @@ class ForkServer:
                     self._failed[msg[1]] = msg[2]
                 else:
                     self.exits[msg[2]] = msg[3]
+                    self.accounts[msg[2]] = msg[4]
                 self._cond.notify_all()
         with self._cond:
             self._cond.notify_all()
@@ -160,6 +210,11 @@ class ForkServer:
         with self._cond:
             return self.exits.get(pid)
 
+    def account(self, pid: int) -> str:
+        """What an exited child said about its failure: 'Type: message' then the traceback, or ""."""
+        with self._cond:
+            return self.accounts.get(pid, "")
+
     def wait(self, pids: list[int], timeout: float) -> list[int]:
         """Wait until these processes have exited; returns those still running."""
         with self._cond:
@@ -177,5 +232,7 @@ class ForkServer:
         self._reader.join(2.0)
 
 
-if __name__ == "__main__":
-    serve()
+if __name__ == "__main__":  # run the importable module's server: its ChildFailed is the one children raise
+    from node_runtime.runtime import forkserver
+
+    forkserver.serve()

@@ -14,6 +14,7 @@ from collections.abc import Callable
 from typing import Any
 
 from node_runtime.runtime import codec
+from node_runtime.runtime.rejections import Rejections
 from node_runtime.runtime.transport import Handler, Monitored, RequestHandler, TokenHandler, Transport, TransportError
 
 
@@ -151,6 +152,7 @@ class InprocEndpoint(Transport):
         self._subs: list[tuple[str, Handler]] = []
         self._watchers: list[tuple[str, TokenHandler]] = []
         self._served: list[str] = []
+        self.rejections = Rejections()
 
     def publish(self, key: str, message: Any) -> None:
         self.bus.publish(key, message)

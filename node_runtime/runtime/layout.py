@@ -112,6 +112,16 @@ class ProcessLayout:
         procs.pop(proc, None)
         return tuple(procs)
 
+    @cached_property
+    def recipients(self) -> dict[str, frozenset[str]]:
+        """Processes each process may publish to: those it may mail, and those hearing its roles' broadcasts."""
+        out = {}
+        for proc in self.procs:
+            heard = (self.proc_of[r] for w in self.roles_of[proc] for topic in self.publications[w]
+                     for r in self.subscribers.get(topic, ()))
+            out[proc] = frozenset(self.destinations(proc)).union(heard) - {proc}
+        return out
+
     def node_of_proc(self, proc: str) -> tuple[str, ...]:
         """Nodes whose roles a process hosts (for error messages naming a node)."""
         return tuple(dict.fromkeys(role_node(r) for r in self.roles_of[proc]))

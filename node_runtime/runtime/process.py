@@ -2,7 +2,8 @@
 
 Started by the orchestrator's launcher (local processes) or by ``zenohedge-node`` on another host.
 A node process never decides to stop on its own: it stops when the orchestrator says so, when the
-orchestrator's liveliness token vanishes (it crashed or was killed), or when its parent dies.
+orchestrator's liveliness token vanishes (it crashed or was killed), or when its parent dies. When it
+fails, it raises: the fork server hands its account (exception and traceback) to the orchestrator.
 """
 
 from __future__ import annotations
@@ -17,15 +18,16 @@ from dataclasses import dataclass
 from node_runtime.model.plugins import extend_path
 from node_runtime.model.spec import Scenario
 from node_runtime.runtime.driver import HostDriver
+from node_runtime.runtime.forkserver import ChildFailed
 from node_runtime.runtime.host import Host
 from node_runtime.runtime.keys import Keys
 from node_runtime.runtime.layout import Layout, ProcessLayout
-from node_runtime.runtime.transport import TransportError
+from node_runtime.runtime.rejections import log
 from node_runtime.runtime.zenoh_bus import ZenohTransport, use_lean_runtime
 
 ORCHESTRATOR = "orchestrator"  # liveliness name of the clock's owner
 READY_TIMEOUT = 60.0
-EXIT_OK, EXIT_FAILED, EXIT_ORPHANED = 0, 1, 3
+EXIT_OK, EXIT_ORPHANED = 0, 3  # a failed process exits with status 1 (the fork server)
 
 
 @dataclass(frozen=True)
@@ -60,7 +62,7 @@ def die_with_parent() -> None:
 
 
 def run(spec: ProcSpec) -> int:
-    """Run one node process to completion; returns its exit status."""
+    """Run one node process to completion; returns its exit status, or raises what made it fail."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C reaches the whole group: the orchestrator handles it
     use_lean_runtime()
     extend_path(spec.paths)
@@ -80,14 +82,14 @@ def run(spec: ProcSpec) -> int:
         transport.wait_matching(publishes, READY_TIMEOUT)
         transport.declare_token(spec.keys.alive(spec.proc))
         transport.dispatch(until=lambda: driver.stopped or driver.failed is not None or orchestrator["gone"])
-        if driver.failed is not None:
-            return EXIT_FAILED
+        if driver.failed is not None:  # already reported in its Done; the exit notice says it again
+            raise ChildFailed(driver.failed)
         return EXIT_ORPHANED if orchestrator["gone"] and not driver.stopped else EXIT_OK
     finally:
-        try:
-            transport.close()
-        except TransportError:
-            os._exit(EXIT_FAILED)
+        rejected = transport.rejections
+        if rejected.total:
+            log.warning("zenohedge: %s rejected %d messages in all: %s", spec.proc, rejected.total, rejected.line())
+        transport.close()  # a close that hangs raises TransportError: the fork server reports it
 
 
 def main(spec: ProcSpec) -> None:

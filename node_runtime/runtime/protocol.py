@@ -61,3 +61,5 @@ class Done:
     wake: int | None = None  # the next tick this process must run without mail; None: only mail wakes it
     obs: dict[int, Observation] = field(default_factory=dict)  # externally driven controller index -> its view
     error: str | None = None  # set when the process failed; it exits after sending this
+    rejected: dict[str, int] = field(default_factory=dict)  # reason -> messages this process refused so far;
+    # only in the first Done after the counts changed (docs/bus.md, "Rejected messages")

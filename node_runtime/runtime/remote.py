@@ -35,8 +35,8 @@ def run_group(endpoint: str, keys: Keys, group: str, timeout: float = 30.0) -> i
     try:
         try:
             info = transport.request(keys.session(), {"type": "session?"}, timeout=timeout)
-        except Exception:
-            print(f"zenohedge-node: no simulation {keys.sim_id!r} answers at {endpoint}", file=sys.stderr)
+        except Exception as exc:  # no answer; or a refusal, e.g. from another ZenohEdge version
+            print(f"zenohedge-node: simulation {keys.sim_id!r} at {endpoint}: {exc}", file=sys.stderr)
             return EXIT_USAGE
         placement = info.get("placement") or {}
         if group not in placement:
@@ -55,7 +55,12 @@ def run_group(endpoint: str, keys: Keys, group: str, timeout: float = 30.0) -> i
         transport.watch_tokens(keys.alive(ORCHESTRATOR), lambda key, alive: alive or gone.set())
         transport.dispatch(until=lambda: gone.is_set() or not forks.wait(pids, 0.0))
         left = forks.wait(pids, 10.0)
-        failed = [pid for pid in pids if (forks.exit_status(pid) or 0) not in (0, node_process.EXIT_ORPHANED)]
+        failed = [(proc, pid) for proc, pid in zip(procs, pids, strict=True)
+                  if (forks.exit_status(pid) or 0) not in (0, node_process.EXIT_ORPHANED)]
+        for proc, pid in failed:
+            why = forks.account(pid).strip()
+            print(f"zenohedge-node: process {proc} exited with status {forks.exit_status(pid)}"
+                  f"{': ' + why.splitlines()[0] if why else ''}", file=sys.stderr)
         return EXIT_FAILED if left or failed else EXIT_OK
     except KeyboardInterrupt:
         return EXIT_OK

@@ -13,6 +13,8 @@ from abc import ABC, abstractmethod
 from collections.abc import Callable
 from typing import Any
 
+from node_runtime.runtime.rejections import Rejections
+
 Handler = Callable[[str, Any], None]
 TokenHandler = Callable[[str, bool], None]  # (key, alive)
 RequestHandler = Callable[[Any], Any]  # request message -> answer
@@ -23,6 +25,8 @@ class TransportError(RuntimeError):
 
 
 class Transport(ABC):
+    rejections: Rejections  # messages refused: undecodable ones by ``dispatch``, untrusted ones by handlers
+
     @abstractmethod
     def publish(self, key: str, message: Any) -> None:
         """Send ``message`` to every subscriber of ``key``; reliable, ordered per publisher."""

@@ -21,6 +21,7 @@ from typing import Any, Literal
 import zenoh
 
 from node_runtime.runtime import codec
+from node_runtime.runtime.rejections import Rejections
 from node_runtime.runtime.transport import Handler, Monitored, RequestHandler, TokenHandler, Transport, TransportError
 
 Mode = Literal["router", "client", "peer"]
@@ -77,6 +78,7 @@ class ZenohTransport(Transport):
         self._pubs: dict[str, zenoh.Publisher] = {}
         self._entities: list[Any] = []
         self._closed = False
+        self.rejections = Rejections()
 
     @classmethod
     def router(cls, endpoint: str, connect: list[str] | None = None) -> ZenohTransport:
@@ -135,15 +137,25 @@ class ZenohTransport(Transport):
         """A queryable; ``handler`` runs in a Zenoh thread."""
 
         def on_query(query: zenoh.Query) -> None:  # answer on our own key: a wildcard query learns who answered
-            message = codec.decode(query.payload.to_bytes()) if query.payload is not None else None
+            try:
+                message = codec.decode(query.payload.to_bytes()) if query.payload is not None else None
+            except codec.CodecError as exc:  # plain text: the asker may not read our msgpack either
+                self.rejections.add(key, exc.reason, str(exc))
+                query.reply_err(str(exc).encode())
+                return
             query.reply(key, codec.encode(handler(message)))
 
         self._entities.append(self.session.declare_queryable(key, on_query))
 
     def request(self, key: str, message: Any, timeout: float) -> Any:
+        """Ask whoever serves ``key``; the first answer wins."""
+        refused = ""
         for reply in self.session.get(key, payload=codec.encode(message), timeout=timeout):
             if reply.ok is not None:
                 return codec.decode(reply.ok.payload.to_bytes())
+            refused = reply.err.payload.to_bytes().decode(errors="replace")
+        if refused:
+            raise TransportError(f"{key} refused the request: {refused}")
         raise TransportError(f"no answer from {key} within {timeout:.0f} s")
 
     # ----- best-effort publications for monitors -----
@@ -197,7 +209,11 @@ class ZenohTransport(Transport):
                     idle()
                 continue
             if isinstance(data, bytes):
-                data = codec.decode(data)
+                try:
+                    data = codec.decode(data)
+                except codec.CodecError as exc:
+                    self.rejections.add(key, exc.reason, str(exc))
+                    continue
             handler(key, data)
 
     def close(self) -> None:
