@@ -59,7 +59,7 @@ class UsageError(Exception):
     """A bad combination of arguments: one line on stderr, exit status 2."""
 
 
-class Terminated(Exception):
+class Terminated(BaseException):
     """SIGTERM, turned into an exception so that cleanup runs exactly as for Ctrl-C."""
 
 
