@@ -27,7 +27,7 @@ from typing import Any
 from node_runtime.runtime.keys import DEFAULT_PREFIX, Keys
 from node_runtime.runtime.layout import ProcessLayout
 from node_runtime.runtime.security import Security
-from node_runtime.runtime.transport import Transport
+from node_runtime.runtime.transport import Transport, TransportError
 from node_runtime.runtime.zenoh_bus import ZenohTransport
 from orchestrator.clock import Clock, ClockError
 
@@ -136,7 +136,11 @@ def claim(transport: Transport, keys: Keys, timeout: float) -> tuple[dict[str, A
     token that releases it."""
     info = session_of(transport, keys, timeout)
     name = f"{DRIVER_PREFIX}{secrets.token_hex(3)}"
-    answer = transport.request(keys.control(), {"type": "control", "claim": name}, timeout=timeout)
+    try:
+        answer = transport.request(keys.control(), {"type": "control", "claim": name}, timeout=timeout)
+    except TransportError as exc:  # with access control, the router drops queries of other identities
+        raise ClockError(f"simulation {keys.sim_id}: {exc} (a router with --security answers only the driver "
+                         "identity)") from None
     if not answer.get("granted"):
         raise Busy(f"simulation {keys.sim_id}: {answer.get('reason', 'refused')}")
     info["episode"] = answer["episode"]
