@@ -63,3 +63,22 @@ def test_a_bad_security_directory_is_one_line(tmp_path):
     assert proc.stderr.splitlines() == [
         f"orchestrator: {tmp_path}: missing ca.pem, cert.pem, key.pem, credentials (expected ca.pem, cert.pem, "
         "key.pem, credentials; deploy/make-certs.sh writes them)"]
+
+
+def test_zenoh_config_file_merges_what_differs_from_the_defaults(tmp_path):
+    from node_runtime.runtime.security import file_overrides
+    from node_runtime.runtime.zenoh_bus import zenoh_config
+
+    given = tmp_path / "zenoh.json5"
+    given.write_text('{ transport: { link: { tx: { lease: 20000 } } }, // a comment, as JSON5 allows\n}\n')
+    assert file_overrides(given) == {"transport/link/tx/lease": 20000}
+    cfg = zenoh_config("client", connect=["tcp/127.0.0.1:7447"], settings=file_overrides(given))
+    assert cfg.get_json("transport/link/tx/lease") == "20000"
+
+    given.write_text("{ nonsense: 1 }")
+    proc = subprocess.run([sys.executable, "-m", "node_runtime.runtime.remote", "--connect", "tcp/127.0.0.1:1",
+                           "--sim", "x", "--group", "g", "--zenoh-config", str(given)],
+                          capture_output=True, text=True, timeout=60)
+    assert proc.returncode == 2
+    [line] = proc.stderr.splitlines()
+    assert line.startswith(f"zenohedge-node: {given}: not a usable Zenoh configuration: ")
