@@ -72,6 +72,8 @@ class ZenohEdgeEnv(ParallelEnv):
         render_mode: None, "ansi", "rgb_array" or "human".
         connect, sim_id: attach to a simulation served by ``orchestrator launch --serve`` instead of
             starting one (give the endpoint it printed, e.g. "tcp/10.0.0.5:7447", and its id).
+        security: with ``connect`` to a router that requires TLS and logins (``launch --security``), the
+            directory of the ``driver`` identity written by deploy/make-certs.sh (deploy/README.md).
     """
 
     metadata: ClassVar[dict[str, Any]] = {
@@ -85,7 +87,8 @@ class ZenohEdgeEnv(ParallelEnv):
                  reward_weights: PaperWeights | None = None, overrides: ScenarioOverrides | None = None,
                  max_steps: int | None = None, agents: Sequence[str] | None = None, uniform_spaces: bool = False,
                  invalid_action: str = "local", render_mode: str | None = None,
-                 connect: str | None = None, sim_id: str | None = None, timeout: float = 30.0) -> None:
+                 connect: str | None = None, sim_id: str | None = None, timeout: float = 30.0,
+                 security: str | Path | None = None) -> None:
         if overrides is not None and not isinstance(overrides, ScenarioOverrides):
             raise TypeError(f"overrides must be a ScenarioOverrides, not a {type(overrides).__name__}")
         if connect is not None:  # the served simulation fixes the scenario
@@ -93,9 +96,11 @@ class ZenohEdgeEnv(ParallelEnv):
                 raise ValueError("connect= needs sim_id= (both are printed by `orchestrator launch --serve`)")
             if overrides is not None:
                 raise ValueError("overrides cannot change a served simulation; set them in its scenario file")
+            from node_runtime.runtime.security import Security
             from orchestrator.serve import describe
 
-            sc = Scenario.from_dict(describe(connect, sim_id, timeout=timeout)["scenario"])
+            self.security = Security.from_dir(security) if security is not None else None
+            sc = Scenario.from_dict(describe(connect, sim_id, timeout=timeout, security=self.security)["scenario"])
         else:
             sc = scenario if isinstance(scenario, Scenario) else load_scenario(scenario)
         if overrides is not None:
@@ -281,7 +286,7 @@ class ZenohEdgeEnv(ParallelEnv):
 
     def _open(self) -> Simulation:
         if self.connect is not None:
-            return Simulation.attach(self.connect, self.sim_id, timeout=self.timeout)
+            return Simulation.attach(self.connect, self.sim_id, timeout=self.timeout, security=self.security)
         return Simulation(self.scenario, transport=self.transport, layout=self.layout, timeout=self.timeout)
 
     def _observe(self) -> None:

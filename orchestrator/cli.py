@@ -32,7 +32,8 @@ from node_runtime.model.policies import POLICIES
 from node_runtime.runtime import cli_options
 from node_runtime.runtime.keys import new_sim_id
 from node_runtime.runtime.layout import LAYOUTS, ProcessLayout
-from orchestrator import local_sims
+from node_runtime.runtime.security import SecurityError, protocol
+from orchestrator import access, local_sims
 from orchestrator.arguments import COUNT, NON_NEGATIVE, POSITIVE, integer
 from orchestrator.clock import ClockError, ProcessFailed
 from orchestrator.metrics import ConservationError, TickReport
@@ -82,6 +83,10 @@ def cmd_launch(args: argparse.Namespace) -> int:
         if args.transport != "zenoh":
             raise UsageError("--placement needs --transport zenoh")
         placement = load_placement(args.placement, ProcessLayout(scenario, layout))
+    security, zenoh_settings = cli_options.security_options(args)
+    if security is not None and (clash := sorted(set(placement or {}) & set(access.IDENTITIES))):
+        raise UsageError(f"--placement: group {clash[0]!r} is reserved with --security (identities "
+                         f"{', '.join(access.IDENTITIES)} exist already); rename the group")
     sim_id = args.sim_id or new_sim_id()
     console = Console(stderr=True, highlight=False, quiet=args.quiet)
     seed = args.seed if args.seed is not None else scenario.seed
@@ -91,14 +96,17 @@ def cmd_launch(args: argparse.Namespace) -> int:
                   f"{policy_text(node_policies(scenario, args.policy))}")
 
     def waiting(groups: dict[str, list[str]]) -> None:
-        where = f"tcp/<this host's address>:{port}" if host in ("0.0.0.0", "::") else f"tcp/{host}:{port}"
+        proto = protocol(security)
+        where = f"{proto}/<this host's address>:{port}" if host in ("0.0.0.0", "::") else f"{proto}/{host}:{port}"
         console.print(f"waiting for {sum(map(len, groups.values()))} processes on other hosts; run there:")
         for group in groups:
-            console.print(f"  zenohedge-node --connect {where} --sim {sim_id} --group {group}", markup=False)
+            login = f" --security <dir of {group}>" if security is not None else ""
+            console.print(f"  zenohedge-node --connect {where} --sim {sim_id} --group {group}{login}", markup=False)
 
     t0 = time.perf_counter()
     with Simulation(scenario, transport=args.transport, layout=layout, timeout=args.timeout, listen_host=host,
-                    port=port, sim_id=sim_id, placement=placement, on_waiting=waiting, join=args.connect) as sim, \
+                    port=port, sim_id=sim_id, placement=placement, on_waiting=waiting, join=args.connect,
+                    security=security, zenoh_settings=zenoh_settings) as sim, \
             listed(sim, console):
         if args.transport == "zenoh":
             console.print(f"router {sim.endpoint}, simulation id [bold]{sim.keys.sim_id}[/], "
@@ -184,7 +192,7 @@ def run_episode(sim: Simulation, ticks: int, seed: int, args: argparse.Namespace
 
 def parse_listen(text: str) -> tuple[str, int | None]:
     """HOST:PORT (or tcp/HOST:PORT) -> (host, port)."""
-    text = text.removeprefix("tcp/")
+    text = text.removeprefix("tcp/").removeprefix("tls/")
     host, _, port = text.rpartition(":")
     if not host or not port.isdigit():
         raise UsageError(f"--listen: expected HOST:PORT such as 0.0.0.0:7447, not {text!r}")
@@ -326,6 +334,10 @@ def build_parser() -> argparse.ArgumentParser:
                         "simulations share one network; repeatable")
     p.add_argument("--tick-rate", type=POSITIVE, metavar="HZ",
                    help="run at most HZ ticks per second, to watch a run live with `orchestrator monitor`")
+    cli_options.add_security_options(
+        p, identity="orchestrator",
+        config_help="a Zenoh JSON5 configuration file merged last into the router's configuration, for what the "
+                    "options above do not set (its settings win)")
     p.set_defaults(func=cmd_launch)
 
     p = sub.add_parser("bench", help="measure ticks/s against a bare Zenoh barrier",
@@ -396,7 +408,7 @@ def main(argv: list[str] | None = None) -> int:
         for line in exc.errors:
             fail(line)
         return EXIT_USAGE
-    except (UsageError, SimIdInUse) as exc:
+    except (UsageError, SimIdInUse, SecurityError) as exc:
         fail(f"orchestrator: {exc}")
         return EXIT_USAGE
     except (ClockError, ConservationError) as exc:

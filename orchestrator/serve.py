@@ -5,9 +5,11 @@ in-process bus for code in the same process):
 
 - ``…/session``: the scenario (as a dict), the layout, the current episode and the placement of
   processes on hosts — what a remote driver, a remote node group or a monitor needs;
-- ``…/control``: ``{"claim": name}`` / ``{"release": name, "episode": n}`` — while the orchestrator
-  accepts drivers (``launch --serve``, after its own episodes), one driver at a time (e.g.
-  ``ZenohEdgeEnv(connect=...)``) takes the clock.
+- ``…/control``: ``{"claim": name}`` / ``{"release": name, "token": secret, "episode": n}`` — while the
+  orchestrator accepts drivers (``launch --serve``, after its own episodes), one driver at a time (e.g.
+  ``ZenohEdgeEnv(connect=...)``) takes the clock. The grant carries a random secret that only the
+  claimant receives (a query's reply goes to the querier alone) and that is never published: a release
+  must carry it, so knowing the driver's name (the session description shows it) is not enough.
 
 A driver announces itself with the liveliness token ``…/alive/driver/<id>``; if it vanishes (the driver
 crashed), the server takes the clock back. Episode numbers only grow, whoever drives, so node
@@ -24,7 +26,8 @@ from typing import Any
 
 from node_runtime.runtime.keys import DEFAULT_PREFIX, Keys
 from node_runtime.runtime.layout import ProcessLayout
-from node_runtime.runtime.transport import Transport
+from node_runtime.runtime.security import Security
+from node_runtime.runtime.transport import Transport, TransportError
 from node_runtime.runtime.zenoh_bus import ZenohTransport
 from orchestrator.clock import Clock, ClockError
 
@@ -49,6 +52,8 @@ class Server:
         self.health = health
         self.placement = placement or {}
         self.driver: str | None = None
+        self.secret: str | None = None  # the attached driver's token
+        self.refused = 0  # releases with a wrong or missing token
         self.serving = False  # remote drivers may take the clock (launch --serve, after its episodes)
         self._lock = threading.Lock()
         transport.serve(keys.session(), self._session)
@@ -68,9 +73,14 @@ class Server:
                     who = self.driver or "the orchestrator (it is not serving: launch it with --serve)"
                     return {"type": "control", "granted": False, "reason": f"the clock is held by {who}"}
                 self.driver = msg["claim"]
-                return {"type": "control", "granted": True, "episode": self.clock.latest}
-            if "release" in msg and msg["release"] == self.driver:
-                self.driver = None
+                self.secret = secrets.token_hex(16)
+                return {"type": "control", "granted": True, "episode": self.clock.latest, "token": self.secret}
+            if "release" in msg:
+                if self.driver is None or msg["release"] != self.driver or not isinstance(msg.get("token"), str) \
+                        or not secrets.compare_digest(msg["token"], self.secret or ""):
+                    self.refused += 1
+                    return {"type": "control", "released": False}
+                self.driver = self.secret = None
                 self.clock.catch_up(int(msg.get("episode", -1)))
                 return {"type": "control", "released": True}
         return {"type": "control", "released": False}
@@ -79,7 +89,7 @@ class Server:
         name = DRIVER_PREFIX + key.rsplit("/", 1)[-1]
         with self._lock:
             if not alive and name == self.driver:  # the driver died without releasing
-                self.driver = None
+                self.driver = self.secret = None
 
     @contextlib.contextmanager
     def accepting(self) -> Iterator[None]:
@@ -91,7 +101,7 @@ class Server:
         finally:
             with self._lock:
                 self.serving = False
-                self.driver = None
+                self.driver = self.secret = None
 
     def wait(self, stop: threading.Event | None = None, ready: Callable[[], None] | None = None) -> None:
         """Serve remote drivers until ``stop`` is set (or Ctrl-C), noticing dead processes meanwhile.
@@ -111,25 +121,32 @@ def session_of(transport: Transport, keys: Keys, timeout: float, where: str = "t
         raise ClockError(f"no simulation {keys.sim_id!r} answers at {where}: {exc}") from None
 
 
-def describe(endpoint: str, sim_id: str, prefix: str = DEFAULT_PREFIX, timeout: float = 10.0) -> dict[str, Any]:
+def describe(endpoint: str, sim_id: str, prefix: str = DEFAULT_PREFIX, timeout: float = 10.0,
+             security: Security | None = None) -> dict[str, Any]:
     """The session description of a simulation served at a Zenoh endpoint."""
-    transport = ZenohTransport.client(endpoint)
+    transport = ZenohTransport.client(endpoint, security)
     try:
         return session_of(transport, Keys(sim_id, prefix), timeout, endpoint)
     finally:
         transport.close()
 
 
-def claim(transport: Transport, keys: Keys, timeout: float) -> tuple[dict[str, Any], str]:
-    """Take the clock of a served simulation; returns its session description and our driver name."""
+def claim(transport: Transport, keys: Keys, timeout: float) -> tuple[dict[str, Any], str, str]:
+    """Take the clock of a served simulation; returns its session description, our driver name and the
+    token that releases it."""
     info = session_of(transport, keys, timeout)
     name = f"{DRIVER_PREFIX}{secrets.token_hex(3)}"
-    answer = transport.request(keys.control(), {"type": "control", "claim": name}, timeout=timeout)
+    try:
+        answer = transport.request(keys.control(), {"type": "control", "claim": name}, timeout=timeout)
+    except TransportError as exc:  # with access control, the router drops queries of other identities
+        raise ClockError(f"simulation {keys.sim_id}: {exc} (a router with --security answers only the driver "
+                         "identity)") from None
     if not answer.get("granted"):
         raise Busy(f"simulation {keys.sim_id}: {answer.get('reason', 'refused')}")
     info["episode"] = answer["episode"]
-    return info, name
+    return info, name, answer["token"]
 
 
-def release(transport: Transport, keys: Keys, name: str, episode: int) -> None:
-    transport.request(keys.control(), {"type": "control", "release": name, "episode": episode}, timeout=5.0)
+def release(transport: Transport, keys: Keys, name: str, token: str, episode: int) -> None:
+    transport.request(keys.control(), {"type": "control", "release": name, "token": token, "episode": episode},
+                      timeout=5.0)

@@ -32,9 +32,12 @@ from node_runtime.runtime.keys import DEFAULT_PREFIX, Keys, new_sim_id
 from node_runtime.runtime.layout import Layout, ProcessLayout
 from node_runtime.runtime.process import ORCHESTRATOR
 from node_runtime.runtime.protocol import Done
+from node_runtime.runtime.security import Security, protocol
 from node_runtime.runtime.transport import Transport
 from node_runtime.runtime.zenoh_bus import ZenohTransport, free_port
+from orchestrator.access import access_control
 from orchestrator.clock import Clock
+from orchestrator.local_sims import local_endpoint
 from orchestrator.metrics import Metrics, TickReport, bus_record
 from orchestrator.serve import Server, claim, release
 from orchestrator.supervisor import Supervisor
@@ -49,15 +52,17 @@ class SimIdInUse(RuntimeError):
     """Another orchestrator on the same Zenoh network already uses this simulation id."""
 
 
-def open_router(host: str = "127.0.0.1", port: int | None = None,
-                join: list[str] | None = None) -> tuple[ZenohTransport, str]:
+def open_router(host: str = "127.0.0.1", port: int | None = None, join: list[str] | None = None,
+                security: Security | None = None,
+                settings: dict[str, Any] | None = None) -> tuple[ZenohTransport, str]:
     """A router session listening on a free port (retrying if another process takes it first).
-    ``join``: other routers' endpoints to connect to, making one Zenoh network."""
+    ``join``: other routers' endpoints to connect to, making one Zenoh network; ``security``: listen
+    with TLS, requiring client certificates and logins; ``settings``: further Zenoh configuration."""
     last: Exception | None = None
     for _ in range(1 if port else ROUTER_ATTEMPTS):
-        endpoint = f"tcp/{host}:{port or free_port(host)}"
+        endpoint = f"{protocol(security)}/{host}:{port or free_port(host)}"
         try:
-            return ZenohTransport.router(endpoint, join), endpoint
+            return ZenohTransport.router(endpoint, join, security, settings), endpoint
         except Exception as exc:  # zenoh raises ZError when the port is taken
             last = exc
     raise RuntimeError(f"could not open a Zenoh router on {host}: {last}")
@@ -83,9 +88,12 @@ class Simulation:
                  listen_host: str = "127.0.0.1", port: int | None = None,
                  placement: dict[str, list[str]] | None = None, join_timeout: float = 600.0,
                  on_waiting: Callable[[dict[str, list[str]]], None] | None = None,
-                 join: list[str] | None = None) -> None:
+                 join: list[str] | None = None, security: Security | None = None,
+                 zenoh_settings: dict[str, Any] | None = None) -> None:
         """``placement`` (group -> processes) leaves those processes to ``zenohedge-node`` on other hosts;
-        their start is awaited up to ``join_timeout`` seconds, after calling ``on_waiting(placement)``."""
+        their start is awaited up to ``join_timeout`` seconds, after calling ``on_waiting(placement)``.
+        ``security``: TLS, logins and access control on the router (orchestrator/access.py), and the
+        identity of the local processes; ``zenoh_settings``: merged last into the router's configuration."""
         if transport not in ("zenoh", "inproc"):
             raise ValueError(f"transport must be 'zenoh' or 'inproc', not {transport!r}")
         self._common(scenario, transport, layout or ("single" if transport == "inproc" else "per-role"),
@@ -103,7 +111,10 @@ class Simulation:
             self.live = self.transport.monitored(self.keys.metrics())
             self.server = Server(self.transport, self.keys, self.plan, self.clock)
         else:
-            router, self.endpoint = open_router(listen_host, port, join)
+            settings = dict(zenoh_settings or {})
+            if security is not None:
+                settings = {"access_control": access_control(self.keys, self.plan, placement or {}), **settings}
+            router, self.endpoint = open_router(listen_host, port, join, security, settings or None)
             self.transport = router
             router.rejections.who = ORCHESTRATOR
             try:
@@ -116,8 +127,8 @@ class Simulation:
                 local = tuple(p for p in self.plan.procs if p not in remote)
                 if remote and on_waiting is not None:
                     on_waiting(placement)
-                self.startup_s = self.supervisor.start(scenario, self.layout, self.endpoint, local,
-                                                       timeout=join_timeout if remote else 60.0)
+                self.startup_s = self.supervisor.start(scenario, self.layout, local_endpoint(self.endpoint), local,
+                                                       timeout=join_timeout if remote else 60.0, security=security)
             except BaseException:
                 self.close()
                 raise
@@ -146,18 +157,19 @@ class Simulation:
 
     @classmethod
     def attach(cls, endpoint: str | Transport, sim_id: str, prefix: str = DEFAULT_PREFIX,
-               timeout: float = 30.0) -> Simulation:
+               timeout: float = 30.0, security: Security | None = None) -> Simulation:
         """Drive a simulation served by ``orchestrator launch --serve`` (possibly on another host).
 
         ``endpoint``: its Zenoh router, or an open transport on its bus (e.g. an endpoint of an
-        in-process simulation's bus), which this object then owns and closes.
+        in-process simulation's bus), which this object then owns and closes. ``security``: for a router
+        that requires TLS and logins, the ``driver`` identity (deploy/make-certs.sh).
         The served processes stay up when this object closes; the server gets its clock back.
         """
         self = cls.__new__(cls)
         keys = Keys(sim_id, prefix)
-        transport = ZenohTransport.client(endpoint) if isinstance(endpoint, str) else endpoint
+        transport = ZenohTransport.client(endpoint, security) if isinstance(endpoint, str) else endpoint
         try:
-            info, driver = claim(transport, keys, timeout)
+            info, driver, secret = claim(transport, keys, timeout)
         except BaseException:
             transport.close()
             raise
@@ -168,6 +180,7 @@ class Simulation:
         self.transport = transport
         self.attached = driver
         transport.rejections.who = driver
+        self._secret = secret
         try:
             self.supervisor = Supervisor(transport, keys, self.plan, token=driver)
             self.supervisor.wait_ready(timeout)
@@ -259,7 +272,7 @@ class Simulation:
         self._closed = True
         if self.attached is not None:  # the processes belong to the server: hand the clock back
             with contextlib.suppress(Exception):
-                release(self.transport, self.keys, self.attached, self.clock.episode)
+                release(self.transport, self.keys, self.attached, self._secret, self.clock.episode)
         elif self.supervisor is not None:
             with contextlib.suppress(Exception):
                 self.clock.stop()

@@ -21,6 +21,7 @@ from node_runtime.runtime.forkserver import ForkServer
 from node_runtime.runtime.keys import Keys
 from node_runtime.runtime.layout import Layout, ProcessLayout
 from node_runtime.runtime.process import ORCHESTRATOR, ProcSpec
+from node_runtime.runtime.security import Security
 from node_runtime.runtime.transport import Transport
 from orchestrator.clock import ProcessFailed
 
@@ -87,7 +88,7 @@ class Supervisor:
         raise ProcessFailed(proc, self.nodes(proc), f"exited unexpectedly ({how(status)}){first}", why)
 
     def start(self, scenario: Scenario, layout: Layout, endpoint: str, procs: tuple[str, ...] | None = None,
-              timeout: float = 60.0) -> float:
+              timeout: float = 60.0, security: Security | None = None) -> float:
         """Start the local processes and wait for every process of the layout to be ready.
 
         ``procs``: the ones to start here (default all); others are expected to join from other hosts.
@@ -96,7 +97,7 @@ class Supervisor:
         t0 = time.perf_counter()
         self.forks = ForkServer.shared()
         for proc in procs if procs is not None else self.plan.procs:
-            spec = ProcSpec(proc, scenario, layout, endpoint, self.keys, tuple(sys.path))
+            spec = ProcSpec(proc, scenario, layout, endpoint, self.keys, tuple(sys.path), security)
             self.children[proc] = self.forks.start(proc, node_process.main, spec)
         self.wait_ready(timeout)
         return time.perf_counter() - t0

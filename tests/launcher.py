@@ -73,7 +73,7 @@ def assert_all_gone(procs: list[psutil.Process], timeout: float = 10.0) -> None:
 def served(run: Launch) -> tuple[str, str]:
     """(endpoint, sim id) from what ``launch`` printed."""
     text = "".join(run.err)
-    endpoint = re.search(r"router (tcp/[0-9.]+:[0-9]+)", text)
+    endpoint = re.search(r"router ((?:tcp|tls)/[0-9.]+:[0-9]+)", text)
     sim = re.search(r"simulation id (\w+)", text)
     assert endpoint and sim, text
     return endpoint.group(1), sim.group(1)

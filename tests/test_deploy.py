@@ -82,3 +82,49 @@ def test_bad_placement_is_a_clear_error(tmp_path):
         f"{bad}: groups.a[1]: unknown node 'nope' in scenario aot2",
         f"{bad}: groups.b[0]: node 'rpi3_0' is already placed in group 'a'",
     ]
+
+
+def intruder(ns: str, endpoint: str, *args: str) -> subprocess.Popen:
+    return subprocess.Popen(["ip", "netns", "exec", ns, sys.executable, "-m", "tests.intruder", endpoint,
+                             "securetest", *args], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+
+
+def test_secure_two_hosts_refuse_outsiders(tmp_path, hosts):
+    """The deploy/README.md default: TLS with client certificates, logins and access control. Outsiders
+    without a certificate or the right password cannot connect; a host with a valid identity cannot
+    publish on keys that are not its own; the run is the same emulation as a clean one."""
+    from orchestrator.session import free_port
+
+    secrets = tmp_path / "secrets"
+    subprocess.run([ROOT / "deploy" / "make-certs.sh", secrets, "10.77.1.1,10.77.2.1", "cluster-a", "cluster-b"],
+                   check=True, capture_output=True)
+    port = free_port("0.0.0.0")
+    run = Launch("aot2", "--layout", "per-node", "--listen", f"0.0.0.0:{port}", "--sim-id", "securetest",
+                 "--placement", str(ROOT / "deploy" / "examples" / "aot2-two-hosts.yaml"), "--steps", "150",
+                 "--seed", "4", "--policy", "random", "--out", str(tmp_path / "run"),
+                 "--security", str(secrets / "orchestrator"))
+    run.wait_for("waiting for 18 processes on other hosts")
+    tls, victim = f"tls/10.77.1.1:{port}", "node-rpi3_6"  # a process of cluster-b, on the other host
+    refused = [intruder("zedge-host1", f"tcp/10.77.1.1:{port}", victim),  # plain TCP
+               intruder("zedge-host1", tls, victim, "--ca", str(secrets / "ca" / "ca.pem")),  # no client cert
+               intruder("zedge-host1", tls, victim, "--security", str(secrets / "cluster-a"), "--password", "x")]
+    for attempt in refused:
+        out, err = attempt.communicate(timeout=60)
+        assert (attempt.returncode, out) == (3, "refused\n"), err
+    inside = intruder("zedge-host1", tls, victim, "--security", str(secrets / "cluster-a"))  # a compromised host
+    assert inside.stdout.readline() == "connected\n"
+
+    groups = [subprocess.Popen(
+        ["ip", "netns", "exec", ns, sys.executable, "-m", "node_runtime.runtime.remote", "--connect",
+         f"tls/10.77.{i}.1:{port}", "--sim", "securetest", "--group", group, "--security", str(secrets / group)],
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+        for i, (ns, group) in enumerate(zip(hosts, ["cluster-a", "cluster-b"], strict=True), start=1)]
+    assert run.finish(120) == 0, "".join(run.err)
+    for g in groups:
+        assert g.wait(30) == 0, g.stderr.read()
+    out, err = inside.communicate(timeout=60)
+    assert inside.returncode == 0 and out.startswith("forged ") and int(out.split()[1]) > 0, err
+
+    deployed = json.loads((tmp_path / "run" / "summary.json").read_text())
+    alone = run_summary(load_scenario("aot2"), ticks=150, seed=4, policy="random")
+    assert model_part(deployed) == model_part(alone)

@@ -83,6 +83,14 @@ def test_serving_over_the_in_process_bus(aot1):
             assert session_of(bus.endpoint(), keys, 1.0)["driver"] == driver.attached
             with pytest.raises(Busy, match=f"held by {driver.attached}"):
                 Simulation.attach(bus.endpoint(), keys.sim_id)
+            # the driver's name is public; releasing needs the token only the claimant received
+            outsider = bus.endpoint()
+            for forged in ({"release": driver.attached}, {"release": driver.attached, "token": "0" * 32},
+                           {"release": driver.attached, "token": 7}):
+                answer = outsider.request(keys.control(), {"type": "control", "episode": 99, **forged}, 1.0)
+                assert answer["released"] is False
+            assert served_sim.server.refused == 3
+            assert session_of(outsider, keys, 1.0)["driver"] == driver.attached
             summary = driver.run(40, seed=7)
             assert driver.clock.episode == 1
             driver.close()
@@ -90,7 +98,7 @@ def test_serving_over_the_in_process_bus(aot1):
 
             # a driver that vanishes without releasing: the server takes the clock back
             lost = bus.endpoint()
-            _, name = claim(lost, keys, 1.0)
+            _, name, _ = claim(lost, keys, 1.0)
             lost.declare_token(keys.alive(name))
             assert session_of(bus.endpoint(), keys, 1.0)["driver"] == name
             lost.close()

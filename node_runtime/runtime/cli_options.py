@@ -6,8 +6,10 @@ from __future__ import annotations
 
 import argparse
 import re
+from typing import Any
 
 from node_runtime.runtime.keys import CHUNK, DEFAULT_PREFIX
+from node_runtime.runtime.security import Security, file_overrides
 
 ENDPOINT = re.compile(r"^[a-z0-9]+/\S+$")  # Zenoh's <protocol>/<address>
 
@@ -39,3 +41,18 @@ def add_sim_options(parser: argparse.ArgumentParser, *, required: bool, connect_
     parser.add_argument("--sim", metavar="ID", type=sim_id, required=required, help=sim_help)
     parser.add_argument("--prefix", type=prefix, default=DEFAULT_PREFIX,
                         help=f"key prefix of the simulation (default {DEFAULT_PREFIX})")
+
+
+def add_security_options(parser: argparse.ArgumentParser, *, identity: str, config_help: str) -> None:
+    """``--security DIR`` (TLS, mutual, and a Zenoh login; deploy/README.md) and ``--zenoh-config FILE``."""
+    parser.add_argument("--security", metavar="DIR",
+                        help=f"TLS with client certificates and a Zenoh login from DIR (ca.pem, cert.pem, key.pem, "
+                             f"credentials), e.g. the {identity} directory written by deploy/make-certs.sh; "
+                             "endpoints are then tls/HOST:PORT")
+    parser.add_argument("--zenoh-config", metavar="FILE", help=config_help)
+
+
+def security_options(args: argparse.Namespace) -> tuple[Security | None, dict[str, Any] | None]:
+    """The parsed ``--security`` and ``--zenoh-config``; raises SecurityError (one line) on bad files."""
+    security = Security.from_dir(args.security) if args.security else None
+    return security, file_overrides(args.zenoh_config) if args.zenoh_config else None

@@ -14,6 +14,7 @@ import os
 import signal
 import sys
 from dataclasses import dataclass
+from typing import Any
 
 from node_runtime.model.plugins import extend_path
 from node_runtime.model.spec import Scenario
@@ -23,6 +24,7 @@ from node_runtime.runtime.host import Host
 from node_runtime.runtime.keys import Keys
 from node_runtime.runtime.layout import Layout, ProcessLayout
 from node_runtime.runtime.rejections import log
+from node_runtime.runtime.security import Security
 from node_runtime.runtime.zenoh_bus import ZenohTransport, use_lean_runtime
 
 ORCHESTRATOR = "orchestrator"  # liveliness name of the clock's owner
@@ -38,6 +40,8 @@ class ProcSpec:
     endpoint: str  # the router to connect to
     keys: Keys
     paths: tuple[str, ...] = ()  # the orchestrator's sys.path, where user extensions may live
+    security: Security | None = None  # TLS and login for the session (deploy/README.md)
+    settings: dict[str, Any] | None = None  # a user's Zenoh configuration (zenohedge-node --zenoh-config)
 
 
 PR_SET_PDEATHSIG, PR_SET_NAME = 1, 15
@@ -66,7 +70,7 @@ def run(spec: ProcSpec) -> int:
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C reaches the whole group: the orchestrator handles it
     use_lean_runtime()
     extend_path(spec.paths)
-    transport = ZenohTransport.client(spec.endpoint)
+    transport = ZenohTransport.client(spec.endpoint, spec.security, spec.settings)
     try:
         plan = ProcessLayout(spec.scenario, spec.layout)
         _prctl(PR_SET_NAME, short_name(spec.proc, plan).encode())

@@ -16,20 +16,29 @@ import os
 import signal
 import sys
 import threading
+from typing import Any
 
 from node_runtime.model.spec import Scenario
 from node_runtime.runtime import process as node_process
-from node_runtime.runtime.cli_options import add_sim_options
+from node_runtime.runtime.cli_options import add_security_options, add_sim_options, security_options
 from node_runtime.runtime.forkserver import ForkServer
 from node_runtime.runtime.keys import Keys
 from node_runtime.runtime.process import ORCHESTRATOR, ProcSpec
+from node_runtime.runtime.security import Security, SecurityError
 from node_runtime.runtime.zenoh_bus import ZenohTransport
 
 EXIT_OK, EXIT_FAILED, EXIT_USAGE = 0, 1, 2
 
 
-def run_group(endpoint: str, keys: Keys, group: str, timeout: float = 30.0) -> int:
-    transport = ZenohTransport.client(endpoint)
+def run_group(endpoint: str, keys: Keys, group: str, timeout: float = 30.0, security: Security | None = None,
+              settings: dict[str, Any] | None = None) -> int:
+    """``security`` and ``settings`` (a Zenoh configuration): for this session and every process started."""
+    try:
+        transport = ZenohTransport.client(endpoint, security, settings)
+    except Exception:  # zenoh.ZError: nothing answers, or the router refused our certificate or login
+        print(f"zenohedge-node: cannot connect to {endpoint}: no router answers there, or it refused this host's "
+              "certificate or login", file=sys.stderr)
+        return EXIT_USAGE
     forks: ForkServer | None = None
     pids: list[int] = []
     try:
@@ -47,7 +56,8 @@ def run_group(endpoint: str, keys: Keys, group: str, timeout: float = 30.0) -> i
         procs = placement[group]
         forks = ForkServer.shared()
         for proc in procs:
-            pids.append(forks.start(proc, node_process.main, ProcSpec(proc, scenario, info["layout"], endpoint, keys)))
+            pids.append(forks.start(proc, node_process.main, ProcSpec(proc, scenario, info["layout"], endpoint, keys,
+                                                                      security=security, settings=settings)))
         print(f"zenohedge-node: group {group}: started {len(procs)} processes of simulation {keys.sim_id} "
               f"({', '.join(procs[:6])}{' ...' if len(procs) > 6 else ''})", file=sys.stderr, flush=True)
 
@@ -83,8 +93,16 @@ def main(argv: list[str] | None = None) -> None:
                     sim_help="the simulation id (launch --sim-id fixes it)")
     parser.add_argument("--group", required=True, help="the group of the placement file this host runs")
     parser.add_argument("--timeout", type=float, default=30.0, help="seconds to wait for the orchestrator")
+    add_security_options(parser, identity="group's",
+                         config_help="a Zenoh JSON5 configuration file merged last into the configuration of this "
+                                     "command's sessions and of the processes it starts (its settings win)")
     args = parser.parse_args(argv)
-    sys.exit(run_group(args.connect, Keys(args.sim, args.prefix), args.group, args.timeout))
+    try:
+        security, settings = security_options(args)
+    except SecurityError as exc:
+        print(f"zenohedge-node: {exc}", file=sys.stderr)
+        sys.exit(EXIT_USAGE)
+    sys.exit(run_group(args.connect, Keys(args.sim, args.prefix), args.group, args.timeout, security, settings))
 
 
 if __name__ == "__main__":

@@ -22,6 +22,7 @@ import zenoh
 
 from node_runtime.runtime import codec
 from node_runtime.runtime.rejections import Rejections
+from node_runtime.runtime.security import Security
 from node_runtime.runtime.transport import Handler, Monitored, RequestHandler, TokenHandler, Transport, TransportError
 
 Mode = Literal["router", "client", "peer"]
@@ -45,7 +46,10 @@ def free_port(host: str = "127.0.0.1") -> int:
         return s.getsockname()[1]
 
 
-def zenoh_config(mode: Mode, listen: list[str] | None = None, connect: list[str] | None = None) -> zenoh.Config:
+def zenoh_config(mode: Mode, listen: list[str] | None = None, connect: list[str] | None = None,
+                 security: Security | None = None, settings: dict[str, Any] | None = None) -> zenoh.Config:
+    """``security``: TLS and login (node_runtime/runtime/security.py); ``settings`` (path -> value), applied
+    last: e.g. a router's access control, a user's Zenoh configuration file."""
     cfg = zenoh.Config()
     cfg.insert_json5("mode", json.dumps(mode))
     cfg.insert_json5("scouting/multicast/enabled", "false")
@@ -53,6 +57,8 @@ def zenoh_config(mode: Mode, listen: list[str] | None = None, connect: list[str]
         cfg.insert_json5("listen/endpoints", json.dumps(listen))
     if connect:
         cfg.insert_json5("connect/endpoints", json.dumps(connect))
+    for path, value in {**(security.settings() if security else {}), **(settings or {})}.items():
+        cfg.insert_json5(path, json.dumps(value))
     return cfg
 
 
@@ -81,13 +87,15 @@ class ZenohTransport(Transport):
         self.rejections = Rejections()
 
     @classmethod
-    def router(cls, endpoint: str, connect: list[str] | None = None) -> ZenohTransport:
+    def router(cls, endpoint: str, connect: list[str] | None = None, security: Security | None = None,
+               settings: dict[str, Any] | None = None) -> ZenohTransport:
         """A router listening on ``endpoint``; ``connect``: other routers to join into one network."""
-        return cls(zenoh_config("router", listen=[endpoint], connect=connect))
+        return cls(zenoh_config("router", listen=[endpoint], connect=connect, security=security, settings=settings))
 
     @classmethod
-    def client(cls, endpoint: str) -> ZenohTransport:
-        return cls(zenoh_config("client", connect=[endpoint]))
+    def client(cls, endpoint: str, security: Security | None = None,
+               settings: dict[str, Any] | None = None) -> ZenohTransport:
+        return cls(zenoh_config("client", connect=[endpoint], security=security, settings=settings))
 
     def publish(self, key: str, message: Any) -> None:
         self.put(key, codec.encode(message))

@@ -36,10 +36,11 @@ from rich.live import Live
 from rich.table import Table
 from rich.text import Text
 
-from node_runtime.runtime.cli_options import add_sim_options
+from node_runtime.runtime.cli_options import add_security_options, add_sim_options, security_options
 from node_runtime.runtime.codec import CodecError
 from node_runtime.runtime.keys import DEFAULT_PREFIX, Keys
 from node_runtime.runtime.process import ORCHESTRATOR
+from node_runtime.runtime.security import Security, SecurityError
 from node_runtime.runtime.transport import Handler, TokenHandler, Transport, TransportError
 from node_runtime.runtime.zenoh_bus import ZenohTransport
 from orchestrator import local_sims
@@ -93,12 +94,14 @@ class BusMonitor:
         self.prefix = prefix
 
     @classmethod
-    def connect(cls, endpoint: str, prefix: str = DEFAULT_PREFIX) -> BusMonitor:
+    def connect(cls, endpoint: str, prefix: str = DEFAULT_PREFIX, security: Security | None = None,
+                settings: dict[str, Any] | None = None) -> BusMonitor:
         """A Zenoh client session to the router at ``endpoint``."""
         try:
-            return cls(ZenohTransport.client(endpoint), endpoint, prefix)
-        except Exception:  # zenoh.ZError: nothing listens there
-            raise MonitorError(f"cannot reach {endpoint}: no Zenoh router answers there") from None
+            return cls(ZenohTransport.client(endpoint, security, settings), endpoint, prefix)
+        except Exception:  # zenoh.ZError: nothing listens there, or it refused our certificate or login
+            refused = " or it refused this certificate or login" if security is not None else ""
+            raise MonitorError(f"cannot reach {endpoint}: no Zenoh router answers there{refused}") from None
 
     def discover(self, timeout: float = DISCOVERY_TIMEOUT) -> list[SimInfo]:
         """Running simulations: the holders of ``{prefix}/<id>/alive/orchestrator`` tokens, by id."""
@@ -462,7 +465,11 @@ def cmd_monitor(args: argparse.Namespace) -> int:
             entry = launched_here(sim)
             say(f"found on this host: {entry.describe()}")
             endpoint, sim = entry.endpoint, entry.sim
-        bus = BusMonitor.connect(endpoint, args.prefix)
+        try:
+            security, settings = security_options(args)
+        except SecurityError as exc:
+            raise MonitorError(str(exc)) from None
+        bus = BusMonitor.connect(endpoint, args.prefix, security, settings)
         info = choose(bus.discover(), sim, endpoint)
         sim = info.sim_id
         follower = Follower(info, as_json=args.json, once=args.once, console=Console(highlight=False))
@@ -500,6 +507,9 @@ def add_parser(sub: Any) -> argparse.ArgumentParser:
     p.add_argument("--json", action="store_true",
                    help="print each tick's metrics record as one line of JSON (schema in docs/bus.md)")
     p.add_argument("--once", action="store_true", help="print one snapshot at the next tick and exit")
+    add_security_options(p, identity="monitor",
+                         config_help="a Zenoh JSON5 configuration file merged last into the monitor's session "
+                                     "configuration (its settings win)")
     p.set_defaults(func=cmd_monitor)
     return p
 

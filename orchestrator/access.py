@@ -1,0 +1,82 @@
+"""Access control on the simulation's keys, enforced by the Zenoh router (docs/bus.md, "Security").
+
+With a security directory the router accepts only sessions whose TLS client certificate is signed by the
+deployment's CA and whose login is in its ``users`` file. On top of that, this module writes the router's
+``access_control`` section: which identity (certificate common name *and* login, both equal to the
+identity's name, as ``deploy/make-certs.sh`` makes them) may send what, on which keys. Anything not
+allowed is dropped by the router, silently for publications, with no answer for queries:
+
+- ``orchestrator`` (the orchestrator's own node processes): everything;
+- each placement group (login = group name): publishes only the ``Done`` and liveliness tokens of its
+  own processes, mail to the inboxes those processes may send to, the broadcast topics (states) and
+  events of their own nodes;
+- ``driver``: publishes ticks and per-tick metrics, queries ``…/control``, announces ``…/alive/driver/*``;
+- ``monitor`` and everyone above: subscribes, watches tokens, queries ``…/session``.
+
+What the router cannot know stays with the orchestrator: that a ``Done`` names the process that sent
+it, and that a release of the clock comes from the driver that claimed it (its secret token).
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+from node_runtime.runtime.keys import Keys
+from node_runtime.runtime.layout import ProcessLayout
+
+ORCHESTRATOR, DRIVER, MONITOR = "orchestrator", "driver", "monitor"
+IDENTITIES = (ORCHESTRATOR, DRIVER, MONITOR)
+EVERY_MESSAGE = ["put", "delete", "declare_subscriber", "query", "reply", "declare_queryable", "liveliness_token",
+                 "declare_liveliness_subscriber", "liveliness_query"]
+
+
+def _rule(rule_id: str, messages: list[str], keys: list[str], flows: tuple[str, ...] = ("ingress",)) -> dict[str, Any]:
+    return {"id": rule_id, "messages": messages, "flows": list(flows), "permission": "allow", "key_exprs": keys}
+
+
+def _subject(name: str) -> dict[str, Any]:
+    return {"id": name, "cert_common_names": [name], "usernames": [name]}
+
+
+def group_keys(keys: Keys, plan: ProcessLayout, procs: list[str]) -> tuple[list[str], list[str]]:
+    """What the processes of one group publish: (put keys, liveliness tokens)."""
+    puts: dict[str, None] = {}
+    for proc in procs:
+        puts[keys.done(proc)] = None
+        puts.update(dict.fromkeys(keys.inbox(dst) for dst in plan.destinations(proc)))
+        for role in plan.roles_of[proc]:
+            puts.update(dict.fromkeys(keys.topic(t) for t in plan.publications[role]))
+        puts.update(dict.fromkeys(keys.events("*", node) for node in plan.node_of_proc(proc)))
+    return list(puts), [keys.alive(proc) for proc in procs]
+
+
+def access_control(keys: Keys, plan: ProcessLayout, placement: dict[str, list[str]]) -> dict[str, Any]:
+    """The router's ``access_control`` configuration section for this simulation and placement."""
+    reading = [
+        _rule("read", ["declare_subscriber", "declare_liveliness_subscriber", "liveliness_query"],
+              [f"{keys.prefix}/**"]),
+        _rule("describe", ["query"], [f"{keys.prefix}/*/session"]),
+        _rule("receive", EVERY_MESSAGE, [f"{keys.prefix}/**"], ("egress",)),
+    ]
+    rules = [
+        _rule("all", EVERY_MESSAGE, ["**"], ("ingress", "egress")),
+        *reading,
+        _rule("drive", ["put"], [keys.tick(), keys.tick("*"), keys.metrics()]),
+        _rule("drive-control", ["query"], [keys.control()]),
+        _rule("drive-token", ["liveliness_token"], [keys.alive("driver/*")]),
+    ]
+    read = [r["id"] for r in reading]
+    policies = [
+        {"id": ORCHESTRATOR, "rules": ["all"], "subjects": [ORCHESTRATOR]},
+        {"id": DRIVER, "rules": [*read, "drive", "drive-control", "drive-token"], "subjects": [DRIVER]},
+        {"id": MONITOR, "rules": read, "subjects": [MONITOR]},
+    ]
+    for group, procs in placement.items():
+        puts, tokens = group_keys(keys, plan, procs)
+        rules += [_rule(f"group-{group}-put", ["put"], puts),
+                  _rule(f"group-{group}-token", ["liveliness_token"], tokens)]
+        policies.append({"id": f"group-{group}", "rules": [*read, f"group-{group}-put", f"group-{group}-token"],
+                         "subjects": [group]})
+    subjects = [_subject(name) for name in (*IDENTITIES, *placement)]
+    return {"enabled": True, "default_permission": "deny", "rules": rules, "subjects": subjects,
+            "policies": policies}

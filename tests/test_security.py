@@ -1,0 +1,84 @@
+"""Security on one host (loopback): a served simulation behind TLS, logins and access control
+(deploy/README.md). The identities decide what a session may do: the driver drives, the monitor only
+reads, a node group cannot take the clock; a bad security directory is one clear line."""
+
+from __future__ import annotations
+
+import signal
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+from env import ZenohEdgeEnv
+from node_runtime.runtime.keys import Keys
+from node_runtime.runtime.security import Security
+from node_runtime.runtime.zenoh_bus import ZenohTransport
+from orchestrator.clock import ClockError
+from orchestrator.serve import describe, session_of
+from tests.conftest import ROOT
+from tests.launcher import Launch, served
+
+
+@pytest.fixture(scope="module")
+def secrets(tmp_path_factory):
+    folder = tmp_path_factory.mktemp("security") / "secrets"
+    subprocess.run([ROOT / "deploy" / "make-certs.sh", folder, "127.0.0.1", "edge"], check=True, capture_output=True)
+    return folder
+
+
+@pytest.mark.zenoh
+def test_identities_decide_who_drives(tmp_path, secrets):
+    run = Launch("aot1", "--serve", "--episodes", "0", "--layout", "per-node", "--out", str(tmp_path),
+                 "--security", str(secrets / "orchestrator"))
+    run.wait_for("serving until Ctrl-C")
+    endpoint, sim = served(run)
+    assert endpoint.startswith("tls/127.0.0.1:")
+
+    # a monitor reads the session description but gets no answer from …/control
+    assert describe(endpoint, sim, security=Security.from_dir(secrets / "monitor"))["sim"] == sim
+    for reader in ("monitor", "edge"):
+        with pytest.raises(ClockError):
+            ZenohEdgeEnv(connect=endpoint, sim_id=sim, security=secrets / reader, timeout=3.0).reset(seed=1)
+
+    env = ZenohEdgeEnv(connect=endpoint, sim_id=sim, security=secrets / "driver", max_steps=5)
+    obs, _ = env.reset(seed=3)
+    for _ in range(4):
+        obs, *_ = env.step({a: int(np.flatnonzero(obs[a]["action_mask"])[0]) for a in env.agents})
+    assert env.sim.clock.tick == 4
+    env.close()  # the release carries the driver's token: the clock is free again
+    watcher = ZenohTransport.client(endpoint, Security.from_dir(secrets / "monitor"))
+    assert session_of(watcher, Keys(sim), 5.0)["driver"] is None
+    watcher.close()
+
+    run.proc.send_signal(signal.SIGTERM)
+    assert run.finish(30) == 130
+
+
+def test_a_bad_security_directory_is_one_line(tmp_path):
+    proc = subprocess.run([sys.executable, "-m", "orchestrator.cli", "launch", "aot1", "--security", str(tmp_path)],
+                          capture_output=True, text=True, timeout=60)
+    assert proc.returncode == 2
+    assert proc.stderr.splitlines() == [
+        f"orchestrator: {tmp_path}: missing ca.pem, cert.pem, key.pem, credentials (expected ca.pem, cert.pem, "
+        "key.pem, credentials; deploy/make-certs.sh writes them)"]
+
+
+def test_zenoh_config_file_merges_what_differs_from_the_defaults(tmp_path):
+    from node_runtime.runtime.security import file_overrides
+    from node_runtime.runtime.zenoh_bus import zenoh_config
+
+    given = tmp_path / "zenoh.json5"
+    given.write_text('{ transport: { link: { tx: { lease: 20000 } } }, // a comment, as JSON5 allows\n}\n')
+    assert file_overrides(given) == {"transport/link/tx/lease": 20000}
+    cfg = zenoh_config("client", connect=["tcp/127.0.0.1:7447"], settings=file_overrides(given))
+    assert cfg.get_json("transport/link/tx/lease") == "20000"
+
+    given.write_text("{ nonsense: 1 }")
+    proc = subprocess.run([sys.executable, "-m", "node_runtime.runtime.remote", "--connect", "tcp/127.0.0.1:1",
+                           "--sim", "x", "--group", "g", "--zenoh-config", str(given)],
+                          capture_output=True, text=True, timeout=60)
+    assert proc.returncode == 2
+    [line] = proc.stderr.splitlines()
+    assert line.startswith(f"zenohedge-node: {given}: not a usable Zenoh configuration: ")
