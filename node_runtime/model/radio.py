@@ -19,6 +19,14 @@ def shannon_rate(bandwidth_hz: float, tx_power_dbm: float, gain_db: float, noise
     return bandwidth_hz * math.log2(1.0 + snr)
 
 
+SPEED_OF_LIGHT = 299_792_458.0  # m/s
+
+
+def free_space_loss_db(distance_m: float, frequency_hz: float) -> float:
+    """Free-space path loss 20 log10(4 pi d f / c): 40.05 dB at 1 m and 2.4 GHz."""
+    return 20.0 * math.log10(4.0 * math.pi * distance_m * frequency_hz / SPEED_OF_LIGHT)
+
+
 def log_distance_gain_db(distance_m: float, ref_loss_db: float, ref_distance_m: float,
                          exponent: float) -> float:
     """Channel gain (negative path loss) of the log-distance model.
@@ -27,6 +35,11 @@ def log_distance_gain_db(distance_m: float, ref_loss_db: float, ref_distance_m: 
     """
     d = max(distance_m, ref_distance_m)
     return -(ref_loss_db + 10.0 * exponent * math.log10(d / ref_distance_m))
+
+
+def backlog_s(busy_until: float, tick: int, dt: float) -> float:
+    """Seconds of transfer still queued at the end of tick ``tick`` on a link busy until ``busy_until``."""
+    return max(0.0, busy_until - (tick + 1)) * dt
 
 
 class LinkTransmitter:
@@ -64,6 +77,7 @@ class Radio:
         self.links = {j: LinkTransmitter(rate, dt) for j, (rate, _) in links.items()}
         self.loss = {j: loss for j, (_, loss) in links.items()}
         self.rng: np.random.Generator | None = None
+        self.sends = 0  # transmissions queued so far: the links' state changed when this did
 
     @classmethod
     def for_node(cls, scenario: Scenario, node: str, dsts: tuple[str, ...]) -> Radio:
@@ -72,8 +86,13 @@ class Radio:
 
     def reset(self, rng: np.random.Generator) -> None:
         self.rng = rng
+        self.sends += 1
         for link in self.links.values():
             link.reset()
+
+    def busy_until(self) -> list[float]:
+        """When each link (in neighbour order) finishes what is queued on it, in ticks."""
+        return [link.busy_until for link in self.links.values()]
 
     def __contains__(self, node: str) -> bool:
         return node in self.links
@@ -90,6 +109,7 @@ class Radio:
         if max(float(tick), link.busy_until) > latest_start:
             return "expired"
         arrive, seconds = link.send(tick, bits)
+        self.sends += 1
         loss = self.loss[dst]
         if loss > 0.0 and self.rng.random() < loss:
             return "link_loss"

@@ -11,7 +11,7 @@ from typing import Any
 
 import msgpack
 
-from node_runtime.model.messages import Decision, Envelope, Kind, NodeState, Pending, Result, Task
+from node_runtime.model.messages import Decision, Envelope, Kind, NodeState, Pending, Report, Result, Task
 from node_runtime.model.view import Observation
 from node_runtime.runtime.protocol import SCHEMA_VERSION, Batch, Done, Tick
 
@@ -39,8 +39,8 @@ def _body(kind: Kind, body: Any) -> Any:
     if kind == Kind.DECISION:
         return [[d.task_id, d.target] for d in body]
     if kind == Kind.REPORT:
-        return [[p.id, p.origin, p.created, p.instructions, p.input_bytes, p.output_bytes, p.cpi, p.deadline,
-                 p.arrived] for p in body]
+        return [[[p.id, p.origin, p.created, p.instructions, p.input_bytes, p.output_bytes, p.cpi, p.deadline,
+                  p.arrived] for p in body.pending], body.busy_until]
     if kind == Kind.STATE:
         return [body.node, body.queue, body.occupancy]
     raise CodecError(f"no encoding for message kind {kind!r}")
@@ -54,7 +54,7 @@ def _unbody(kind: Kind, a: Any) -> Any:
     if kind == Kind.DECISION:
         return [Decision(i, target) for i, target in a]
     if kind == Kind.REPORT:
-        return [Pending(*p) for p in a]
+        return Report([Pending(*p) for p in a[0]], a[1])
     if kind == Kind.STATE:
         return NodeState(a[0], a[1], a[2])
     raise CodecError(f"no decoding for message kind {kind!r}")
