@@ -157,7 +157,8 @@ def test_missing_file(tmp_path, capsys):
 def test_unknown_bundled_name_lists_the_bundled_scenarios_and_suggests_one(capsys):
     assert main(["validate", "aot5"]) == 2
     err = capsys.readouterr().err.strip()
-    assert err.startswith("aot5: no such file or bundled scenario (did you mean 'aot4'?); bundled: aot1, aot1_reference, aot2,")
+    assert err.startswith("aot5: no such file or bundled scenario (did you mean 'aot4'?); "
+                          "bundled: aot1, aot1_reference, aot2,")
     assert "examples/minimal" in err and len(err.splitlines()) == 1
 
 

@@ -103,7 +103,8 @@ class Controller(Role):
                 self.states[env.body.node] = env.body
             elif env.kind == Kind.REPORT:
                 self.heard(env.body.pending)
-                self.busy_until = env.body.busy_until
+                if env.body.busy_until is not None:
+                    self.busy_until = env.body.busy_until
             else:
                 raise ValueError(f"{self.id}: unexpected {env.kind.name} from {env.src}")
         if self.down(t):
@@ -184,8 +185,8 @@ class Controller(Role):
         buffer, capacity, tier, rate, worker = self._static[node]
         state = self.states[node]
         age = 1 if self._always_fresh else t - self.heard_at(node, t)
-        return NodeView(node, state.queue, state.occupancy, buffer, capacity, tier, rate, age, worker,
-                        backlog_s(busy_until, t, self.scenario.dt))
+        backlog = backlog_s(busy_until, t, self.scenario.dt) if busy_until > t + 1 else 0.0
+        return NodeView(node, state.queue, state.occupancy, buffer, capacity, tier, rate, age, worker, backlog)
 
     def own_view(self, t: int) -> NodeView:
         """Its own node: as last broadcast, or, co-located, its worker as it is at the end of tick t."""

@@ -87,12 +87,12 @@ class Pending:
 
 @dataclass(slots=True)
 class Report:
-    """What a worker tells its controller: the tasks it may place, and how long each of the node's links
-    stays busy with what is already queued on it (``LinkTransmitter.busy_until``, ticks, in the
-    canonical neighbour order)."""
+    """What a worker tells its controller: the tasks it may place, and, when it changed since the last
+    report, how long each of the node's links stays busy with what is queued on it
+    (``LinkTransmitter.busy_until``, ticks, in the canonical neighbour order; None: unchanged)."""
 
     pending: list[Pending]
-    busy_until: list[float]
+    busy_until: list[float] | None
 
 
 @dataclass(slots=True)

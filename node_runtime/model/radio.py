@@ -77,7 +77,6 @@ class Radio:
         self.links = {j: LinkTransmitter(rate, dt) for j, (rate, _) in links.items()}
         self.loss = {j: loss for j, (_, loss) in links.items()}
         self.rng: np.random.Generator | None = None
-        self.sends = 0  # transmissions queued so far: the links' state changed when this did
 
     @classmethod
     def for_node(cls, scenario: Scenario, node: str, dsts: tuple[str, ...]) -> Radio:
@@ -86,7 +85,6 @@ class Radio:
 
     def reset(self, rng: np.random.Generator) -> None:
         self.rng = rng
-        self.sends += 1
         for link in self.links.values():
             link.reset()
 
@@ -109,7 +107,6 @@ class Radio:
         if max(float(tick), link.busy_until) > latest_start:
             return "expired"
         arrive, seconds = link.send(tick, bits)
-        self.sends += 1
         loss = self.loss[dst]
         if loss > 0.0 and self.rng.random() < loss:
             return "link_loss"

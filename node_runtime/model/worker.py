@@ -51,6 +51,7 @@ class Worker(Role):
         # a co-located controller (control_latency 0) reads this worker itself; any other is sent reports
         self.reports = bool(self.controller) and not scenario.colocated_control
         self.queue_first = scenario.admission == "queue_first"
+        self.tracks_divertible = self.queue_first and self.decides
         self.topic = state_topic(node.id)
         self.budget = node.capacity * scenario.dt
         self.idle_w = node.idle_power_w
@@ -65,9 +66,11 @@ class Worker(Role):
         self.failed = False
         self.radio.reset(stream(seed, self.index, WORKER.stream))
         self._last_state: tuple[int, int] | None = None
-        self._undecided_version = 0  # bumped whenever the undecided set (queue_first: the divertible tasks) changes
+        # bumped whenever what the controller is told changes: the undecided set (queue_first: the divertible
+        # tasks), or the links while tasks wait for a decision
+        self._undecided_version = 0
         self._reported_version = -1
-        self._reported_sends = self.radio.sends  # the links' state the last report told
+        self._links_changed = False  # since the last report
         self._divertible: list[list] = []  # queue_first: the queue entries a decision may still divert
 
     # ----- helpers -----
@@ -111,6 +114,13 @@ class Worker(Role):
         max_hops = self.scenario.max_hops
         return [e for e in self.queue if e[1] == e[0].cycles and not e[3] and e[0].hops < max_hops]
 
+    def transmit(self, t: int, kind: Kind, dst_node: str, dst_role: str, body: Task | Result, bits: float,
+                 out: Outbox) -> None:
+        super().transmit(t, kind, dst_node, dst_role, body, bits, out)
+        self._links_changed = True
+        if self.undecided or self._divertible:
+            self._undecided_version += 1
+
     def drop_all(self, out: Outbox, cause: str) -> None:
         for task in [e[0] for e in self.queue] + [task for task, _ in self.undecided.values()]:
             self.drop(out, cause, task.id)
@@ -136,6 +146,7 @@ class Worker(Role):
             if failed:
                 self.drop_all(out, "node_failure")
                 self.radio.reset(self.radio.rng)
+                self._links_changed = True
         self.failed = failed
         overloaded = int(self.occupancy >= self.node.buffer)
         if overloaded != st.overloaded:
@@ -303,17 +314,16 @@ class Worker(Role):
         if state != self._last_state and t % interval == 0:
             self._last_state = state
             out.broadcast(Kind.STATE, self.topic, NodeState(self.node.id, st.queue, self.occupancy))
-        if self.queue_first and self.controller:
+        if self.tracks_divertible:
             divertible = self.divertible()
             if [e[0].id for e in divertible] != [e[0].id for e in self._divertible]:
                 self._undecided_version += 1
             self._divertible = divertible
-        if self.reports and (self._undecided_version != self._reported_version or (
-                self.radio.sends != self._reported_sends and (self.undecided or self._divertible))):
-            # links are reported with the tasks, and on their own only while tasks wait for a decision
+        if self.reports and self._undecided_version != self._reported_version:
             self._reported_version = self._undecided_version
-            self._reported_sends = self.radio.sends
-            out.send(Kind.REPORT, self.controller, Report(self.pending(), self.radio.busy_until()))
+            busy = self.radio.busy_until() if self._links_changed else None
+            self._links_changed = False
+            out.send(Kind.REPORT, self.controller, Report(self.pending(), busy))
 
 
 def own_state(node: NodeSpec, scenario: Scenario) -> tuple[str, ...]:
