@@ -33,10 +33,10 @@ class Client(Role):
         super().reset(seed)
         source = self.scenario.workload.source
         cls = load(source, TaskSource) if source else TaskSource
-        drawn = ({"deadlines_rng": stream(seed, self.index, CLIENT.stream, DEADLINES)}
-                 if draws_deadlines(self.scenario) else {})
         self.source = cls(self.scenario, self.node.id, stream(seed, self.index, CLIENT.stream, COUNTS),
-                          stream(seed, self.index, CLIENT.stream, TYPES), **drawn)
+                          stream(seed, self.index, CLIENT.stream, TYPES))
+        if draws_deadlines(self.scenario):
+            self.source.deadlines_rng = stream(seed, self.index, CLIENT.stream, DEADLINES)
         self.target_rng = stream(seed, self.index, CLIENT.stream, TARGETS)
         self.seq = 0
         if self.radio is not None:

@@ -55,7 +55,7 @@ class TaskSource:
     """
 
     def __init__(self, scenario: Scenario, node: str, counts_rng: np.random.Generator,
-                 types_rng: np.random.Generator, deadlines_rng: np.random.Generator | None = None) -> None:
+                 types_rng: np.random.Generator) -> None:
         self.dt = scenario.dt
         self.horizon = scenario.episode_ticks * scenario.dt
         self.arrival = scenario.workload.arrival
@@ -64,7 +64,7 @@ class TaskSource:
         self.probs = weights / weights.sum()
         self.counts_rng = counts_rng
         self.types_rng = types_rng
-        self.deadlines_rng = deadlines_rng  # given when a task type has a deadline range
+        self.deadlines_rng: np.random.Generator | None = None  # set by the client when a type draws deadlines
         self.drawn = any(t.drawn or t.grace for t in self.types)
         self.gaps = self.arrival.process == "exponential_gaps"
         self._next: int | None = None  # exponential gaps: the tick of the next task, once drawn
