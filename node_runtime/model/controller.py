@@ -93,8 +93,8 @@ class Controller(Role):
 
     def tick(self, t: int, inbox: list[Envelope], out: Outbox, action: Action | None = None) -> None:
         worker = self.own_worker
-        if worker is not None and worker._undecided_version != self._seen_version:
-            self._seen_version = worker._undecided_version
+        if worker is not None and worker.tasks_version != self._seen_version:
+            self._seen_version = worker.tasks_version
             self.heard(worker.pending())
         if not inbox and not self.asked and not self.external and not self.undecided:
             return  # nothing heard, nothing to place, nothing to observe

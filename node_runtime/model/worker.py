@@ -68,7 +68,7 @@ class Worker(Role):
         self._last_state: tuple[int, int] | None = None
         # bumped whenever what the controller is told changes: the undecided set (queue_first: the divertible
         # tasks), or the links while tasks wait for a decision
-        self._undecided_version = 0
+        self.tasks_version = 0
         self._reported_version = -1
         self._links_changed = False  # since the last report
         self._divertible: list[list] = []  # queue_first: the queue entries a decision may still divert
@@ -119,7 +119,7 @@ class Worker(Role):
         super().transmit(t, kind, dst_node, dst_role, body, bits, out)
         self._links_changed = True
         if self.undecided or self._divertible:
-            self._undecided_version += 1
+            self.tasks_version += 1
 
     def drop_all(self, out: Outbox, cause: str) -> None:
         for task in [e[0] for e in self.queue] + [task for task, _ in self.undecided.values()]:
@@ -127,7 +127,7 @@ class Worker(Role):
         self.queue.clear()
         self.undecided.clear()
         self.next_expiry = math.inf
-        self._undecided_version += 1
+        self.tasks_version += 1
 
     # ----- the tick -----
 
@@ -216,13 +216,13 @@ class Worker(Role):
             for k in gone:
                 del self.undecided[k]
                 self.drop(out, "expired", k)
-            self._undecided_version += bool(gone)
+            self.tasks_version += bool(gone)
         held = [e[0] for e in self.queue] + [task for task, _ in self.undecided.values()]
         self.next_expiry = min((task.expires_at(dt) for task in held), default=math.inf)
 
     def apply(self, t: int, decisions: list[Decision], out: Outbox) -> None:
         st = self.stats
-        self._undecided_version += bool(decisions)
+        self.tasks_version += bool(decisions)
         for d in decisions:
             held = self.undecided.pop(d.task_id, None)
             if held is None:  # dropped or expired after the controller saw it
@@ -272,7 +272,7 @@ class Worker(Role):
                     self.queue.append([task, task.cycles, t, False])
                 elif self.decides and task.hops < self.scenario.max_hops:
                     self.undecided[task.id] = (task, t)
-                    self._undecided_version += 1
+                    self.tasks_version += 1
                 else:
                     self.queue.append([task, task.cycles])
 
@@ -317,10 +317,10 @@ class Worker(Role):
         if self.tracks_divertible:
             divertible = self.divertible()
             if [e[0].id for e in divertible] != [e[0].id for e in self._divertible]:
-                self._undecided_version += 1
+                self.tasks_version += 1
             self._divertible = divertible
-        if self.reports and self._undecided_version != self._reported_version:
-            self._reported_version = self._undecided_version
+        if self.reports and self.tasks_version != self._reported_version:
+            self._reported_version = self.tasks_version
             busy = self.radio.busy_until() if self._links_changed else None
             self._links_changed = False
             out.send(Kind.REPORT, self.controller, Report(self.pending(), busy))
