@@ -25,7 +25,6 @@ from typing import TYPE_CHECKING
 
 from node_runtime.model.messages import Decision, Envelope, Kind, NodeState, Pending
 from node_runtime.model.policies import Policy, make_policy
-from node_runtime.model.radio import backlog_s
 from node_runtime.model.registry import RoleKind, register
 from node_runtime.model.rng import stream
 from node_runtime.model.role import Outbox, Role, role_id, state_topic
@@ -185,20 +184,20 @@ class Controller(Role):
         buffer, capacity, tier, rate, worker = self._static[node]
         state = self.states[node]
         age = 1 if self._always_fresh else t - self.heard_at(node, t)
-        backlog = backlog_s(busy_until, t, self.scenario.dt) if busy_until > t + 1 else 0.0
+        # the seconds of transfer still queued at the end of tick t
+        backlog = (busy_until - t - 1) * self.scenario.dt if busy_until > t + 1 else 0.0
         return NodeView(node, state.queue, state.occupancy, buffer, capacity, tier, rate, age, worker, backlog)
 
     def own_view(self, t: int) -> NodeView:
-        """Its own node: as last broadcast, or, co-located, its worker as it is at the end of tick t."""
+        """Co-located: its own worker as it is at the end of tick t."""
         own = self.own_worker
-        if own is None:
-            return self.view(self.node.id, t)
         buffer, capacity, tier, rate, worker = self._static[self.node.id]
         return NodeView(self.node.id, own.stats.queue, own.occupancy, buffer, capacity, tier, rate, 0, worker)
 
     def observe(self, t: int) -> Observation:
         dt = self.scenario.dt
-        busy_until = self.busy_until if self.own_worker is None else self.own_worker.radio.busy_until()
+        own_worker = self.own_worker
+        busy_until = self.busy_until if own_worker is None else own_worker.radio.busy_until()
         tasks = []
         for p in self.undecided:
             if p.id in self.decided:
@@ -211,10 +210,10 @@ class Controller(Role):
         return Observation(
             tick=t,
             node=self.node.id,
-            own=self.own_view(t),
+            own=self.view(self.node.id, t) if own_worker is None else self.own_view(t),
             undecided=len(self.undecided),
             tasks=tasks,
-            neighbours=[self.view(j, t, busy) for j, busy in zip(self.neighbours, busy_until, strict=True)],
+            neighbours=[self.view(j, t, busy) for j, busy in zip(self.neighbours, busy_until, strict=False)],
         )
 
 

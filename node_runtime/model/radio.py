@@ -37,11 +37,6 @@ def log_distance_gain_db(distance_m: float, ref_loss_db: float, ref_distance_m: 
     return -(ref_loss_db + 10.0 * exponent * math.log10(d / ref_distance_m))
 
 
-def backlog_s(busy_until: float, tick: int, dt: float) -> float:
-    """Seconds of transfer still queued at the end of tick ``tick`` on a link busy until ``busy_until``."""
-    return max(0.0, busy_until - (tick + 1)) * dt
-
-
 class LinkTransmitter:
     """One directed link: transmits one message at a time, first in, first out.
 

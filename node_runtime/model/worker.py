@@ -116,6 +116,7 @@ class Worker(Role):
 
     def transmit(self, t: int, kind: Kind, dst_node: str, dst_role: str, body: Task | Result, bits: float,
                  out: Outbox) -> None:
+        """A transmission changes a link's backlog: the controller is told with the tasks it may place."""
         super().transmit(t, kind, dst_node, dst_role, body, bits, out)
         self._links_changed = True
         if self.undecided or self._divertible:
