@@ -13,6 +13,13 @@ from orchestrator.cli import main
 NODES = [{"id": "a", "client": True, "controller": True}, {"id": "b"}]
 LINKS = [["a", "b"]]
 HEADER = "time,client,instructions,input_bytes,output_bytes,cpi,deadline\n"
+# an Ether file with a device whose name is no profile and whose type label implies no part
+ETHER_GPU = """{"nodes": {
+  "rpi3_0": {"id": 1, "coordinates": [0, 0], "capacity": {"cpu_milis": 4000, "memory": 1e9},
+             "labels": {"ether.edgerun.io/type": "sbc"}},
+  "gpu_0": {"id": 2, "coordinates": [10, 0], "capacity": {"cpu_milis": 9000, "memory": 8e9},
+            "labels": {"ether.edgerun.io/type": "gpgpu"}}},
+ "links": {"neighbours": {"1": [2], "2": [1]}}}"""
 
 
 def good(**top):
@@ -87,6 +94,33 @@ CASES = [
      "workload: a trace gives every task itself: remove arrival"),
     ("generator_profile_typo", {"topology": {"generator": {"kind": "ring", "n": 5, "profile": "tierO"}}}, {},
      "topology.generator: unknown profile 'tierO'"),
+    # the reference implementation's semantics (docs/scenario.md, "Scenario families")
+    ("bad_admission", good(simulation={"admission": "queue"}), {},
+     "simulation.admission: expected 'decide_first' or 'queue_first' (got 'queue')"),
+    ("bad_control_latency", good(simulation={"control_latency": 1}), {},
+     "simulation.control_latency: expected 0 or 2 (got 1)"),
+    ("bad_arrival_process", good(workload={"arrival": {"process": "gaps"}}), {},
+     "workload.arrival.process: expected 'poisson' or 'exponential_gaps' (got 'gaps')"),
+    ("deadline_range_reversed", good(workload={"tasks": [{"deadline": {"low": 200, "high": 100}}]}), {},
+     "workload.tasks[0].deadline: high must be > low (for a fixed deadline, give a number)"),
+    ("deadline_range_without_high", good(workload={"tasks": [{"deadline": {"low": 100, "grace": 5}}]}), {},
+     "workload.tasks[0].deadline.high: required key is missing"),
+    ("deadline_range_typo", good(workload={"tasks": [{"deadline": {"low": 1, "high": 2, "grase": 5}}]}), {},
+     "workload.tasks[0].deadline.grase: unknown key (did you mean 'grace'?)"),
+    ("deadline_negative_grace", good(workload={"tasks": [{"deadline": {"low": 1, "high": 2, "grace": -5}}]}), {},
+     "workload.tasks[0].deadline.grace: expected a number >= 0 (got -5)"),
+    ("deadline_list", good(workload={"tasks": [{"deadline": [100, 200]}]}), {},
+     "workload.tasks[0].deadline: expected a number, or a range {low, high, grace} (got [100, 200])"),
+    ("deadline_zero", good(workload={"tasks": [{"deadline": 0}]}), {},
+     "workload.tasks[0].deadline: expected a number > 0 (got 0)"),
+    ("buffer_bytes_without_ether", {"topology": {"nodes": NODES, "links": LINKS, "buffer_bytes": 3.2e8}}, {},
+     "topology: buffer_bytes only applies to an Ether import"),
+    ("zero_buffer_bytes", {"topology": {"ether": "ether/network_2_clusters.json", "buffer_bytes": 0}}, {},
+     "topology.buffer_bytes: expected a number > 0 (got 0)"),
+    ("path_loss_two_references", good(network={"path_loss": {"frequency_hz": 2.4e9, "ref_loss_db": 40}}), {},
+     "network.path_loss: give either ref_loss_db or frequency_hz"),
+    ("ether_device_of_unknown_type", {"topology": {"ether": "e.json"}}, {"e.json": ETHER_GPU},
+     "node 'gpu_0'.profile: unknown profile 'gpu'"),
 ]
 
 
@@ -123,7 +157,8 @@ def test_missing_file(tmp_path, capsys):
 def test_unknown_bundled_name_lists_the_bundled_scenarios_and_suggests_one(capsys):
     assert main(["validate", "aot5"]) == 2
     err = capsys.readouterr().err.strip()
-    assert err.startswith("aot5: no such file or bundled scenario (did you mean 'aot4'?); bundled: aot1, aot2,")
+    assert err.startswith("aot5: no such file or bundled scenario (did you mean 'aot4'?); "
+                          "bundled: aot1, aot1_reference, aot2,")
     assert "examples/minimal" in err and len(err.splitlines()) == 1
 
 

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import collections
+import json
 
 import pytest
 
@@ -65,6 +66,53 @@ def test_ether_hardware_mapping():
     assert hw["tx2"] == {"cores": 1, "frequency": 4.0e6, "buffer": 26}
     assert hw["nuc"] == {"cores": 1, "frequency": 3.2e7, "buffer": 54}
     assert hw["server"] == {"cores": 1, "frequency": 8.8e7, "buffer": 597}
+
+
+# Every Ether file shipped (topologies/ether/README.md): its node count, and how many of its devices are
+# controllers and task sources (from their profile, or from their type label when the name is no profile).
+SBC_SETS = {"sbc_rpi3": "3_type", "sbc_rpi4": "4_type", "sbc_rpi5_6G": "5_6G_type", "sbc_rpi5_8G": "5_8G_type",
+            "sbc_heterogeneous": "heterogeneous_type"}
+ETHER_FILES = {
+    **{FILES[name]: (AOT[name][0], AOT[name][2], AOT[name][3]) for name in FILES},
+    **{f"{folder}/network_{c}_clusters_{suffix}.json": counts for folder, suffix in SBC_SETS.items()
+       for c, counts in zip((1, 2, 3, 4), ((8, 6, 4), (23, 19, 16), (32, 26, 22), (45, 37, 32)), strict=True)},
+    # every device is a nuc (built in) or carries a type label with a controller; the sbc-labelled are sources
+    **{f"artificial_networks/network_{shape}{n}.json": (n, n, n - 5) for shape in ("fully-connected", "grid",
+                                                                                   "random", "ring")
+       for n in (10, 15, 20, 25)},
+    # here the rpi4 devices carry a NUC's labels (type sffc): hubs, not sources
+    **{f"artificial_networks/network_bridged-clusters{n}.json": (n, n, sources)
+       for n, sources in ((10, 3), (15, 7), (20, 10), (25, 13))},
+}
+
+
+def test_every_shipped_ether_file_is_counted():
+    folder = ROOT / "topologies" / "ether"
+    shipped = {str(p.relative_to(folder)) for p in folder.rglob("*.json")}
+    assert shipped == set(ETHER_FILES)
+
+
+@pytest.mark.parametrize("path", sorted(ETHER_FILES))
+def test_every_ether_file_imports_with_its_node_count(path):
+    nodes, controllers, sources = ETHER_FILES[path]
+    raw = json.loads((ROOT / "topologies" / "ether" / path).read_text())
+    sc = load_scenario({"topology": {"ether": f"ether/{path}"}})
+    assert len(sc.nodes) == len(raw["nodes"]) == nodes
+    assert (len(sc.controllers), len(sc.clients)) == (controllers, sources)
+    # one core of cpu_milis * 1000 cycles/s each, whatever the device
+    assert [n.frequency for n in sc.nodes] == [v["capacity"]["cpu_milis"] * 1000.0 for v in raw["nodes"].values()]
+
+
+def test_a_device_without_a_profile_plays_the_part_of_its_type():
+    sc = load_scenario({"topology": {"ether": "ether/sbc_rpi4/network_1_clusters_4_type.json"}})
+    rpi4 = sc.node["rpi4_0"]  # an sbc, 7200 millicores, 6 GiB: like an rpi3, a sensing node with a controller
+    assert (rpi4.profile, rpi4.tier, rpi4.roles) == ("rpi4", 0, ("worker", "client", "controller"))
+    assert (rpi4.frequency, rpi4.buffer) == (7.2e6, 20)  # ⌊6 GiB / 300 MiB⌋
+    # a scenario profile of that name refines what the type implies
+    mine = load_scenario({"profiles": {"rpi4": {"client": False, "buffer": 5}},
+                          "topology": {"ether": "ether/sbc_rpi4/network_1_clusters_4_type.json",
+                                       "nodes": [{"id": "nuc_0", "client": True}]}})
+    assert (mine.node["rpi4_0"].roles, mine.node["rpi4_0"].buffer) == (("worker", "controller"), 5)
 
 
 GENERATOR_CASES = {

@@ -12,6 +12,8 @@ class DraftNode:
     profile: str
     position: tuple[float, float]
     hints: dict[str, Any] = field(default_factory=dict)  # hardware the source knows (frequency, buffer, ...)
+    device: dict[str, Any] = field(default_factory=dict)  # what its kind of device implies (tier, roles), for a
+    # profile that is neither built in nor defined by the scenario
 
 
 @dataclass

@@ -1,9 +1,12 @@
 """Import an Ether topology (JSON: ``nodes`` by name, ``links.neighbours`` by numeric id).
 
-Ether (Rausch et al., HotEdge'20) describes devices by CPU (``cpu_milis``) and memory. Following the
-PeersimGym reference mapping, a node becomes one core of cpu_milis * 1000 instructions per second,
-and its buffer holds memory / (expected task size) tasks. The profile is the name's prefix
-(``rpi3_4`` -> ``rpi3``).
+Ether (Rausch et al., HotEdge'20) describes devices by CPU (``cpu_milis``), memory and labels.
+Following the PeersimGym reference mapping, a node becomes one core of cpu_milis * 1000 instructions
+per second, and its buffer holds memory / (expected task size) tasks, or, with ``buffer_bytes``,
+round(memory / buffer_bytes) as the reference implementation's importer computes it. The profile is
+the name's prefix (``rpi3_4`` -> ``rpi3``); for a prefix that is not a profile, the device's type label
+(``ether.edgerun.io/type``) gives its tier and roles, as the built-in AoT profiles give them to their
+devices.
 """
 
 from __future__ import annotations
@@ -11,6 +14,7 @@ from __future__ import annotations
 import json
 import math
 from pathlib import Path
+from typing import Any
 
 from topologies.draft import Draft, DraftLink, DraftNode
 
@@ -19,12 +23,23 @@ class EtherError(ValueError):
     pass
 
 
+TYPE_LABEL = "ether.edgerun.io/type"
+# Ether's device types and the part each plays, as in the AoT networks (rpi3, tx2, nuc, server)
+DEVICE_TYPES: dict[str, dict[str, Any]] = {
+    "sbc": {"tier": 0, "client": True, "controller": True},  # single-board computers: the sensing nodes
+    "embai": {"tier": 1},  # embedded AI boards: workers only
+    "sffc": {"tier": 1, "controller": True},  # small-form-factor computers: the cluster hubs
+    "server": {"tier": 2, "controller": True},
+}
+
+
 def profile_of(name: str) -> str:
     return name.rsplit("_", 1)[0] if "_" in name else name
 
 
-def load_ether(path: Path, task_bytes: float, wired_rates: bool = False) -> Draft:
-    """Read an Ether JSON file. ``task_bytes``: expected input + output size of a task, for buffers."""
+def load_ether(path: Path, task_bytes: float, wired_rates: bool = False, buffer_bytes: float | None = None) -> Draft:
+    """Read an Ether JSON file. Buffers hold ⌊memory / task_bytes⌋ tasks (the expected input + output
+    size of a task), or round(memory / buffer_bytes) when that is given; at least one."""
     try:
         data = json.loads(Path(path).read_text())
     except FileNotFoundError:
@@ -42,15 +57,18 @@ def load_ether(path: Path, task_bytes: float, wired_rates: bool = False) -> Draf
         try:
             cap = node["capacity"]
             x, y = node["coordinates"]
+            memory = float(cap["memory"])
             by_id[str(node["id"])] = name
             nodes.append(DraftNode(
                 id=name,
                 profile=profile_of(name),
                 position=(float(x), float(y)),
                 hints={"cores": 1, "frequency": float(cap["cpu_milis"]) * 1000.0,
-                       "buffer": max(1, math.floor(float(cap["memory"]) / task_bytes))},
+                       "buffer": max(1, round(memory / buffer_bytes) if buffer_bytes else
+                                     math.floor(memory / task_bytes))},
+                device=DEVICE_TYPES.get((node.get("labels") or {}).get(TYPE_LABEL), {}),
             ))
-        except (KeyError, TypeError, ValueError):
+        except (KeyError, TypeError, ValueError, AttributeError):
             raise EtherError(f"{path}: node {name!r} lacks capacity.cpu_milis/memory or coordinates") from None
     bandwidth: dict[frozenset[str], float] = {}
     if wired_rates:

@@ -14,9 +14,9 @@ from node_runtime.model.registry import RoleKind, register
 from node_runtime.model.rng import stream
 from node_runtime.model.role import Outbox, Role, role_id
 from node_runtime.model.spec import NodeSpec, Scenario
-from node_runtime.model.workload import TaskSource
+from node_runtime.model.workload import TaskSource, draws_deadlines
 
-COUNTS, TYPES, TARGETS, LINKS = 0, 1, 2, 3  # purposes of the client's random streams
+COUNTS, TYPES, TARGETS, LINKS, DEADLINES = 0, 1, 2, 3, 4  # purposes of the client's random streams
 
 
 class Client(Role):
@@ -35,6 +35,8 @@ class Client(Role):
         cls = load(source, TaskSource) if source else TaskSource
         self.source = cls(self.scenario, self.node.id, stream(seed, self.index, CLIENT.stream, COUNTS),
                           stream(seed, self.index, CLIENT.stream, TYPES))
+        if draws_deadlines(self.scenario):
+            self.source.deadlines_rng = stream(seed, self.index, CLIENT.stream, DEADLINES)
         self.target_rng = stream(seed, self.index, CLIENT.stream, TARGETS)
         self.seq = 0
         if self.radio is not None:

@@ -9,6 +9,10 @@ node and the same policy run as an agent through the environment give the same e
 - the action for that observation is applied in the next tick: the controller turns it into
   ``Decision`` messages, which reach the worker one tick later.
 
+With ``control_latency: 0`` the controller is co-located with its worker (``bind``): it reads the
+worker's tasks, load and links at the end of every tick, and the host hands its decisions to the
+worker at the start of the next, before the worker runs (docs/model.md).
+
 Binary mode places the oldest undecided task per epoch; batch mode places up to ``batch_size``
 undecided tasks, oldest first.
 """
@@ -17,6 +21,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
+from typing import TYPE_CHECKING
 
 from node_runtime.model.messages import Decision, Envelope, Kind, NodeState, Pending
 from node_runtime.model.policies import Policy, make_policy
@@ -25,6 +30,9 @@ from node_runtime.model.rng import stream
 from node_runtime.model.role import Outbox, Role, role_id, state_topic
 from node_runtime.model.spec import NodeSpec, Scenario
 from node_runtime.model.view import NodeView, Observation, TaskView
+
+if TYPE_CHECKING:
+    from node_runtime.model.worker import Worker
 
 Action = int | Sequence[int]
 
@@ -44,7 +52,13 @@ class Controller(Role):
         self.external = False
         self.policy_spec = node.policy
         self.policy: Policy = make_policy(node.policy)
+        self.own_worker: Worker | None = None  # set by ``bind`` (co-located control)
         self.reset(scenario.seed)
+
+    def bind(self, worker: Worker) -> None:
+        """Co-locate with the node's worker (control_latency 0): read it directly instead of its reports."""
+        self.own_worker = worker
+        self._seen_version = -1
 
     def reset(self, seed: int, external: bool = False, policy: str | None = None) -> None:
         """Start an episode. ``external``: an agent sends the actions; else the node-side policy —
@@ -60,6 +74,8 @@ class Controller(Role):
             n: NodeState(n, 0, 0) for n in (self.node.id, *self.neighbours)
         }
         self.undecided: list[Pending] = []
+        self.busy_until = [0.0] * len(self.neighbours)  # of the node's links, as last reported
+        self._seen_version = -1  # co-located: the worker's version of its tasks last read
         self.decided: set[int] = set()
         self.asked: list[int] = []  # task ids of the last observation, which the next action places
         self.pending: list[int] | None = None  # the node-side policy's answer to it
@@ -75,15 +91,19 @@ class Controller(Role):
     # ----- the tick -----
 
     def tick(self, t: int, inbox: list[Envelope], out: Outbox, action: Action | None = None) -> None:
+        worker = self.own_worker
+        if worker is not None and worker.tasks_version != self._seen_version:
+            self._seen_version = worker.tasks_version
+            self.heard(worker.pending())
         if not inbox and not self.asked and not self.external and not self.undecided:
             return  # nothing heard, nothing to place, nothing to observe
         for env in inbox:
             if env.kind == Kind.STATE:
                 self.states[env.body.node] = env.body
             elif env.kind == Kind.REPORT:
-                self.undecided = env.body
-                present = {p.id for p in self.undecided}
-                self.decided &= present
+                self.heard(env.body.pending)
+                if env.body.busy_until is not None:
+                    self.busy_until = env.body.busy_until
             else:
                 raise ValueError(f"{self.id}: unexpected {env.kind.name} from {env.src}")
         if self.down(t):
@@ -91,10 +111,7 @@ class Controller(Role):
             return
 
         if self.asked:
-            chosen = self.pending if not self.external else action
-            if chosen is not None:
-                self.place(chosen, out)
-            self.asked, self.pending = [], None
+            self.answer(t, out, action)
 
         if t % self.scenario.decision_interval == 0 and (self.external or self.has_candidates()):
             obs = self.observe(t)
@@ -102,6 +119,20 @@ class Controller(Role):
             self.asked = [task.id for task in obs.tasks]
             if not self.external and self.asked:
                 self.pending = self.policy.decide(obs)
+
+    def heard(self, pending: list[Pending]) -> None:
+        """The worker's tasks to place, as reported (or read, co-located)."""
+        self.undecided = pending
+        present = {p.id for p in pending}
+        self.decided &= present
+
+    def answer(self, t: int, out: Outbox, action: Action | None = None) -> None:
+        """Place the answer to the last observation: the node-side policy's, or the agent's ``action``.
+        A co-located controller's host calls this before its worker runs (unless the node is down)."""
+        chosen = self.pending if not self.external else action
+        if chosen is not None:
+            self.place(chosen, out)
+        self.asked, self.pending = [], None
 
     def wake(self, t: int) -> float:
         """Next tick while an agent drives it or an answer is to be placed; at the next decision
@@ -148,14 +179,25 @@ class Controller(Role):
             s -= interval
         return s
 
-    def view(self, node: str, t: int) -> NodeView:
+    def view(self, node: str, t: int, busy_until: float = 0.0) -> NodeView:
+        """What it knows of ``node``; ``busy_until``: when the link to it frees up (ticks)."""
         buffer, capacity, tier, rate, worker = self._static[node]
         state = self.states[node]
         age = 1 if self._always_fresh else t - self.heard_at(node, t)
-        return NodeView(node, state.queue, state.occupancy, buffer, capacity, tier, rate, age, worker)
+        # the seconds of transfer still queued at the end of tick t
+        backlog = (busy_until - t - 1) * self.scenario.dt if busy_until > t + 1 else 0.0
+        return NodeView(node, state.queue, state.occupancy, buffer, capacity, tier, rate, age, worker, backlog)
+
+    def own_view(self, t: int) -> NodeView:
+        """Co-located: its own worker as it is at the end of tick t."""
+        own = self.own_worker
+        buffer, capacity, tier, rate, worker = self._static[self.node.id]
+        return NodeView(self.node.id, own.stats.queue, own.occupancy, buffer, capacity, tier, rate, 0, worker)
 
     def observe(self, t: int) -> Observation:
         dt = self.scenario.dt
+        own_worker = self.own_worker
+        busy_until = self.busy_until if own_worker is None else own_worker.radio.busy_until()
         tasks = []
         for p in self.undecided:
             if p.id in self.decided:
@@ -168,10 +210,10 @@ class Controller(Role):
         return Observation(
             tick=t,
             node=self.node.id,
-            own=self.view(self.node.id, t),
+            own=self.view(self.node.id, t) if own_worker is None else self.own_view(t),
             undecided=len(self.undecided),
             tasks=tasks,
-            neighbours=[self.view(j, t) for j in self.neighbours],
+            neighbours=[self.view(j, t, busy) for j, busy in zip(self.neighbours, busy_until, strict=False)],
         )
 
 

@@ -86,6 +86,16 @@ class Pending:
 
 
 @dataclass(slots=True)
+class Report:
+    """What a worker tells its controller: the tasks it may place, and, when it changed since the last
+    report, how long each of the node's links stays busy with what is queued on it
+    (``LinkTransmitter.busy_until``, ticks, in the canonical neighbour order; None: unchanged)."""
+
+    pending: list[Pending]
+    busy_until: list[float] | None
+
+
+@dataclass(slots=True)
 class NodeState:
     """The one-hop state broadcast of a worker (static facts come from the scenario)."""
 
@@ -102,7 +112,7 @@ class Kind(IntEnum):
     STATE = 5
 
 
-Body = Task | Result | list[Decision] | list[Pending] | NodeState
+Body = Task | Result | list[Decision] | Report | NodeState
 
 
 @dataclass(slots=True)

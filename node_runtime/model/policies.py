@@ -108,7 +108,19 @@ class Greedy(Policy):
         return transfer + wait + run
 
 
-POLICIES: dict[str, type[Policy]] = {p.name: p for p in (Local, Random, RoundRobin, LeastQueue, Greedy)}
+class GreedyBacklog(Greedy):
+    """Greedy, with the transfers already queued on the link to a target (``NodeView.backlog_s``) added
+    to the upload: the per-link FIFO contention that plain greedy does not see."""
+
+    name = "greedy_backlog"
+
+    @staticmethod
+    def estimate(obs: Observation, task: TaskView, action: int, extra: int) -> float:
+        estimate = Greedy.estimate(obs, task, action, extra)
+        return estimate if action == 0 else estimate + _target(obs, action).backlog_s
+
+
+POLICIES: dict[str, type[Policy]] = {p.name: p for p in (Local, Random, RoundRobin, LeastQueue, Greedy, GreedyBacklog)}
 
 
 def make_policy(name: str) -> Policy:

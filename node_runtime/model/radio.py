@@ -19,6 +19,14 @@ def shannon_rate(bandwidth_hz: float, tx_power_dbm: float, gain_db: float, noise
     return bandwidth_hz * math.log2(1.0 + snr)
 
 
+SPEED_OF_LIGHT = 299_792_458.0  # m/s
+
+
+def free_space_loss_db(distance_m: float, frequency_hz: float) -> float:
+    """Free-space path loss 20 log10(4 pi d f / c): 40.05 dB at 1 m and 2.4 GHz."""
+    return 20.0 * math.log10(4.0 * math.pi * distance_m * frequency_hz / SPEED_OF_LIGHT)
+
+
 def log_distance_gain_db(distance_m: float, ref_loss_db: float, ref_distance_m: float,
                          exponent: float) -> float:
     """Channel gain (negative path loss) of the log-distance model.
@@ -74,6 +82,10 @@ class Radio:
         self.rng = rng
         for link in self.links.values():
             link.reset()
+
+    def busy_until(self) -> list[float]:
+        """When each link (in neighbour order) finishes what is queued on it, in ticks."""
+        return [link.busy_until for link in self.links.values()]
 
     def __contains__(self, node: str) -> bool:
         return node in self.links

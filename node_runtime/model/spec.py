@@ -14,6 +14,7 @@ from functools import cached_property
 from typing import Any, Literal
 
 Mode = Literal["binary", "batch"]
+Admission = Literal["decide_first", "queue_first"]
 
 
 @dataclass(frozen=True, slots=True)
@@ -70,7 +71,14 @@ class TaskType:
     input_bytes: float  # alpha_in
     output_bytes: float  # alpha_out
     cpi: float  # xi, cycles per instruction
-    deadline: float  # delta, seconds from creation until the result must be back
+    deadline: float  # delta, seconds from creation until the result must be back; with a range, its low end
+    deadline_high: float | None = None  # a range: delta ~ U[deadline, deadline_high) + grace, drawn per task
+    grace: float = 0.0  # seconds added to every drawn deadline
+
+    @property
+    def drawn(self) -> bool:
+        """Whether each task of this type draws its own deadline."""
+        return self.deadline_high is not None
 
 
 @dataclass(frozen=True, slots=True)
@@ -78,7 +86,9 @@ class Arrival:
     """Arrival-rate schedule lambda(t), tasks per second per client.
 
     kinds: constant(rate); linear(start -> end over the episode); zigzag(low..high, period s);
-    uniform(each client draws a constant rate in [low, high] at every reset).
+    uniform(each client draws a constant rate in [low, high] at every reset). The process: poisson
+    (a Poisson count per tick) or exponential_gaps (one task at a time, max(1, floor(Exp(lambda) / dt))
+    ticks apart, the reference implementation's client).
     """
 
     kind: Literal["constant", "linear", "zigzag", "uniform"] = "constant"
@@ -88,6 +98,7 @@ class Arrival:
     low: float = 0.0
     high: float = 0.0
     period: float = 100.0
+    process: Literal["poisson", "exponential_gaps"] = "poisson"
 
 
 @dataclass(frozen=True, slots=True)
@@ -138,6 +149,8 @@ class Scenario:
     kinds: tuple[tuple[str, str], ...] = ()  # role kinds the nodes have, in canonical order: (name, class path)
     source: str = ""  # the file it came from, for messages only
     extra: dict[str, Any] = field(default_factory=dict)  # free-form metadata (description ...)
+    admission: Admission = "decide_first"  # queue_first: arrivals are queued at once, decisions divert queued tasks
+    control_latency: int = 2  # ticks between the state a controller observes and its decision's effect (2 or 0)
 
     # ----- derived views (cached, never serialised) -----
 
@@ -189,6 +202,11 @@ class Scenario:
         return any(a <= tick < b for a, b in self.failure_windows.get(node, ()))
 
     @property
+    def colocated_control(self) -> bool:
+        """Each controller reads its own worker and hands it decisions within the tick (control_latency 0)."""
+        return self.control_latency == 0
+
+    @property
     def controllers(self) -> tuple[str, ...]:
         return tuple(n.id for n in self.nodes if n.has("controller"))
 
@@ -235,6 +253,8 @@ class Scenario:
             kinds=tuple(tuple(kv) for kv in d["kinds"]),
             source=d.get("source", ""),
             extra=dict(d.get("extra", {})),
+            admission=d.get("admission", "decide_first"),
+            control_latency=int(d.get("control_latency", 2)),
         )
 
     def digest(self) -> str:
@@ -245,6 +265,7 @@ class Scenario:
         d.pop("extra", None)
         d.pop("kinds", None)
         d["nodes"] = [_hashed_node(n) for n in d["nodes"]]
+        _drop_later_defaults(d)
         blob = json.dumps(d, sort_keys=True, separators=(",", ":")).encode()
         return hashlib.sha256(blob).hexdigest()[:16]
 
@@ -263,6 +284,21 @@ def _hashed_node(node: dict[str, Any]) -> dict[str, Any]:
         node[kind] = kind in roles
         node[f"{kind}_impl"] = impls.get(kind, "")
     return node
+
+
+# Settings added after scenarios were first hashed, with their defaults: left out of the digest while
+# they hold them, so a scenario that does not use them keeps its hash.
+LATER_SETTINGS: dict[str, Any] = {"admission": "decide_first", "control_latency": 2}
+LATER_ARRIVAL: dict[str, Any] = {"process": "poisson"}
+LATER_TASK_TYPE: dict[str, Any] = {"deadline_high": None, "grace": 0.0}
+
+
+def _drop_later_defaults(d: dict[str, Any]) -> None:
+    for part, later in [(d, LATER_SETTINGS), (d["workload"]["arrival"], LATER_ARRIVAL),
+                        *((t, LATER_TASK_TYPE) for t in d["workload"]["task_types"])]:
+        for key, default in later.items():
+            if part.get(key, default) == default:
+                part.pop(key, None)
 
 
 def _plain(value: Any) -> Any:

@@ -41,6 +41,7 @@ class NodeView:
     rate_bps: float  # link rate from the observing node (0 for itself)
     age: int  # ticks since the state it reports was current
     worker: bool  # can take tasks
+    backlog_s: float = 0.0  # seconds of transfer already queued on the link from the observing node to it
 
 
 @dataclass(slots=True)

@@ -14,6 +14,10 @@ One tick, in this order (docs/model.md, "The worker, one tick"):
 8. the state is broadcast to the neighbours, and the undecided list reported to the controller,
    when they changed.
 
+With ``admission: queue_first`` (the reference implementation's worker) arrivals join the queue at
+once, and a decision diverts a queued task that has not started yet; the controller is told about
+those tasks instead of undecided ones.
+
 The worker owns its node's outgoing links, so every inter-node transmission from a worker node
 queues on one FIFO per neighbour, whichever role asked for it.
 """
@@ -24,7 +28,7 @@ import math
 from collections import deque
 
 from node_runtime.model.energy import compute_energy, idle_energy
-from node_runtime.model.messages import Decision, Envelope, Kind, NodeState, Pending, Result, Task
+from node_runtime.model.messages import Decision, Envelope, Kind, NodeState, Pending, Report, Result, Task
 from node_runtime.model.radio import Radio
 from node_runtime.model.registry import RoleKind, register
 from node_runtime.model.rng import stream
@@ -44,6 +48,10 @@ class Worker(Role):
         self.radio = Radio.for_node(scenario, node.id, self.neighbours)
         self.decides = node.has("controller") and scenario.max_hops > 0
         self.controller = role_id("controller", node.id) if node.has("controller") else ""
+        # a co-located controller (control_latency 0) reads this worker itself; any other is sent reports
+        self.reports = bool(self.controller) and not scenario.colocated_control
+        self.queue_first = scenario.admission == "queue_first"
+        self.tracks_divertible = self.queue_first and self.decides
         self.topic = state_topic(node.id)
         self.budget = node.capacity * scenario.dt
         self.idle_w = node.idle_power_w
@@ -51,14 +59,19 @@ class Worker(Role):
 
     def reset(self, seed: int) -> None:
         super().reset(seed)
-        self.queue: deque[list] = deque()  # [task, remaining cycles], head in service
+        self.queue: deque[list] = deque()  # [task, remaining cycles], head in service; queue_first adds
+        # [..., arrival tick, kept here by a decision]
         self.undecided: dict[int, tuple[Task, int]] = {}  # id -> (task, arrival tick), in arrival order
         self.next_expiry = math.inf  # no held task expires before this tick (it may be early, never late)
         self.failed = False
         self.radio.reset(stream(seed, self.index, WORKER.stream))
         self._last_state: tuple[int, int] | None = None
-        self._undecided_version = 0  # bumped whenever the undecided set changes
+        # bumped whenever what the controller is told changes: the undecided set (queue_first: the divertible
+        # tasks), or the links while tasks wait for a decision
+        self.tasks_version = 0
         self._reported_version = -1
+        self._links_changed = False  # since the last report
+        self._divertible: list[list] = []  # queue_first: the queue entries a decision may still divert
 
     # ----- helpers -----
 
@@ -87,13 +100,35 @@ class Worker(Role):
             prev = task.path[result.hop]
             self.transmit(t, Kind.RESULT, prev, role_id("worker", prev), result, task.output_bytes * 8.0, out)
 
+    def pending(self) -> list[Pending]:
+        """The tasks the controller may place, oldest first."""
+        if self.queue_first:
+            return [Pending.of(e[0], e[2]) for e in self._divertible]
+        return [Pending.of(task, at) for task, at in self.undecided.values()]
+
+    def divertible(self) -> list[list]:
+        """queue_first: queued tasks that have not started, were not kept here by a decision, and may
+        still be offloaded."""
+        if not self.decides:
+            return []
+        max_hops = self.scenario.max_hops
+        return [e for e in self.queue if e[1] == e[0].cycles and not e[3] and e[0].hops < max_hops]
+
+    def transmit(self, t: int, kind: Kind, dst_node: str, dst_role: str, body: Task | Result, bits: float,
+                 out: Outbox) -> None:
+        """A transmission changes a link's backlog: the controller is told with the tasks it may place."""
+        super().transmit(t, kind, dst_node, dst_role, body, bits, out)
+        self._links_changed = True
+        if self.undecided or self._divertible:
+            self.tasks_version += 1
+
     def drop_all(self, out: Outbox, cause: str) -> None:
         for task in [e[0] for e in self.queue] + [task for task, _ in self.undecided.values()]:
             self.drop(out, cause, task.id)
         self.queue.clear()
         self.undecided.clear()
         self.next_expiry = math.inf
-        self._undecided_version += 1
+        self.tasks_version += 1
 
     # ----- the tick -----
 
@@ -112,6 +147,7 @@ class Worker(Role):
             if failed:
                 self.drop_all(out, "node_failure")
                 self.radio.reset(self.radio.rng)
+                self._links_changed = True
         self.failed = failed
         overloaded = int(self.occupancy >= self.node.buffer)
         if overloaded != st.overloaded:
@@ -141,7 +177,10 @@ class Worker(Role):
         if t >= self.next_expiry:
             self.expire(t, out)
         if decisions:
-            self.apply(t, decisions, out)
+            if self.queue_first:
+                self.divert(t, decisions, out)
+            else:
+                self.apply(t, decisions, out)
         if arrivals:
             self.admit(t, arrivals, out)
         if self.queue:
@@ -178,13 +217,13 @@ class Worker(Role):
             for k in gone:
                 del self.undecided[k]
                 self.drop(out, "expired", k)
-            self._undecided_version += bool(gone)
+            self.tasks_version += bool(gone)
         held = [e[0] for e in self.queue] + [task for task, _ in self.undecided.values()]
         self.next_expiry = min((task.expires_at(dt) for task in held), default=math.inf)
 
     def apply(self, t: int, decisions: list[Decision], out: Outbox) -> None:
         st = self.stats
-        self._undecided_version += bool(decisions)
+        self.tasks_version += bool(decisions)
         for d in decisions:
             held = self.undecided.pop(d.task_id, None)
             if held is None:  # dropped or expired after the controller saw it
@@ -200,6 +239,26 @@ class Worker(Role):
                 self.transmit(t, Kind.TASK, d.target, role_id("worker", d.target), task,
                               task.input_bytes * 8.0, out)
 
+    def divert(self, t: int, decisions: list[Decision], out: Outbox) -> None:
+        """queue_first: a decision keeps a queued task here or takes it out of the queue to a neighbour,
+        if it has not started meanwhile (else it is stale)."""
+        st = self.stats
+        for d in decisions:
+            at = next((i for i, e in enumerate(self.queue) if e[0].id == d.task_id), None)
+            entry = self.queue[at] if at is not None else None
+            if entry is None or entry[1] != entry[0].cycles or entry[3]:
+                st.stale_decisions += 1
+                continue
+            if not d.target or d.target == self.node.id:
+                entry[3] = True
+                continue
+            del self.queue[at]
+            task = entry[0]
+            task.hops += 1
+            st.offloaded += 1
+            out.emit("offloaded", self.node.id, task=task.id, to=d.target)
+            self.transmit(t, Kind.TASK, d.target, role_id("worker", d.target), task, task.input_bytes * 8.0, out)
+
     def admit(self, t: int, arrivals: list[Task], out: Outbox) -> None:
         buffer = self.node.buffer
         for task in arrivals:
@@ -210,9 +269,11 @@ class Worker(Role):
             else:
                 task.path = (*task.path, self.node.id)
                 self.next_expiry = min(self.next_expiry, task.expires_at(self.dt))
-                if self.decides and task.hops < self.scenario.max_hops:
+                if self.queue_first:
+                    self.queue.append([task, task.cycles, t, False])
+                elif self.decides and task.hops < self.scenario.max_hops:
                     self.undecided[task.id] = (task, t)
-                    self._undecided_version += 1
+                    self.tasks_version += 1
                 else:
                     self.queue.append([task, task.cycles])
 
@@ -254,9 +315,16 @@ class Worker(Role):
         if state != self._last_state and t % interval == 0:
             self._last_state = state
             out.broadcast(Kind.STATE, self.topic, NodeState(self.node.id, st.queue, self.occupancy))
-        if self.controller and self._undecided_version != self._reported_version:
-            self._reported_version = self._undecided_version
-            out.send(Kind.REPORT, self.controller, [Pending.of(task, at) for task, at in self.undecided.values()])
+        if self.tracks_divertible:
+            divertible = self.divertible()
+            if [e[0].id for e in divertible] != [e[0].id for e in self._divertible]:
+                self.tasks_version += 1
+            self._divertible = divertible
+        if self.reports and self.tasks_version != self._reported_version:
+            self._reported_version = self.tasks_version
+            busy = self.radio.busy_until() if self._links_changed else None
+            self._links_changed = False
+            out.send(Kind.REPORT, self.controller, Report(self.pending(), busy))
 
 
 def own_state(node: NodeSpec, scenario: Scenario) -> tuple[str, ...]:

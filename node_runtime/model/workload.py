@@ -1,4 +1,9 @@
-"""What a client generates: Poisson arrivals under a rate schedule, or rows of a trace."""
+"""What a client generates: arrivals under a rate schedule, or rows of a trace.
+
+Two arrival processes: a Poisson count per tick (the default), or the reference implementation's
+client, which draws the gap to its next task, ⌊Exp(λ) / dt⌋ ticks but at least one, so that at most
+one task arrives per tick.
+"""
 
 from __future__ import annotations
 
@@ -36,11 +41,17 @@ def _every_tick(source: TaskSource, after: int) -> int:
     return after + 1
 
 
+def draws_deadlines(scenario: Scenario) -> bool:
+    """Whether tasks draw their own deadlines (a task type with a range), from a stream of their own."""
+    return any(t.drawn for t in scenario.workload.task_types)
+
+
 class TaskSource:
     """Draws (count, types) of new tasks per tick for one client.
 
-    Counts come from one stream and task types from another, so changing the task mix does not
-    shift the arrival times. Poisson(lambda * dt) per tick, with no cap on the count.
+    Counts come from one stream, task types from another and drawn deadlines from a third, so changing
+    the task mix or the deadlines does not shift the arrival times. Poisson(lambda * dt) per tick,
+    with no cap on the count, or exponential gaps (``Arrival.process``).
     """
 
     def __init__(self, scenario: Scenario, node: str, counts_rng: np.random.Generator,
@@ -53,6 +64,10 @@ class TaskSource:
         self.probs = weights / weights.sum()
         self.counts_rng = counts_rng
         self.types_rng = types_rng
+        self.deadlines_rng: np.random.Generator | None = None  # set by the client when a type draws deadlines
+        self.drawn = any(t.drawn or t.grace for t in self.types)
+        self.gaps = self.arrival.process == "exponential_gaps"
+        self._next: int | None = None  # exponential gaps: the tick of the next task, once drawn
         self.fixed_rate = dict(scenario.workload.client_rates).get(node)
         if self.fixed_rate is None and self.arrival.kind == "uniform":
             self.fixed_rate = float(counts_rng.uniform(self.arrival.low, self.arrival.high))
@@ -80,10 +95,31 @@ class TaskSource:
         start = tick - tick % BLOCK
         block = self._blocks.get(start)
         if block is None:  # ticks are asked in order, so blocks are drawn in order
-            lam = np.array([self.rate(s) * self.dt for s in range(start, start + BLOCK)])
-            block = self._blocks[start] = self.counts_rng.poisson(lam)
+            if self.gaps:
+                block = self._blocks[start] = self.gap_block(start)
+            else:
+                lam = np.array([self.rate(s) * self.dt for s in range(start, start + BLOCK)])
+                block = self._blocks[start] = self.counts_rng.poisson(lam)
             self._blocks.pop(start - 2 * BLOCK, None)  # the current tick is at most one block behind
         return int(block[tick - start])
+
+    def gap_block(self, start: int) -> list[int]:
+        """Counts (0 or 1) of a block under exponential gaps: a task in tick s draws the gap to the next
+        one with λ(s), max(1, ⌊X / dt⌋) ticks with X ~ Exp(λ(s)); the first gap, drawn at the first
+        tick with λ > 0, may be 0. While λ is 0 no gap is drawn."""
+        counts = [0] * BLOCK
+        nxt = self._next
+        for s in range(start, start + BLOCK):
+            if nxt is None:
+                lam = self.rate(s)
+                if lam > 0:
+                    nxt = s + math.floor(self.counts_rng.exponential(1.0 / lam) / self.dt)
+            if nxt == s:
+                counts[s - start] = 1
+                lam = self.rate(s)
+                nxt = s + max(1, math.floor(self.counts_rng.exponential(1.0 / lam) / self.dt)) if lam > 0 else None
+        self._next = nxt
+        return counts
 
     def draws(self, tick: int) -> list[tuple[float, float, float, float, float]]:
         """(instructions, input_bytes, output_bytes, cpi, deadline) of every task created at ``tick``."""
@@ -97,7 +133,15 @@ class TaskSource:
             picks = [self.types[0]] * n
         else:
             picks = [self.types[i] for i in self.types_rng.choice(len(self.types), size=n, p=self.probs)]
+        if self.drawn:
+            return [(t.instructions, t.input_bytes, t.output_bytes, t.cpi, self.deadline(t)) for t in picks]
         return [(t.instructions, t.input_bytes, t.output_bytes, t.cpi, t.deadline) for t in picks]
+
+    def deadline(self, task_type: TaskType) -> float:
+        """δ of one new task: U[deadline, deadline_high) when the type has a range, plus its grace."""
+        if task_type.drawn:
+            return float(self.deadlines_rng.uniform(task_type.deadline, task_type.deadline_high)) + task_type.grace
+        return task_type.deadline + task_type.grace
 
     def next_arrival(self, after: int) -> int:
         """The first tick after ``after`` with a task, or the end of the search window.

@@ -16,7 +16,7 @@ from typing import Any, NoReturn
 
 import msgpack
 
-from node_runtime.model.messages import Decision, Envelope, Kind, NodeState, Pending, Result, Task
+from node_runtime.model.messages import Decision, Envelope, Kind, NodeState, Pending, Report, Result, Task
 from node_runtime.model.role import STAT_FIELDS
 from node_runtime.model.view import Observation
 from node_runtime.runtime.protocol import SCHEMA_VERSION, Batch, Done, Tick
@@ -46,7 +46,7 @@ DECISION = (int, str)
 PENDING = (int, str, int, NUM, NUM, NUM, NUM, NUM, int)
 STATE = (str, NUM, NUM)
 ENVELOPE = (int, str, str, int, int, int, object)
-NODE_VIEW = (str, NUM, NUM, NUM, NUM, NUM, NUM, NUM, bool)
+NODE_VIEW = (str, NUM, NUM, NUM, NUM, NUM, NUM, NUM, bool, NUM)
 TASK_VIEW = (int, NUM, NUM, NUM, NUM, NUM, NUM, NUM, str)
 OBSERVATION = (int, str, list, int, list, list)
 N_STATS = len(STAT_FIELDS)
@@ -159,8 +159,8 @@ def _body(kind: Kind, body: Any) -> Any:
     if kind == Kind.DECISION:
         return [[d.task_id, d.target] for d in body]
     if kind == Kind.REPORT:
-        return [[p.id, p.origin, p.created, p.instructions, p.input_bytes, p.output_bytes, p.cpi, p.deadline,
-                 p.arrived] for p in body]
+        return [[[p.id, p.origin, p.created, p.instructions, p.input_bytes, p.output_bytes, p.cpi, p.deadline,
+                  p.arrived] for p in body.pending], body.busy_until]
     if kind == Kind.STATE:
         return [body.node, body.queue, body.occupancy]
     raise CodecError(f"no encoding for message kind {kind!r}")
@@ -178,9 +178,10 @@ def _unbody(kind: Kind, a: Any) -> Any:
             _malformed("decisions that are not [[task id, target], ...]")
         return [Decision(i, target) for i, target in a]
     if kind == Kind.REPORT:
-        if not (type(a) is list and all(_fits(p, PENDING) for p in a)):
-            _malformed("a report that is not a list of pending tasks")
-        return [Pending(*p) for p in a]
+        if not (type(a) is list and len(a) == 2 and type(a[0]) is list and all(_fits(p, PENDING) for p in a[0])
+                and (a[1] is None or (type(a[1]) is list and all(isinstance(x, NUM) for x in a[1])))):
+            _malformed("a report that is not [[pending task, ...], link busy-until ticks or nil]")
+        return Report([Pending(*p) for p in a[0]], a[1])
     if not _fits(a, STATE):  # Kind.STATE: the kinds are exhausted
         _malformed("a state that is not [node, queue, occupancy]")
     return NodeState(a[0], a[1], a[2])

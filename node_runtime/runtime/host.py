@@ -12,10 +12,10 @@ import math
 from collections import defaultdict
 from dataclasses import dataclass
 
-from node_runtime.model.controller import Action
+from node_runtime.model.controller import Action, Controller
 from node_runtime.model.messages import Envelope, Kind
 from node_runtime.model.plugins import load
-from node_runtime.model.role import Outbox, Role, read_stats, role_node
+from node_runtime.model.role import Outbox, Role, read_stats, role_id, role_node
 from node_runtime.model.view import Observation
 from node_runtime.runtime.layout import ProcessLayout
 from node_runtime.runtime.protocol import Done
@@ -56,6 +56,16 @@ class Host:
             self.local_subs[topic] = [r for r in subs if r in self.by_id]
             self.remote_subs[topic] = list(dict.fromkeys(
                 plan.proc_of[r] for r in subs if plan.proc_of[r] != proc))
+        # Co-located control (control_latency 0; the layout keeps a node's controller with its worker):
+        # controllers answer before the other roles run and observe after them (``run``).
+        self.colocated: list[tuple[Controller, str]] = []  # (controller, its worker's role id)
+        if plan.scenario.colocated_control:
+            for role in self.roles:
+                if isinstance(role, Controller):
+                    worker = self.by_id[role_id("worker", role.node.id)]
+                    role.bind(worker)
+                    self.colocated.append((role, worker.id))
+        self.stepped = [r for r in self.roles if not any(r is c for c, _ in self.colocated)]
         self.external: set[str] = set()
         self.events_on = False  # set by the driver while a monitor subscribes to events
         self.episode = 0
@@ -100,13 +110,17 @@ class Host:
         """One tick of every role with mail or work due, in canonical order; mail out; the report.
 
         A role with neither is skipped: by the contract of ``Role.wake`` its tick would change nothing.
+        Co-located controllers first answer their last observation, their decisions reaching their
+        workers in this tick, and run after every other role.
         """
         actions = actions or {}
         mail = self.mail
         due = self.due
         events: list[tuple[str, str, dict]] = []
         ran: list[Role] = []
-        for role in self.roles:
+        if self.colocated:
+            self._answer(t, actions, events)
+        for role in self.stepped:
             rid = role.id
             inbox = mail[rid].pop(t, NO_MAIL)
             if not inbox and due[rid] > t:
@@ -122,7 +136,47 @@ class Host:
                 role.tick(t, inbox, out)
             due[rid] = role.wake(t)
             ran.append(role)
+        if self.colocated:
+            self._observe(t, actions, ran, events)
         return self._route(t, ran, events)
+
+    def _answer(self, t: int, actions: dict[str, Action], events: list[tuple[str, str, dict]]) -> None:
+        """Co-located controllers place their answers; the decisions are the worker's mail of this tick."""
+        for ctrl, worker in self.colocated:
+            if not ctrl.asked:
+                continue
+            out = self.outboxes[ctrl.id]
+            out.tick = t
+            out.events = events if self.events_on else None
+            if ctrl.down(t):
+                ctrl.asked, ctrl.pending = [], None
+                continue
+            ctrl.answer(t, out, actions.get(ctrl.id))
+            for env in out.envelopes:
+                env.arrive = t
+                self.mail[worker][t].append(env)
+            out.envelopes.clear()
+
+    def _observe(self, t: int, actions: dict[str, Action], ran: list[Role],
+                 events: list[tuple[str, str, dict]]) -> None:
+        """Co-located controllers run after their workers: with mail or work due, or when the worker ran."""
+        workers = {r.id for r in ran}
+        for ctrl, worker in self.colocated:
+            rid = ctrl.id
+            inbox = self.mail[rid].pop(t, NO_MAIL)
+            if not inbox and self.due[rid] > t and worker not in workers:
+                continue
+            if len(inbox) > 1:
+                inbox.sort(key=Envelope.order)
+            out = self.outboxes[rid]
+            out.tick = t
+            out.events = events if self.events_on else None
+            if rid in self.external:
+                ctrl.tick(t, inbox, out, actions.get(rid))
+            else:
+                ctrl.tick(t, inbox, out)
+            self.due[rid] = ctrl.wake(t)
+            ran.append(ctrl)
 
     def wake(self) -> int | None:
         """The next tick at which a role here has work or mail, or None if only new mail can wake one."""

@@ -59,7 +59,10 @@ class ProcessLayout:
 
     @cached_property
     def proc_of(self) -> dict[str, str]:
-        return {r: proc_for(self.layout, r) for r in self.roles}
+        """With co-located control (control_latency 0) a controller always shares its worker's process."""
+        colocated = self.scenario.colocated_control
+        return {r: proc_for(self.layout, role_id("worker", role_node(r))
+                            if colocated and role_kind(r) == "controller" else r) for r in self.roles}
 
     @cached_property
     def procs(self) -> tuple[str, ...]:

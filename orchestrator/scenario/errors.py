@@ -19,6 +19,8 @@ class ScenarioError(ValueError):
 def key_path(loc: tuple[Any, ...]) -> str:
     out = ""
     for part in loc:
+        if _is_tag(part):
+            continue
         if isinstance(part, int):
             out += f"[{part}]"
         else:
@@ -44,8 +46,16 @@ _EXPECT = {
 }
 
 
+def _is_tag(part: Any) -> bool:
+    """A tag pydantic puts in an error's location for the alternative of a union it tried ("<number>"):
+    not a key of the file."""
+    return isinstance(part, str) and part.startswith("<") and part.endswith(">")
+
+
 def describe(err: dict[str, Any], model: type[BaseModel]) -> str:
     kind = err["type"]
+    if err["loc"] and err["loc"][-1] == "<number>" and kind in ("float_type", "float_parsing"):
+        return f"expected a number, or a range {{low, high, grace}} (got {err.get('input')!r})"
     ctx = err.get("ctx", {})
     got = err.get("input")
     if kind == "extra_forbidden":
@@ -76,6 +86,8 @@ def _fields_at(model: type[BaseModel], loc: tuple[Any, ...]) -> list[str]:
     fields are mapping keys (a profile's name) and keep the current model."""
     current: Any = model
     for part in loc:
+        if _is_tag(part):
+            continue
         fields = getattr(current, "model_fields", {})
         if isinstance(part, str) and part in fields:
             current = _inner_model(fields[part].annotation)

@@ -19,15 +19,22 @@ import networkx as nx
 from pydantic import ValidationError, validate_call
 
 from node_runtime.model.plugins import PluginError, is_import_path, load
-from node_runtime.model.radio import log_distance_gain_db, shannon_rate
+from node_runtime.model.radio import free_space_loss_db, log_distance_gain_db, shannon_rate
 from node_runtime.model.registry import ROLE_KINDS
 from node_runtime.model.role import Role
 from node_runtime.model.spec import Arrival, Failure, LinkSpec, NodeSpec, Scenario, TaskType, TraceRow, Workload
 from orchestrator.scenario.errors import ScenarioError, describe, key_path
-from orchestrator.scenario.schema import BUILTIN_PROFILES, NODE_DEFAULTS, ScenarioFile, file_format
+from orchestrator.scenario.schema import (
+    BUILTIN_PROFILES,
+    NODE_DEFAULTS,
+    DeadlineCfg,
+    ScenarioFile,
+    TaskCfg,
+    file_format,
+)
 from topologies import bundled_file
 from topologies.draft import Draft, DraftLink, DraftNode
-from topologies.ether import EtherError, load_ether
+from topologies.ether import DEVICE_TYPES, EtherError, load_ether
 from topologies.generators import GENERATORS, GeneratorError
 
 
@@ -100,8 +107,7 @@ class _Resolver:
 
     def scenario(self, name: str) -> Scenario:
         cfg = self.cfg
-        tasks = tuple(TaskType(t.name, t.weight, t.instructions, t.input_bytes, t.output_bytes, t.cpi, t.deadline)
-                      for t in cfg.workload.tasks)
+        tasks = tuple(self.task_type(t) for t in cfg.workload.tasks)
         draft = self.draft(tasks)
         self.fail_if_errors()
         nodes = self.nodes(draft)
@@ -133,7 +139,17 @@ class _Resolver:
             kinds=tuple((name, kind.path) for name, kind in ROLE_KINDS.items() if any(n.has(name) for n in nodes)),
             source=self.label,
             extra={"description": cfg.description, "reward": cfg.reward or "", "observation": cfg.observation or ""},
+            admission=sim.admission,
+            control_latency=sim.control_latency,
         )
+
+    @staticmethod
+    def task_type(t: TaskCfg) -> TaskType:
+        if isinstance(t.deadline, DeadlineCfg):
+            d = t.deadline
+            return TaskType(t.name, t.weight, t.instructions, t.input_bytes, t.output_bytes, t.cpi, d.low, d.high,
+                            d.grace)
+        return TaskType(t.name, t.weight, t.instructions, t.input_bytes, t.output_bytes, t.cpi, t.deadline)
 
     # --- user extensions ---
 
@@ -189,7 +205,8 @@ class _Resolver:
             total_w = sum(t.weight for t in tasks)
             task_bytes = sum(t.weight * (t.input_bytes + t.output_bytes) for t in tasks) / total_w
             try:
-                draft = load_ether(self.file(topo.ether), task_bytes, wired_rates=topo.link_rates == "ether")
+                draft = load_ether(self.file(topo.ether), task_bytes, wired_rates=topo.link_rates == "ether",
+                                   buffer_bytes=topo.buffer_bytes)
             except EtherError as exc:
                 self.error("topology.ether", str(exc))
                 return Draft([], [])
@@ -259,7 +276,10 @@ class _Resolver:
             values.update({name: kind.default for name, kind in ROLE_KINDS.items()})
             values.update(tx_power_dbm=cfg.network.tx_power_dbm, idle_power_w=cfg.energy.idle_power_w,
                           kappa=cfg.energy.kappa, policy=cfg.simulation.policy)
-            if profile_name and profile_name not in BUILTIN_PROFILES and profile_name not in cfg.profiles:
+            # an imported device whose profile is not defined plays the part its type implies
+            device = node.device if profile_name == node.profile else {}
+            if (profile_name and profile_name not in BUILTIN_PROFILES and profile_name not in cfg.profiles
+                    and not device):
                 # a generator's profile is reported once, not once per generated node
                 generated = cfg.topology.generator is not None and not (override and override.profile)
                 key = "topology.generator" if generated else f"{where}.profile"
@@ -268,9 +288,11 @@ class _Resolver:
                     hint = difflib.get_close_matches(profile_name, [*BUILTIN_PROFILES, *cfg.profiles], n=1)
                     self.error(key, f"unknown profile {profile_name!r}"
                                + (f" (did you mean '{hint[0]}'?)" if hint else "")
-                               + f"; define it under 'profiles' or use one of {', '.join(BUILTIN_PROFILES)}")
+                               + f"; define it under 'profiles' or use one of {', '.join(BUILTIN_PROFILES)}"
+                               + (f" (an Ether device of type {', '.join(DEVICE_TYPES)} needs none)"
+                                  if cfg.topology.ether and not override else ""))
                 continue
-            values.update(BUILTIN_PROFILES.get(profile_name, {}))
+            values.update(BUILTIN_PROFILES.get(profile_name, device))
             values.update(node.hints)
             if profile_name in cfg.profiles:
                 values.update(cfg.profiles[profile_name].model_dump(exclude_none=True))
@@ -313,6 +335,8 @@ class _Resolver:
     def links(self, draft: Draft, nodes: list[NodeSpec]) -> list[LinkSpec]:
         net = self.cfg.network
         noise = net.noise_dbm if net.noise_dbm is not None else -174.0 + 10 * math.log10(net.bandwidth_hz)
+        pl = net.path_loss
+        ref_loss = pl.ref_loss_db if pl.frequency_hz is None else free_space_loss_db(pl.ref_distance_m, pl.frequency_hz)
         by_id = {n.id: n for n in nodes}
         explicit = {frozenset(lk.between): (i, lk) for i, lk in enumerate(self.cfg.topology.links)}
         seen: set[frozenset[str]] = set()
@@ -337,8 +361,8 @@ class _Resolver:
                 if r is None:
                     a, b = by_id[src], by_id[dst]
                     gain = override.gain_db if override is not None and override.gain_db is not None else \
-                        log_distance_gain_db(math.dist(a.position, b.position), net.path_loss.ref_loss_db,
-                                             net.path_loss.ref_distance_m, net.path_loss.exponent)
+                        log_distance_gain_db(math.dist(a.position, b.position), ref_loss, pl.ref_distance_m,
+                                             pl.exponent)
                     r = shannon_rate(net.bandwidth_hz, a.tx_power_dbm, gain, noise)
                 if r <= 0:
                     self.error(f"{where}", f"link {src}->{dst} has no capacity (rate {r:g} bit/s)")
@@ -396,7 +420,7 @@ class _Resolver:
         a = wl.arrival
         return Workload(
             task_types=tasks,
-            arrival=Arrival(a.kind, a.rate, a.start, a.end, a.low, a.high, a.period),
+            arrival=Arrival(a.kind, a.rate, a.start, a.end, a.low, a.high, a.period, a.process),
             client_rates=tuple(sorted(wl.rates.items())),
             client_targets=tuple((c, tuple(ts)) for c, ts in sorted(wl.targets.items())),
             trace=trace,

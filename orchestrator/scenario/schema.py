@@ -11,7 +11,7 @@ from __future__ import annotations
 from functools import cache
 from typing import Annotated, Any, Literal
 
-from pydantic import BaseModel, ConfigDict, Field, create_model, field_validator, model_validator
+from pydantic import BaseModel, ConfigDict, Discriminator, Field, Tag, create_model, field_validator, model_validator
 
 from node_runtime.model.plugins import is_import_path
 from node_runtime.model.policies import POLICIES
@@ -41,6 +41,8 @@ class SimulationCfg(Strict):
     batch_size: Count = 4
     state_interval: Count = 1
     policy: str = "local"
+    admission: Literal["decide_first", "queue_first"] = "decide_first"
+    control_latency: Literal[0, 2] = 2
 
     @field_validator("policy")
     @classmethod
@@ -54,6 +56,13 @@ class PathLossCfg(Strict):
     ref_loss_db: float = 40.0
     ref_distance_m: Pos = 1.0
     exponent: Pos = 3.0
+    frequency_hz: Pos | None = None  # instead of ref_loss_db: free-space loss at ref_distance_m
+
+    @model_validator(mode="after")
+    def one_reference(self) -> PathLossCfg:
+        if self.frequency_hz is not None and "ref_loss_db" in self.model_fields_set:
+            raise ValueError("give either ref_loss_db or frequency_hz (free-space loss at ref_distance_m), not both")
+        return self
 
 
 class NetworkCfg(Strict):
@@ -72,12 +81,13 @@ class ArrivalCfg(Strict):
     low: NonNeg = 0.0
     high: NonNeg = 0.0
     period: Pos = 100.0
+    process: Literal["poisson", "exponential_gaps"] = "poisson"
 
     @model_validator(mode="after")
     def ordered(self) -> ArrivalCfg:
         uses = {"constant": {"rate"}, "linear": {"start", "end"}, "zigzag": {"low", "high", "period"},
                 "uniform": {"low", "high"}}[self.kind]
-        stray = sorted(self.model_fields_set - uses - {"kind"})
+        stray = sorted(self.model_fields_set - uses - {"kind", "process"})
         if stray:
             raise ValueError(f"{', '.join(stray)} {'is' if len(stray) == 1 else 'are'} not used by kind "
                              f"{self.kind!r}, which takes {', '.join(sorted(uses))}")
@@ -89,6 +99,25 @@ class ArrivalCfg(Strict):
         return self
 
 
+class DeadlineCfg(Strict):
+    """A deadline drawn per task: U[low, high) seconds, plus ``grace``."""
+
+    low: Pos
+    high: Pos
+    grace: NonNeg = 0.0
+
+    @model_validator(mode="after")
+    def ordered(self) -> DeadlineCfg:
+        if self.high <= self.low:
+            raise ValueError("high must be > low (for a fixed deadline, give a number)")
+        return self
+
+
+# A number, or a mapping; the tags name the alternatives in pydantic's errors (errors.key_path skips them).
+Deadline = Annotated[Annotated[Pos, Tag("<number>")] | Annotated[DeadlineCfg, Tag("<range>")],
+                     Discriminator(lambda v: "<range>" if isinstance(v, dict | DeadlineCfg) else "<number>")]
+
+
 class TaskCfg(Strict):
     name: str = "task"
     weight: Pos = 1.0
@@ -96,7 +125,7 @@ class TaskCfg(Strict):
     input_bytes: Pos = 150 * MIB
     output_bytes: Pos = 150 * MIB
     cpi: Pos = 1.0
-    deadline: Pos = 100.0
+    deadline: Deadline = 100.0
 
 
 class WorkloadCfg(Strict):
@@ -191,6 +220,7 @@ class GeneratorCfg(BaseModel):
 class TopologyCfg(Strict):
     ether: str | None = None
     link_rates: Literal["wireless", "ether"] = "wireless"
+    buffer_bytes: Pos | None = None  # Ether buffers: round(memory / buffer_bytes) instead of memory / task size
     generator: GeneratorCfg | None = None
     nodes: list[NodeCfg] = []
     links: list[LinkCfg] = []
@@ -200,8 +230,9 @@ class TopologyCfg(Strict):
         sources = [s for s in ("ether", "generator") if getattr(self, s) is not None]
         if len(sources) > 1:
             raise ValueError("give either 'ether' or 'generator', not both")
-        if "link_rates" in self.model_fields_set and self.ether is None:
-            raise ValueError("link_rates only applies to an Ether import ('ether: FILE')")
+        for key in ("link_rates", "buffer_bytes"):
+            if key in self.model_fields_set and self.ether is None:
+                raise ValueError(f"{key} only applies to an Ether import ('ether: FILE')")
         if not sources and not self.nodes:
             raise ValueError("expected one of 'ether', 'generator' or 'nodes'")
         return self
