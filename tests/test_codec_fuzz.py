@@ -12,7 +12,7 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from node_runtime.model.messages import Decision, Envelope, Kind, NodeState, Pending, Result, Task
+from node_runtime.model.messages import Decision, Envelope, Kind, NodeState, Pending, Report, Result, Task
 from node_runtime.model.role import STAT_FIELDS
 from node_runtime.model.view import NodeView, Observation, TaskView
 from node_runtime.runtime import codec
@@ -25,7 +25,7 @@ FUZZ = settings(max_examples=200, deadline=None, suppress_health_check=[HealthCh
 TASK = Task((3 << 32) | 9, "rpi3_0", 12, 8e7, 1.5e8, 1.5e8, 1.0, 100.0, 1, ("rpi3_0", "nuc_0"))
 OBS = Observation(5, "a", NodeView("a", 1, 2, 3, 4e6, 0, 0.0, 1, True), 2,
                   [TaskView(7, 8e7, 1.0, 2.0, 1.0, 100.0, 95.0, 2, "a")],
-                  [NodeView("b", 0, 0, 26, 4e6, 1, 3e7, 1, True)])
+                  [NodeView("b", 0, 0, 26, 4e6, 1, 3e7, 1, True, 2.5)])
 GOOD = [
     Tick(2, 17, "run", {0: 2}, {"controller:a": 1, "controller:b": [0, 2]}),
     Tick(3, 0, "reset", seed=9, external=["controller:a"], policy="least_queue"),
@@ -36,7 +36,7 @@ GOOD = [
         Envelope(Kind.TASK, "worker:a", "worker:b", 1, 4, 7, TASK),
         Envelope(Kind.RESULT, "worker:b", "client:a", 2, 5, 6, Result(TASK, "b", 5, 1)),
         Envelope(Kind.DECISION, "controller:a", "worker:a", 3, 5, 6, [Decision(1, ""), Decision(2, "b")]),
-        Envelope(Kind.REPORT, "worker:a", "controller:a", 4, 5, 6, [Pending.of(TASK, 3)]),
+        Envelope(Kind.REPORT, "worker:a", "controller:a", 4, 5, 6, Report([Pending.of(TASK, 3)], [7.5, 0.0])),
         Envelope(Kind.STATE, "worker:a", "state/a", 5, 5, 6, NodeState("a", 2, 3)),
     ]),
 ]
@@ -121,8 +121,8 @@ def test_reasons_name_what_is_wrong():
     with pytest.raises(codec.CodecError, match="not msgpack") as exc:
         codec.decode(b"\xc1")
     assert exc.value.reason == BAD_MSGPACK
-    with pytest.raises(codec.CodecError, match="schema version 3, expected 2") as exc:
-        codec.decode(msgpack.packb({**codec.to_wire(GOOD[0]), "v": 3}))
+    with pytest.raises(codec.CodecError, match=f"schema version 2, expected {SCHEMA_VERSION}") as exc:
+        codec.decode(msgpack.packb({**codec.to_wire(GOOD[0]), "v": 2}))
     assert exc.value.reason == OTHER_SCHEMA
     with pytest.raises(codec.CodecError, match="done field 'stats'") as exc:
         codec.decode(codec.encode(Done("p", 0, 1, {}, {0: [1, 2, 3]})))

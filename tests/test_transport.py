@@ -49,9 +49,9 @@ def test_requests_are_answered_by_whoever_serves_the_key(connect):
         return {"type": "answer", "n": message["n"] + 1}
 
     hub.serve("t/a/session", answer)
-    assert client.request("t/a/session", {"type": "question", "n": 1}, TIMEOUT) == {"type": "answer", "n": 2, "v": 2}
+    assert client.request("t/a/session", {"type": "question", "n": 1}, TIMEOUT) == {"type": "answer", "n": 2, "v": 3}
     assert client.request("t/*/session", {"type": "question", "n": 5}, TIMEOUT)["n"] == 6  # a wildcard asks all
-    assert asked == [{"type": "question", "n": 1, "v": 2}, {"type": "question", "n": 5, "v": 2}]
+    assert asked == [{"type": "question", "n": 1, "v": 3}, {"type": "question", "n": 5, "v": 3}]
     with pytest.raises(TransportError, match="t/b/session"):
         client.request("t/b/session", {"type": "question", "n": 1}, 1.0)
 
