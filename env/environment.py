@@ -27,7 +27,7 @@ from gymnasium import spaces
 from pettingzoo import ParallelEnv
 
 from env.actions import ActionRules
-from env.observations import DictObservation, ObservationBuilder, ObservationLayout
+from env.observations import DictObservation, FlatObservation, ObservationBuilder, ObservationLayout
 from env.overrides import ScenarioOverrides
 from env.reward import PaperWeights, RewardContext, RewardFn, RewardTerms, nominal_arrivals, paper_terms, resolve_reward
 from node_runtime.model.plugins import load
@@ -41,6 +41,7 @@ from orchestrator.scenario import load_scenario
 from orchestrator.session import Simulation
 
 AGENT_PREFIX = "ctrl_"
+FLAT = "flat"  # observation="flat": FlatObservation and numbers-only infos
 
 
 def agent_name(node: str) -> str:
@@ -59,7 +60,9 @@ class ZenohEdgeEnv(ParallelEnv):
         reward: "paper" (Eq. 1–5, see docs/reward.md), "reference", "sparse", a callable ``f(RewardContext)`` or its
             import path (default: the scenario's ``reward`` key, else "paper").
         observation: an ``ObservationBuilder`` subclass or its import path (default: the scenario's
-            ``observation`` key, else the documented Dict observation).
+            ``observation`` key, else the documented Dict observation), or "flat": one float32 vector and
+            the action mask per agent, padded to the largest degree, with numbers-only infos (for MARL
+            libraries; the full infos stay in ``env.step_details``).
         reward_weights: ``PaperWeights`` overriding the paper's r_u and chi weights.
         overrides: ``ScenarioOverrides`` of the decision mode, decision interval, batch size and arrival rate.
         max_steps: episode length in steps (default: the scenario's ``simulation.steps``, 1000); an episode
@@ -135,11 +138,17 @@ class ZenohEdgeEnv(ParallelEnv):
         degrees = {a: len(sc.neighbours[n]) for a, n in self.node_of.items()}
         slots = max(degrees.values(), default=0)
         batch = None if sc.mode == "binary" else sc.batch_size
-        self.layouts = {a: ObservationLayout(d, slots if uniform_spaces else d, batch) for a, d in degrees.items()}
         builder = observation or sc.extra.get("observation") or DictObservation
-        if isinstance(builder, str):
-            builder = load(builder, ObservationBuilder)
-        self.builders = {a: builder(lay) for a, lay in self.layouts.items()}
+        self.flat = builder == FLAT
+        padded = uniform_spaces or self.flat
+        self.layouts = {a: ObservationLayout(d, slots if padded else d, batch) for a, d in degrees.items()}
+        if self.flat:
+            n = len(self.possible_agents)
+            self.builders = {a: FlatObservation(lay, i, n) for i, (a, lay) in enumerate(self.layouts.items())}
+        else:
+            if isinstance(builder, str):
+                builder = load(builder, ObservationBuilder)
+            self.builders = {a: builder(lay) for a, lay in self.layouts.items()}
         self.observation_spaces = {a: b.space() for a, b in self.builders.items()}
         self.action_spaces = {a: lay.action_space() for a, lay in self.layouts.items()}
         targets = {a: ("local", *sc.neighbours[n]) for a, n in self.node_of.items()}
@@ -155,6 +164,7 @@ class ZenohEdgeEnv(ParallelEnv):
         self._last_actions: dict[str, Any] = {}  # the last step's decisions, for the renderer
         self._renderer = None
         self._closed = False
+        self.step_details: dict[str, dict[str, Any]] = {}  # the last reset's or step's full infos, per agent
 
     # ----- PettingZoo API -----
 
@@ -187,7 +197,8 @@ class ZenohEdgeEnv(ParallelEnv):
         self._observe()
         nodes = _by_node(output_values(Out.ENV, report.nodes, report.node_delta, self.sim.metrics.capacity))
         infos = {a: self._info(a, nodes, ()) for a in self.agents}
-        return dict(self._obs), infos
+        self.step_details = infos
+        return dict(self._obs), self._numbers(infos) if self.flat else infos
 
     def step(self, actions: dict[str, Any]):
         """``actions``: one per live agent; docs/env.md "Actions" says what each may be and what it does."""
@@ -242,7 +253,8 @@ class ZenohEdgeEnv(ParallelEnv):
             self.agents = []
         if self.render_mode == "human":
             self.render()
-        return observations, rewards, terminations, truncations, infos
+        self.step_details = infos
+        return observations, rewards, terminations, truncations, self._numbers(infos) if self.flat else infos
 
     def render(self):
         if self.render_mode is None:
@@ -298,6 +310,24 @@ class ZenohEdgeEnv(ParallelEnv):
 
     def _info(self, agent: str, nodes: list[dict[str, Any]], terms: tuple[RewardTerms, ...]) -> dict[str, Any]:
         return {"tick": self.sim.tick, "node": nodes[self._row[agent]], "reward_terms": [t.as_dict() for t in terms]}
+
+    def _numbers(self, infos: dict[str, dict[str, Any]]) -> dict[str, dict[str, float]]:
+        """Flat mode's infos: the same keys at every reset and step, each a number (libraries stack them)."""
+        out = {}
+        for agent, info in infos.items():
+            numbers = {"tick": info["tick"], "invalid_action": info.get("invalid_action", False),
+                       "invalid_action_count": info.get("invalid_action_count", 0)}
+            out[agent] = numbers | {f"node_{k}": v for k, v in _flat_items(info["node"])}
+        return out
+
+
+def _flat_items(values: dict[str, Any], prefix: str = ""):
+    """(key, number) pairs of a nested dict of numbers, nested keys joined by "_"."""
+    for key, value in values.items():
+        if isinstance(value, dict):
+            yield from _flat_items(value, f"{prefix}{key}_")
+        else:
+            yield f"{prefix}{key}", value
 
 
 def _by_node(values: dict[str, Any]) -> list[dict[str, Any]]:

@@ -15,6 +15,10 @@ in docs/env.md):
 D is the agent's degree, or the largest degree of all agents with ``uniform_spaces=True`` (padding slots
 have present = 0 and a masked action), so that one network can serve every agent. The columns are
 named by ``OwnField``, ``TaskField`` and ``NeighbourField``, for the encoder here and for the agents.
+
+``FlatObservation`` (``ZenohEdgeEnv(observation="flat")``) gives the same numbers as one float32 vector
+per agent, plus a one-hot agent id, beside ``action_mask``: the ``{"observation", "action_mask"}``
+convention that MARL libraries (TorchRL, RLlib, AgileRL, PettingZoo's masking examples) take as is.
 """
 
 from __future__ import annotations
@@ -190,6 +194,48 @@ class DictObservation(ObservationBuilder):
                             task.time_left, task.waited)
             out["action_mask"] = self.layout.masks(obs)
         return out
+
+
+class FlatObservation(ObservationBuilder):
+    """``observation="flat"``: ``{"observation": (F,) float32, "action_mask": int8}``, one shape for all agents.
+
+    ``observation`` is ``own``, ``task`` (row-major in batch mode), ``neighbours`` (row-major, padded to
+    the largest degree) and the one-hot index of the agent in ``possible_agents``, so that a network
+    shared by all agents can tell them apart; ``slices`` says where each block lies. ``action_mask`` is
+    (1 + D,), or (B, 1 + D) in batch mode.
+    """
+
+    def __init__(self, layout: ObservationLayout, agent_index: int = 0, n_agents: int = 1) -> None:
+        super().__init__(layout)
+        self.fields = DictObservation(layout)
+        self.agent_id = np.zeros(n_agents, dtype=np.float32)
+        self.agent_id[agent_index] = 1.0
+        spaces_ = layout.space().spaces
+        sizes = {"own": len(OwnField), "task": int(np.prod(spaces_["task"].shape)),
+                 "neighbours": layout.slots * len(NeighbourField), "agent_id": n_agents}
+        ends = np.cumsum(list(sizes.values()))
+        self.slices = {k: slice(int(end - n), int(end)) for (k, n), end in zip(sizes.items(), ends, strict=True)}
+        self._low = np.concatenate([spaces_[k].low.ravel() for k in ("own", "task", "neighbours")]
+                                   + [np.zeros(n_agents, dtype=np.float32)])
+        self._high = np.concatenate([spaces_[k].high.ravel() for k in ("own", "task", "neighbours")]
+                                    + [np.ones(n_agents, dtype=np.float32)])
+
+    def space(self) -> spaces.Dict:
+        mask_shape = (self.layout.n_actions,) if self.layout.batch is None else (self.layout.batch,
+                                                                                  self.layout.n_actions)
+        return spaces.Dict({"observation": spaces.Box(self._low, self._high, self._low.shape, np.float32),
+                            "action_mask": spaces.Box(0, 1, mask_shape, np.int8)})
+
+    def encode(self, obs: Observation | None) -> dict[str, np.ndarray]:
+        return self.flatten(self.fields.encode(obs))
+
+    def flatten(self, fields: dict[str, Any]) -> dict[str, np.ndarray]:
+        """The flat form of this agent's Dict observation (``observation=None``, the default, with
+        ``uniform_spaces=True``): what a policy trained on flat observations acts on."""
+        mask = fields["action_mask"]
+        return {"observation": np.concatenate([fields["own"], fields["task"].ravel(), fields["neighbours"].ravel(),
+                                               self.agent_id]),
+                "action_mask": mask if isinstance(mask, np.ndarray) else np.stack(mask)}
 
 
 def copy_obs(obs: dict) -> dict:
