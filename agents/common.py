@@ -83,7 +83,7 @@ def specs_of(env: Any) -> dict[str, AgentSpec]:
 
 def flat_dim(slots: int) -> int:
     """Length of ``flatten``'s output for an agent with ``slots`` neighbour slots."""
-    return 7 + 7 + 9 * slots + 3 * (1 + slots)
+    return 7 + 7 + 10 * slots + 3 * (1 + slots)
 
 
 def flatten(own: np.ndarray, task: np.ndarray, neighbours: np.ndarray) -> np.ndarray:
@@ -120,6 +120,7 @@ def flatten(own: np.ndarray, task: np.ndarray, neighbours: np.ndarray) -> np.nda
         nb_present, nb[..., n.TIER], symlog(nb[..., n.QUEUE]), symlog(nb[..., n.OCCUPANCY]),
         symlog(nb[..., n.BUFFER]), symlog(nb[..., n.CAPACITY_GCPS] * 1e3), symlog(nb[..., n.RATE_MBPS]),
         symlog(nb[..., n.AGE_TICKS]), nb[..., n.OCCUPANCY] / np.maximum(nb[..., n.BUFFER], 1.0),
+        symlog(nb[..., n.BACKLOG_S]),
     ], axis=2)
     # Estimated times of the task at each target, in seconds (capacities in cycles/s, sizes in bits).
     cycles = task[:, t.INSTRUCTIONS_G] * task[:, t.CPI] * 1e9  # (N,)

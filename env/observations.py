@@ -68,13 +68,15 @@ class NeighbourField(IntEnum):
     TIER = 5
     RATE_MBPS = 6  # of the link from this node
     AGE_TICKS = 7  # of the information
+    BACKLOG_S = 8  # seconds of transfer already queued on the link from this node (FIFO contention)
 
 
 # Columns the encoder fills once (static) and at every step (dynamic), as index arrays.
 _OWN_STATIC = np.array([OwnField.BUFFER, OwnField.CAPACITY_GCPS, OwnField.TIER])
 _NEIGHBOUR_STATIC = np.array([NeighbourField.PRESENT, NeighbourField.BUFFER, NeighbourField.CAPACITY_GCPS,
                               NeighbourField.TIER, NeighbourField.RATE_MBPS])
-_NEIGHBOUR_DYNAMIC = np.array([NeighbourField.QUEUE, NeighbourField.OCCUPANCY, NeighbourField.AGE_TICKS])
+_NEIGHBOUR_DYNAMIC = np.array([NeighbourField.QUEUE, NeighbourField.OCCUPANCY, NeighbourField.AGE_TICKS,
+                               NeighbourField.BACKLOG_S])
 
 
 @dataclass(frozen=True)
@@ -185,7 +187,7 @@ class DictObservation(ObservationBuilder):
         own[OwnField.OCCUPANCY] = obs.own.occupancy
         own[OwnField.UNDECIDED] = obs.undecided
         if obs.neighbours:
-            out["neighbours"][:len(obs.neighbours), _NEIGHBOUR_DYNAMIC] = [(n.queue, n.occupancy, n.age)
+            out["neighbours"][:len(obs.neighbours), _NEIGHBOUR_DYNAMIC] = [(n.queue, n.occupancy, n.age, n.backlog_s)
                                                                              for n in obs.neighbours]
         if obs.tasks:
             tasks = out["task"] if self.layout.batch is not None else out["task"][None, :]

@@ -71,10 +71,10 @@ def test_baselines_pick_only_valid_actions(scenario):
 def test_least_queue_and_greedy_choose_as_documented():
     obs = {"own": np.array([2, 3, 10, 0.004, 0, 1], np.float32),
            "task": np.array([1, 0.08, 1.0, 1.0, 1, 50, 0], np.float32),
-           # present, queue, occupancy, buffer, capacity, tier, rate, age
-           "neighbours": np.array([[1, 2, 2, 10, 0.1, 1, 8.0, 1],  # same queue as local: tie -> local
-                                   [1, 4, 10, 10, 1.0, 2, 800.0, 1],  # fastest but full
-                                   [1, 5, 5, 20, 0.1, 1, 800.0, 1]], np.float32),
+           # present, queue, occupancy, buffer, capacity, tier, rate, age, backlog
+           "neighbours": np.array([[1, 2, 2, 10, 0.1, 1, 8.0, 1, 0],  # same queue as local: tie -> local
+                                   [1, 4, 10, 10, 1.0, 2, 800.0, 1, 0],  # fastest but full
+                                   [1, 5, 5, 20, 0.1, 1, 800.0, 1, 0]], np.float32),
            "action_mask": np.array([1, 1, 1, 1], np.int8)}
     assert BASELINES["least_queue"]().act({"a": obs}) == {"a": 0}
     # greedy: local (2 + 1) * 0.08e9 / 4e6 = 60 s; n1: 2 s transfer + 3 * 0.8 s; n2 full; n3: 0.02 s + 6 * 0.8 s
@@ -150,7 +150,7 @@ def test_ddqn_target_is_double_dqn():
 def obs_of(task: bool, queue: float = 0.0) -> dict:
     return {"own": np.array([queue, queue, 5, 0.01, 0, 0], np.float32),
             "task": np.array([1, 0.01, 0.1, 0.1, 1, 30, 0] if task else [0] * 7, np.float32),
-            "neighbours": np.array([[1, 0, 0, 5, 0.02, 1, 100, 1]], np.float32),
+            "neighbours": np.array([[1, 0, 0, 5, 0.02, 1, 100, 1, 0]], np.float32),
             "action_mask": np.array([1, 1] if task else [1, 0], np.int8)}
 
 

@@ -122,7 +122,7 @@ def test_evaluate_adds_its_runs_to_a_marl_eval_file(tmp_path):
     (rq1, ["--agents", "ddqn", "--set", "clip_coef=0.1"], "ddqn has no field 'clip_coef' (it is a field of ppo)"),
     (rq1, ["--agents", "local", "--set", "lr=1"], "--set 'lr=1': no learner among --agents"),
     (train, ["a2c", "--scenario", "aot9"], "aot9: no such file or bundled scenario (did you mean 'aot4'?); "
-                                           "bundled: aot1, aot2, aot3, aot4, "),
+                                           "bundled: aot1, aot1_reference, aot2, "),
     (rq2, ["--scenarios", "aot1", "nowhere.yaml"], "nowhere.yaml: no such file or bundled scenario"),
     (evaluate, ["greedy", "--scenario", "aot5"], "aot5: no such file or bundled scenario"),
     (evaluate, ["nothing.pt"], "'nothing.pt' is neither a baseline (local, random,"),
