@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 from pettingzoo.test import parallel_api_test
 
-from env import ScenarioOverrides, ZenohEdgeEnv
+from env import NeighbourField, OwnField, ScenarioOverrides, TaskField, ZenohEdgeEnv
 from tests.test_env import masked_random
 
 TRANSPORTS = ["inproc", pytest.param("zenoh", marks=pytest.mark.zenoh)]
@@ -33,7 +33,8 @@ def test_every_agent_has_the_same_flat_spaces_with_its_id_one_hot():
     assert all(set(s.spaces) == {"observation", "action_mask"} for s in spaces.values())
     n = len(env.possible_agents)
     slots = max(len(env.scenario.neighbours[node]) for node in env.node_of.values())
-    assert {s["observation"].shape for s in spaces.values()} == {(6 + 7 + 8 * slots + n,)}
+    width = len(OwnField) + len(TaskField) + len(NeighbourField) * slots + n
+    assert {s["observation"].shape for s in spaces.values()} == {(width,)}
     assert {s["action_mask"].shape for s in spaces.values()} == {(1 + slots,)}
     assert {env.action_space(a).n for a in env.possible_agents} == {1 + slots}
     obs, _ = env.reset(seed=1)
@@ -86,7 +87,8 @@ def test_batch_mode_flat_masks_are_one_array():
                        overrides=ScenarioOverrides(mode="batch", batch_size=3))
     agent = env.possible_agents[0]
     assert env.observation_space(agent)["action_mask"].shape == (3, 12)
-    assert env.observation_space(agent)["observation"].shape == (6 + 3 * 7 + 11 * 8 + 10,)
+    width = len(OwnField) + 3 * len(TaskField) + 11 * len(NeighbourField) + 10
+    assert env.observation_space(agent)["observation"].shape == (width,)
     obs, _ = env.reset(seed=5)
     while env.agents:
         assert all(env.observation_space(a).contains(o) for a, o in obs.items())

@@ -28,6 +28,7 @@ from rich.console import Console
 from node_runtime.runtime import codec
 from node_runtime.runtime.keys import Keys
 from node_runtime.runtime.process import ORCHESTRATOR
+from node_runtime.runtime.protocol import SCHEMA_VERSION
 from node_runtime.runtime.zenoh_bus import ZenohTransport, free_port, zenoh_config
 from orchestrator.scenario import load_scenario
 from orchestrator.session import Simulation
@@ -375,7 +376,7 @@ def test_monitor_json_prints_every_tick(ticking):
     mon = monitor_cli("--connect", endpoint, "--json")
     records = [json.loads(mon.line()) for _ in range(5)]
     assert [r["tick"] for r in records] == list(range(records[0]["tick"], records[0]["tick"] + 5))
-    assert {(r["v"], r["type"], r["sim"]) for r in records} == {(2, "metrics", sim)}
+    assert {(r["v"], r["type"], r["sim"]) for r in records} == {(SCHEMA_VERSION, "metrics", sim)}
     assert records[0]["nodes"]["id"] == [n.id for n in load_scenario("aot1").nodes]
     assert mon.finish(signal.SIGINT)[::2] == (0, [f"monitor: attached to {sim} (aot1) at {endpoint} (Ctrl-C to "
                                                   "detach)", f"monitor: detached from {sim}"])
