@@ -121,21 +121,10 @@ class Host:
         if self.colocated:
             self._answer(t, actions, events)
         for role in self.stepped:
-            rid = role.id
-            inbox = mail[rid].pop(t, NO_MAIL)
-            if not inbox and due[rid] > t:
-                continue
-            if len(inbox) > 1:
-                inbox.sort(key=Envelope.order)
-            out = self.outboxes[rid]
-            out.tick = t
-            out.events = events if self.events_on else None
-            if rid in self.external:
-                role.tick(t, inbox, out, actions.get(rid))
-            else:
-                role.tick(t, inbox, out)
-            due[rid] = role.wake(t)
-            ran.append(role)
+            inbox = mail[role.id].pop(t, NO_MAIL)
+            if inbox or due[role.id] <= t:
+                self._tick(role, t, inbox, actions, events)
+                ran.append(role)
         if self.colocated:
             self._observe(t, actions, ran, events)
         return self._route(t, ran, events)
@@ -162,21 +151,25 @@ class Host:
         """Co-located controllers run after their workers: with mail or work due, or when the worker ran."""
         workers = {r.id for r in ran}
         for ctrl, worker in self.colocated:
-            rid = ctrl.id
-            inbox = self.mail[rid].pop(t, NO_MAIL)
-            if not inbox and self.due[rid] > t and worker not in workers:
-                continue
-            if len(inbox) > 1:
-                inbox.sort(key=Envelope.order)
-            out = self.outboxes[rid]
-            out.tick = t
-            out.events = events if self.events_on else None
-            if rid in self.external:
-                ctrl.tick(t, inbox, out, actions.get(rid))
-            else:
-                ctrl.tick(t, inbox, out)
-            self.due[rid] = ctrl.wake(t)
-            ran.append(ctrl)
+            inbox = self.mail[ctrl.id].pop(t, NO_MAIL)
+            if inbox or self.due[ctrl.id] <= t or worker in workers:
+                self._tick(ctrl, t, inbox, actions, events)
+                ran.append(ctrl)
+
+    def _tick(self, role: Role, t: int, inbox: list[Envelope], actions: dict[str, Action],
+              events: list[tuple[str, str, dict]]) -> None:
+        """One role's tick: its mail in canonical order, its outbox, its action if an agent drives it."""
+        rid = role.id
+        if len(inbox) > 1:
+            inbox.sort(key=Envelope.order)
+        out = self.outboxes[rid]
+        out.tick = t
+        out.events = events if self.events_on else None
+        if rid in self.external:
+            role.tick(t, inbox, out, actions.get(rid))
+        else:
+            role.tick(t, inbox, out)
+        self.due[rid] = role.wake(t)
 
     def wake(self) -> int | None:
         """The next tick at which a role here has work or mail, or None if only new mail can wake one."""
