@@ -179,13 +179,11 @@ class Controller(Role):
             s -= interval
         return s
 
-    def view(self, node: str, t: int, busy_until: float = 0.0) -> NodeView:
-        """What it knows of ``node``; ``busy_until``: when the link to it frees up (ticks)."""
+    def view(self, node: str, t: int, backlog: float = 0.0) -> NodeView:
+        """What it knows of ``node``; ``backlog``: seconds queued on the link to it."""
         buffer, capacity, tier, rate, worker = self._static[node]
         state = self.states[node]
         age = 1 if self._always_fresh else t - self.heard_at(node, t)
-        # the seconds of transfer still queued at the end of tick t
-        backlog = (busy_until - t - 1) * self.scenario.dt if busy_until > t + 1 else 0.0
         return NodeView(node, state.queue, state.occupancy, buffer, capacity, tier, rate, age, worker, backlog)
 
     def own_view(self, t: int) -> NodeView:
@@ -198,6 +196,7 @@ class Controller(Role):
         dt = self.scenario.dt
         own_worker = self.own_worker
         busy_until = self.busy_until if own_worker is None else own_worker.radio.busy_until()
+        end = t + 1
         tasks = []
         for p in self.undecided:
             if p.id in self.decided:
@@ -213,7 +212,9 @@ class Controller(Role):
             own=self.view(self.node.id, t) if own_worker is None else self.own_view(t),
             undecided=len(self.undecided),
             tasks=tasks,
-            neighbours=[self.view(j, t, busy) for j, busy in zip(self.neighbours, busy_until, strict=False)],
+            # a link busy until tick b still has (b - (t + 1)) * dt seconds queued at the end of tick t
+            neighbours=[self.view(j, t, (busy - end) * dt if busy > end else 0.0)
+                        for j, busy in zip(self.neighbours, busy_until, strict=False)],
         )
 
 
