@@ -4,6 +4,7 @@ orchestrator. Runs the real CLI as a subprocess; waits on its output and on proc
 
 from __future__ import annotations
 
+import os
 import signal
 import time
 
@@ -58,3 +59,29 @@ def test_killed_orchestrator_takes_its_processes_with_it(tmp_path):
     run.proc.kill()
     run.finish(10)
     assert_all_gone(children)
+
+
+def _shm_descriptors() -> list[str]:
+    out = []
+    for fd in os.listdir("/proc/self/fd"):
+        try:
+            target = os.readlink(f"/proc/self/fd/{fd}")
+        except OSError:  # closed while listing
+            continue
+        if target.startswith("/dev/shm/"):
+            out.append(target)
+    return out
+
+
+@pytest.mark.skipif(not os.path.isdir("/proc/self/fd"), reason="needs /proc")
+def test_an_env_over_zenoh_holds_no_shared_memory_after_close():
+    """Each create/close used to leave a /dev/shm segment open in the trainer's process (Zenoh's SHM)."""
+    from env import ZenohEdgeEnv
+
+    for seed in range(2):
+        env = ZenohEdgeEnv("aot1", transport="zenoh", max_steps=3)
+        env.reset(seed=seed)
+        while env.agents:
+            env.step(dict.fromkeys(env.agents, 0))
+        env.close()
+        assert _shm_descriptors() == []

@@ -53,6 +53,9 @@ def zenoh_config(mode: Mode, listen: list[str] | None = None, connect: list[str]
     cfg = zenoh.Config()
     cfg.insert_json5("mode", json.dumps(mode))
     cfg.insert_json5("scouting/multicast/enabled", "false")
+    # Messages here are a few hundred bytes, where shared memory saves nothing; and each session that
+    # negotiates it keeps a /dev/shm segment open after close and takes one of the router's SHM slots
+    cfg.insert_json5("transport/shared_memory/enabled", "false")
     if listen:
         cfg.insert_json5("listen/endpoints", json.dumps(listen))
     if connect:
