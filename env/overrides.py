@@ -48,6 +48,7 @@ class ScenarioOverrides:
             sc = dataclasses.replace(sc, **changes)
             sc = dataclasses.replace(sc, episode_ticks=steps * sc.decision_interval)
         if self.arrival_rate is not None:
-            arrival = Arrival("constant", rate=float(self.arrival_rate))
+            # a constant rate, drawn by the scenario's own arrival process (Poisson counts or exponential gaps)
+            arrival = Arrival("constant", rate=float(self.arrival_rate), process=sc.workload.arrival.process)
             sc = dataclasses.replace(sc, workload=dataclasses.replace(sc.workload, arrival=arrival, client_rates=()))
         return sc

@@ -213,6 +213,11 @@ def test_overrides_change_the_scenario_and_keep_the_episode_length():
     assert ZenohEdgeEnv("aot2", transport="inproc", overrides=ScenarioOverrides()).scenario == base
 
 
+def test_an_arrival_rate_override_keeps_the_scenarios_arrival_process():
+    sc = ZenohEdgeEnv("aot2_reference", transport="inproc", overrides=ScenarioOverrides(arrival_rate=0.3)).scenario
+    assert (sc.workload.arrival.rate, sc.workload.arrival.process) == (0.3, "exponential_gaps")
+
+
 @pytest.mark.parametrize("kwargs,message", [
     ({"mode": "batched"}, "mode must be 'binary' or 'batch', not 'batched'"),
     ({"decision_interval": 0}, "decision_interval must be an integer >= 1, not 0"),
