@@ -34,15 +34,42 @@ def _intersect(a: tuple[str, ...], b: tuple[str, ...]) -> bool:
     return (a[0] == b[0] or a[0] == "*" or b[0] == "*") and _intersect(a[1:], b[1:])
 
 
+class _ByPrefix:
+    """Wildcard key expressions filed under their literal prefix (the chunks before the first wildcard),
+    so that an exact key meets only those it could match: set-up stays near-linear in the node count."""
+
+    def __init__(self) -> None:
+        self._items: dict[str, list[tuple[str, Any]]] = {}
+
+    def add(self, key: str, item: Any) -> None:
+        chunks = key.split("/")
+        n = next((i for i, c in enumerate(chunks) if "*" in c), len(chunks))
+        self._items.setdefault("/".join(chunks[:n]), []).append((key, item))
+
+    def matching(self, expr: str) -> list[Any]:
+        """The items whose key intersects ``expr``."""
+        if "*" in expr:
+            candidates = [entry for entries in self._items.values() for entry in entries]
+        else:
+            chunks = expr.split("/")
+            candidates = [e for k in range(len(chunks) + 1) for e in self._items.get("/".join(chunks[:k]), ())]
+        return [item for key, item in candidates if key_matches(expr, key)]
+
+
 class InprocBus:
     def __init__(self) -> None:
         self._subs: list[tuple[str, Handler]] = []
-        self._routes: dict[str, list[Handler]] = {}  # key -> handlers (cache)
+        # the same subscriptions, indexed: exact keys by key, wildcards in a list, each with its place in _subs
+        self._exact: dict[str, list[tuple[int, Handler]]] = {}
+        self._wild: list[tuple[int, str, Handler]] = []
+        self._routes: dict[str, list[Handler]] = {}  # key -> handlers in subscription order (cache)
+        self._wild_routes = _ByPrefix()  # the cached routes of wildcard keys (a monitor asking who listens)
         self._watchers: list[tuple[str, TokenHandler]] = []
         self._tokens: set[str] = set()
         self._queue: deque[tuple[Callable[..., None], tuple]] = deque()
         self._delivering = False
         self._monitors: list[InprocMonitor] = []
+        self._unheard = _ByPrefix()  # monitors that nobody listened to yet
         self._served: dict[str, RequestHandler] = {}
 
     def endpoint(self) -> InprocEndpoint:
@@ -51,7 +78,12 @@ class InprocBus:
     def _handlers(self, key: str) -> list[Handler]:
         hs = self._routes.get(key)
         if hs is None:
-            hs = self._routes[key] = [h for expr, h in self._subs if key_matches(expr, key)]
+            if "*" in key:
+                found = [(i, h) for i, (expr, h) in enumerate(self._subs) if key_matches(expr, key)]
+                self._wild_routes.add(key, key)
+            else:
+                found = self._exact.get(key, []) + [(i, h) for i, expr, h in self._wild if key_matches(expr, key)]
+            hs = self._routes[key] = [h for _, h in sorted(found, key=lambda item: item[0])]
         return hs
 
     def _post(self, fn: Callable[..., None], *args: Any) -> None:
@@ -75,23 +107,41 @@ class InprocBus:
             self._deliver()
 
     def subscribe(self, key_expr: str, handler: Handler) -> tuple[str, Handler]:
-        """Returns the subscription, to ``drop`` it later."""
+        """Returns the subscription, to ``drop`` it later. The newest subscription comes last in every
+        route, so the cached routes and monitors are extended, not recomputed (set-up stays linear in N)."""
         sub = (key_expr, handler)
+        self._index(len(self._subs), sub)
         self._subs.append(sub)
-        self._rematch()
+        routes = self._wild_routes.matching(key_expr)
+        if "*" in key_expr:
+            routes += [key for key in self._routes if "*" not in key and key_matches(key_expr, key)]
+        elif key_expr in self._routes:
+            routes.append(key_expr)
+        for key in routes:
+            self._routes[key].append(handler)
+        for monitor in self._unheard.matching(key_expr):
+            monitor.listened = True
         return sub
+
+    def _index(self, i: int, sub: tuple[str, Handler]) -> None:
+        expr, handler = sub
+        if "*" in expr:
+            self._wild.append((i, expr, handler))
+        else:
+            self._exact.setdefault(expr, []).append((i, handler))
 
     def drop(self, subs: list[tuple[str, Handler]], watchers: list[tuple[str, TokenHandler]]) -> None:
         """Remove these subscriptions and token watchers (the very objects returned when declared)."""
         gone = {id(x) for x in subs + watchers}
         self._subs = [s for s in self._subs if id(s) not in gone]
         self._watchers = [w for w in self._watchers if id(w) not in gone]
-        self._rematch()
-
-    def _rematch(self) -> None:
+        self._exact, self._wild = {}, []
+        for i, sub in enumerate(self._subs):
+            self._index(i, sub)
         self._routes.clear()
+        self._wild_routes, self._unheard = _ByPrefix(), _ByPrefix()
         for monitor in self._monitors:
-            monitor.listened = bool(self._handlers(monitor.key))
+            self._watch_listeners(monitor)
 
     def unmatched(self, keys: list[str]) -> list[str]:
         return [key for key in keys if not self._handlers(key)]
@@ -99,7 +149,13 @@ class InprocBus:
     def monitored(self, key: str) -> InprocMonitor:
         monitor = InprocMonitor(self, key)
         self._monitors.append(monitor)
+        self._watch_listeners(monitor)
         return monitor
+
+    def _watch_listeners(self, monitor: InprocMonitor) -> None:
+        monitor.listened = bool(self._handlers(monitor.key))
+        if not monitor.listened:
+            self._unheard.add(monitor.key, monitor)
 
     def token(self, key: str, alive: bool) -> None:
         (self._tokens.add if alive else self._tokens.discard)(key)
@@ -139,7 +195,7 @@ class InprocMonitor(Monitored):
     def __init__(self, bus: InprocBus, key: str) -> None:
         self.bus = bus
         self.key = key
-        self.listened = bool(bus._handlers(key))
+        self.listened = False  # kept up to date by the bus
 
     def put(self, message: Any) -> None:
         self.bus.publish(self.key, message)
