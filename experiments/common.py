@@ -61,12 +61,16 @@ def rate(text: str) -> float:
 def add_env_arguments(parser: argparse.ArgumentParser, scenario: bool = True) -> None:
     g = parser.add_argument_group("environment")
     if scenario:
-        g.add_argument("--scenario", default="aot2", help="aot1..aot4 or a scenario YAML (default: aot2)")
-        g.add_argument("--lam", type=rate, default=0.17, help="task arrival rate lambda per source (default 0.17)")
+        g.add_argument("--scenario", default="aot2",
+                       help="a bundled scenario (aot1..aot4, aot3_compute, ...) or a scenario YAML (default: aot2)")
+        g.add_argument("--lam", type=rate, default=None,
+                       help="a constant task arrival rate lambda per source "
+                            "(default: the scenario's; 0.17 in aot1..aot4)")
     g.add_argument("--max-steps", type=positive_int, default=None,
                    help="decision steps per episode (default: the scenario's, 1000; rq1/rq2 --quick: 300)")
     g.add_argument("--reward", default="paper", choices=["paper", "reference", "sparse"],
-                   help="paper (default: Eq. 1-5 of the paper) or sparse (completed - dropped)")
+                   help="paper (default: Eq. 1-5 of the paper), reference (the reference implementation's) or "
+                        "sparse (completed - dropped); docs/reward.md")
     g.add_argument("--transport", default="inproc", choices=["inproc", "zenoh"],
                    help="inproc (default: one process, same results as zenoh) or zenoh (node processes)")
 

@@ -108,7 +108,8 @@ def main(argv: Sequence[str] | None = None) -> None:
         # a checkpoint's run is its training seed; a baseline's, the seed of its random choices
         seed, trained = (policy.config.seed, policy.env_steps) if isinstance(policy, Learner) else (args.seed, 0)
         data: dict = {}
-        marl_eval.add_run(data, f"{args.scenario}-lam{args.lam:g}", policy.name, seed,
+        task_name = args.scenario if args.lam is None else f"{args.scenario}-lam{args.lam:g}"
+        marl_eval.add_run(data, task_name, policy.name, seed,
                           marl_eval.run_entry(rows, trained))
         marl_eval.write(args.marl_eval, data, merge=True)
 

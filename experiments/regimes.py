@@ -1,0 +1,168 @@
+"""Regime cards: what the five baselines achieve in each scenario family, at two arrival rates.
+
+A card says which regime a family is in before anyone trains on it: whether offloading pays (does any
+heuristic complete more than `local`?) and whether one heuristic dominates (is the same baseline best
+on completion and on the score?). Where one does, a learner has little to learn.
+
+    python -m experiments.regimes                          # every family; writes docs/regimes/
+    python -m experiments.regimes --families compute wired --episodes 3 --out runs/regimes
+
+Every baseline runs the same evaluation episodes (seeds 100000, 100001, ..., as experiments.evaluate)
+with the scenario's own episode length. Outputs under ``--out``: ``<family>.csv`` (one row per rate,
+baseline and episode) and ``README.md`` (the cards, made from those rows).
+"""
+
+from __future__ import annotations
+
+import csv
+import math
+from collections.abc import Sequence
+from contextlib import nullcontext
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from agents import BASELINES, evaluate
+from agents.training import progress_bar, write_csv
+from experiments.common import Parser, check_scenario, make_env, positive_int
+from experiments.plot import mean_ci
+
+
+@dataclass(frozen=True)
+class Family:
+    """A bundled scenario standing for a family, and the two arrival rates its card is measured at."""
+
+    name: str
+    scenario: str
+    lambdas: tuple[float, float]
+    about: str
+
+
+FAMILIES = (
+    Family("paper", "aot3", (0.17, 0.35),
+           "The paper's Table as this project reads it: 8e7 instructions, 150 MiB in and out, 100 s deadlines, "
+           "radio links of 24-36 Mbit/s. An offload costs a minute of transfer for 20 s of compute."),
+    Family("reference", "aot3_reference", (0.17, 0.35),
+           "What the reference implementation ran: 3.2e8 instructions, 150 MB in and out, deadlines U[100, 200) "
+           "+ 5 s, free-space radio, queue-first workers, control latency 0."),
+    Family("compute", "aot3_compute", (0.03, 0.06),
+           "Heavy compute, small data: 2e8 instructions (50 s on an rpi3, 2.3 s on the server), 2 MB in, "
+           "200 kB out, deadlines U[40, 80) s. Capacity runs out near lambda = 0.07."),
+    Family("wired", "aot3_wired", (0.1, 0.2),
+           "The paper's task over the Ether file's wired rates: 500 Mbit/s to the cluster's nuc, "
+           "25 Mbit/s up to the server. The nucs saturate first."),
+)
+METRICS = (("completion_ratio", "completion %", 100.0, "max"), ("response_time_mean", "response [s]", 1.0, None),
+           ("dropped", "dropped", 1.0, "min"), ("penalised_response_time", "score [s]", 1.0, "min"))
+"""Columns of a card: metric, header, scale, and which way is better (None: not judged alone, see the card)."""
+
+
+def measure(family: Family, episodes: int, max_steps: int | None = None, progress: Any = None) -> list[dict[str, Any]]:
+    """One row per rate, baseline and evaluation episode."""
+    rows = []
+    for lam in family.lambdas:
+        env = make_env(family.scenario, lam, max_steps)
+        try:
+            for name, cls in BASELINES.items():
+                label = f"{family.name} λ={lam:g} {name}"
+                rows += [{"family": family.name, "scenario": family.scenario, "lambda": lam, "baseline": name,
+                          **{k: v for k, v in r.items() if k != "wall_s"}}  # kept in git: only what the seed fixes
+                         for r in evaluate(env, cls(0), episodes, progress=progress, label=label)]
+        finally:
+            env.close()
+    return rows
+
+
+def read_rows(path: Path) -> list[dict[str, Any]]:
+    """A family's CSV as written by ``measure``, numbers as floats (the episode index as an int)."""
+    with open(path, newline="") as f:
+        rows = list(csv.DictReader(f))
+    for r in rows:
+        for k, v in r.items():
+            if k not in ("family", "scenario", "baseline"):
+                r[k] = int(v) if k in ("episode", "steps") else float(v) if v else math.nan
+    return rows
+
+
+def card(family: Family, rows: Sequence[dict[str, Any]]) -> str:
+    """A family's card in Markdown: the mean ± 95% CI per baseline and rate, the best in bold, a verdict."""
+    episodes = len({r["episode"] for r in rows})
+    steps = rows[0]["steps"]
+    lines = [f"## {family.name}: `{family.scenario}`", "", family.about, "",
+             f"Five baselines, {episodes} evaluation episodes of {steps} steps each (mean ± 95% CI). "
+             "Score: mean time per generated task, a task not completed counts its deadline (lower is better).", ""]
+    header = ["λ", "baseline", *(title for _, title, _, _ in METRICS)]
+    lines += ["| " + " | ".join(header) + " |", "|" + " --- |" * len(header)]
+    for lam in family.lambdas:
+        at = [r for r in rows if r["lambda"] == lam]
+        stats = {(b, m): mean_ci([r[m] * scale for r in at if r["baseline"] == b])
+                 for b in BASELINES for m, _, scale, _ in METRICS}
+        best = {m: (max if way == "max" else min)(BASELINES, key=lambda b, m=m: stats[b, m][0])
+                for m, _, _, way in METRICS if way}
+        for b in BASELINES:
+            cells = []
+            for m, _, _, _ in METRICS:
+                mean, ci = stats[b, m]
+                text = f"{mean:.1f} ± {ci:.1f}"
+                cells.append(f"**{text}**" if best.get(m) == b else text)
+            lines.append(f"| {lam:g} | {b} | " + " | ".join(cells) + " |")
+        lines.append(f"| {lam:g} | | {verdict(stats, best)} | | | |")
+    return "\n".join(lines) + "\n"
+
+
+def verdict(stats: dict[tuple[str, str], tuple[float, float]], best: dict[str, str]) -> str:
+    """Does offloading pay, and does one heuristic dominate? Read off the means, with no tuning."""
+    lead = best["completion_ratio"]
+    (top, top_ci), (local, local_ci) = stats[lead, "completion_ratio"], stats["local", "completion_ratio"]
+    if lead == "local":
+        first = "keeping tasks local is best"
+    elif top - top_ci > local + local_ci:
+        first = f"offloading pays (+{top - local:.1f} points over local)"
+    else:
+        first = f"offloading barely matters (+{top - local:.1f} points over local, within the 95% CIs)"
+    if best["completion_ratio"] == best["penalised_response_time"] == best["dropped"]:
+        return f"*{first}; {lead} dominates*"
+    return (f"*{first}; no heuristic dominates: most completed {lead}, best score "
+            f"{best['penalised_response_time']}, fewest dropped {best['dropped']}*")
+
+
+def main(argv: Sequence[str] | None = None) -> None:
+    p = Parser(prog="python -m experiments.regimes", description=__doc__.splitlines()[0])
+    names = [f.name for f in FAMILIES]
+    p.add_argument("--families", nargs="+", choices=names, default=names, metavar="FAMILY",
+                   help=f"families to measure (default: all of {', '.join(names)})")
+    p.add_argument("--episodes", type=positive_int, default=3, help="evaluation episodes per baseline (default 3)")
+    p.add_argument("--max-steps", type=positive_int, default=None,
+                   help="steps per episode (default: the scenario's, 1000; shorter only to try the command)")
+    p.add_argument("--out", type=Path, default=Path("docs/regimes"), help="output directory (default docs/regimes)")
+    p.add_argument("--no-progress", dest="progress", action="store_false", help="no progress bar")
+    p.add_argument("--cards-only", action="store_true",
+                   help="rebuild README.md from the CSV files already in --out, without running anything")
+    args = p.parse_args(argv)
+    chosen = [f for f in FAMILIES if f.name in args.families]
+    cards = []
+    if args.cards_only:
+        for family in chosen:
+            try:
+                cards.append(card(family, read_rows(args.out / f"{family.name}.csv")))
+            except FileNotFoundError:
+                p.error(f"{args.out / f'{family.name}.csv'}: not found; run without --cards-only first")
+    else:
+        for family in chosen:
+            check_scenario(p.prog, family.scenario, None)
+        args.out.mkdir(parents=True, exist_ok=True)
+        progress = progress_bar() if args.progress else None
+        with progress or nullcontext():
+            for family in chosen:
+                rows = measure(family, args.episodes, args.max_steps, progress)
+                write_csv(args.out / f"{family.name}.csv", rows)
+                cards.append(card(family, rows))
+    (args.out / "README.md").write_text(
+        "# Regime cards\n\nMade by `python -m experiments.regimes` from the CSV files beside this page "
+        "(one row per rate, baseline and episode).\n[docs/scenario.md](../scenario.md#scenario-families) "
+        "describes the families.\n\n" + "\n".join(cards))
+    print(f"wrote {len(chosen)} cards to {args.out / 'README.md'}")
+
+
+if __name__ == "__main__":
+    main()

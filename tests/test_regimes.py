@@ -1,0 +1,70 @@
+"""Regime cards (experiments.regimes) and the bundled variants in which offloading pays."""
+
+from __future__ import annotations
+
+import pytest
+
+from agents import BASELINES, evaluate
+from experiments import regimes
+from experiments.common import make_env
+
+
+def _stats(completion: dict[str, float], score: dict[str, float], dropped: dict[str, float]) -> dict:
+    out = {}
+    for b in BASELINES:
+        out[b, "completion_ratio"] = (completion[b], 0.0)
+        out[b, "penalised_response_time"] = (score[b], 0.0)
+        out[b, "dropped"] = (dropped[b], 0.0)
+    return out
+
+
+def test_the_verdict_names_the_dominant_heuristic_or_the_split():
+    names = list(BASELINES)
+    completion = dict.fromkeys(names, 50.0) | {"local": 20.0, "greedy": 90.0}
+    score = dict.fromkeys(names, 40.0) | {"greedy": 10.0}
+    dropped = dict.fromkeys(names, 100.0) | {"greedy": 5.0}
+    best = {"completion_ratio": "greedy", "penalised_response_time": "greedy", "dropped": "greedy"}
+    assert regimes.verdict(_stats(completion, score, dropped), best) == (
+        "*offloading pays (+70.0 points over local); greedy dominates*")
+    best["penalised_response_time"] = "random"
+    assert regimes.verdict(_stats(completion, score, dropped), best) == (
+        "*offloading pays (+70.0 points over local); no heuristic dominates: most completed greedy, best score "
+        "random, fewest dropped greedy*")
+    best = dict.fromkeys(best, "local")
+    assert regimes.verdict(_stats(completion, score, dropped), best).startswith("*keeping tasks local is best")
+
+
+def test_the_command_writes_one_csv_per_family_and_the_cards(tmp_path):
+    regimes.main(["--families", "compute", "--episodes", "2", "--max-steps", "30", "--out", str(tmp_path),
+                  "--no-progress"])
+    rows = regimes.read_rows(tmp_path / "compute.csv")
+    assert len(rows) == 2 * len(BASELINES) * 2  # two rates, every baseline, two episodes
+    assert {r["lambda"] for r in rows} == {0.03, 0.06} and {r["episode"] for r in rows} == {0, 1}
+    card = (tmp_path / "README.md").read_text()
+    assert "## compute: `aot3_compute`" in card and card.count("| 0.06 | greedy |") == 1
+    (tmp_path / "README.md").unlink()
+    regimes.main(["--families", "compute", "--out", str(tmp_path), "--cards-only"])
+    assert (tmp_path / "README.md").read_text() == card  # the cards are a function of the CSV alone
+
+
+def test_cards_only_without_the_csv_is_one_line(tmp_path, capsys):
+    with pytest.raises(SystemExit) as e:
+        regimes.main(["--families", "wired", "--out", str(tmp_path), "--cards-only"])
+    assert e.value.code == 2
+    assert capsys.readouterr().err.strip().endswith("wired.csv: not found; run without --cards-only first")
+
+
+def test_every_family_is_a_bundled_scenario_with_two_rates():
+    for family in regimes.FAMILIES:
+        env = make_env(family.scenario, None, 5)
+        assert len(env.scenario.nodes) == 28 and len(family.lambdas) == 2
+        env.close()
+
+
+@pytest.mark.parametrize("scenario,lam", [("aot3_compute", 0.03), ("aot3_wired", 0.1)])
+def test_in_the_variants_offloading_pays(scenario, lam):
+    """The variants' reason to exist: a heuristic that offloads completes far more than keeping tasks local."""
+    env = make_env(scenario, lam, 300)
+    local, greedy = (evaluate(env, BASELINES[b](0), 1)[0]["completion_ratio"] for b in ("local", "greedy"))
+    env.close()
+    assert greedy > local + 0.2, (local, greedy)
