@@ -10,6 +10,8 @@ import argparse
 import math
 from collections.abc import Callable
 
+from node_runtime.runtime.layout import check_layout
+
 
 def integer(minimum: int) -> Callable[[str], int]:
     """An integer >= ``minimum``."""
@@ -37,6 +39,14 @@ def number(minimum: float, *, strict: bool) -> Callable[[str], float]:
             raise argparse.ArgumentTypeError(f"expected a number {op} {minimum:g} (got {text!r})")
         return value
     return parse
+
+
+def layout_name(text: str) -> str:
+    """A process layout name (node_runtime.runtime.layout.check_layout)."""
+    try:
+        return check_layout(text)
+    except ValueError as e:
+        raise argparse.ArgumentTypeError(str(e)) from None
 
 
 COUNT = integer(1)

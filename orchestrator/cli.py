@@ -31,10 +31,10 @@ from rich.table import Table
 from node_runtime.model.policies import POLICIES
 from node_runtime.runtime import cli_options
 from node_runtime.runtime.keys import new_sim_id
-from node_runtime.runtime.layout import LAYOUTS, ProcessLayout
+from node_runtime.runtime.layout import LAYOUT_HELP, ProcessLayout
 from node_runtime.runtime.security import SecurityError, protocol
 from orchestrator import access, local_sims
-from orchestrator.arguments import COUNT, NON_NEGATIVE, POSITIVE, integer
+from orchestrator.arguments import COUNT, NON_NEGATIVE, POSITIVE, integer, layout_name
 from orchestrator.clock import ClockError, ProcessFailed
 from orchestrator.metrics import ConservationError, TickReport
 from orchestrator.placement import load_placement
@@ -307,8 +307,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--transport", choices=("zenoh", "inproc"), default="zenoh",
                    help="zenoh: one OS process per role over a Zenoh router (default); inproc: all roles in this "
                         "process over an in-memory bus (fast, same results)")
-    p.add_argument("--layout", choices=LAYOUTS, help="process layout: per-role (zenoh default), per-node, "
-                                                     "single (inproc default)")
+    p.add_argument("--layout", type=layout_name, metavar="LAYOUT",
+                   help=f"process layout: {LAYOUT_HELP}. Default: per-role over zenoh, single inproc")
     p.add_argument("--policy", choices=sorted(POLICIES),
                    help="node-side decision policy for every controller (default: the scenario's)")
     p.add_argument("--out", metavar="DIR", help="output directory (default: runs/<scenario>-<time>)")

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import argparse
+
 import pytest
 
 from node_runtime.runtime import remote
@@ -51,3 +53,22 @@ def test_several_episodes_each_get_their_folder(tmp_path):
     assert main(["launch", "aot1", "--transport", "inproc", "--steps", "3", "--episodes", "2", "-q",
                  "--out", str(tmp_path)]) == 0
     assert all((tmp_path / f"episode-{i}" / "summary.json").exists() for i in (0, 1))
+
+
+@pytest.mark.parametrize("text", ["groups:0", "groups", "groups:x", "per-process", "groups:-2"])
+def test_a_bad_layout_is_one_line(text):
+    from orchestrator.arguments import layout_name
+
+    with pytest.raises(argparse.ArgumentTypeError, match="expected per-role, per-node, single or groups:K"):
+        layout_name(text)
+
+
+def test_groups_split_the_nodes_in_contiguous_blocks():
+    from node_runtime.runtime.layout import ProcessLayout
+    from orchestrator.scenario import load_scenario
+
+    plan = ProcessLayout(load_scenario("aot1"), "groups:5")  # 12 nodes
+    assert plan.procs == tuple(f"group-{i}" for i in range(5))
+    sizes = [len({r.partition(":")[2] for r in plan.roles_of[p]}) for p in plan.procs]
+    assert sizes == [3, 2, 3, 2, 2] and sum(sizes) == 12
+    assert len(ProcessLayout(load_scenario("aot1"), "groups:50").procs) == 12  # never more groups than nodes

@@ -27,7 +27,7 @@ def test_other_seed_other_run(tmp_path, aot2):
 
 def test_inproc_layouts_agree(tmp_path, aot1):
     ref = outputs(tmp_path, aot1, "single", ticks=400, seed=3, policy="least_queue")
-    for layout in ("per-role", "per-node"):
+    for layout in ("per-role", "per-node", "groups:5"):
         assert outputs(tmp_path, aot1, layout, ticks=400, seed=3, policy="least_queue", layout=layout) == ref
 
 
@@ -36,7 +36,7 @@ def test_inproc_layouts_agree(tmp_path, aot1):
 def test_zenoh_agrees_with_inproc(tmp_path, request, scenario_name):
     scenario = request.getfixturevalue(scenario_name)
     ref = outputs(tmp_path, scenario, "inproc", ticks=300, seed=11, policy="random")
-    for layout in ("per-role", "per-node"):
+    for layout in ("per-role", "per-node", "groups:3"):
         got = outputs(tmp_path, scenario, layout, ticks=300, seed=11, policy="random", transport="zenoh", layout=layout)
         assert got == ref, f"zenoh {layout} differs from inproc"
 

@@ -9,22 +9,29 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from functools import cached_property
-from typing import Literal
 
 from node_runtime.model.registry import RoleKind, kinds_of
 from node_runtime.model.role import role_id, role_kind, role_node
 from node_runtime.model.spec import Scenario
 
-Layout = Literal["per-role", "per-node", "single"]
-LAYOUTS: tuple[Layout, ...] = ("per-role", "per-node", "single")
+Layout = str  # per-role, per-node, single or groups:K (check_layout)
+LAYOUT_HELP = ("per-role: a process per role; per-node: a process per node; single: one process; groups:K: "
+               "K processes, each running a contiguous block of nodes (fewer processes than nodes, for large "
+               "scenarios)")
 
 
-def proc_for(layout: Layout, role: str) -> str:
-    if layout == "per-role":
-        return f"{role_kind(role)}-{role_node(role)}"
-    if layout == "per-node":
-        return f"node-{role_node(role)}"
-    return "all"
+def check_layout(name: str) -> Layout:
+    """``name`` if it names a layout; a ValueError saying what is expected otherwise."""
+    if name in ("per-role", "per-node", "single"):
+        return name
+    kind, sep, count = name.partition(":")
+    if kind == "groups" and sep and count.isdigit() and int(count) >= 1:
+        return f"groups:{int(count)}"
+    raise ValueError(f"unknown layout {name!r}: expected per-role, per-node, single or groups:K with K >= 1")
+
+
+def _groups(layout: Layout) -> int:
+    return int(layout.partition(":")[2])
 
 
 @dataclass(frozen=True)
@@ -34,6 +41,20 @@ class ProcessLayout:
 
     scenario: Scenario
     layout: Layout
+
+    def __post_init__(self) -> None:
+        check_layout(self.layout)
+
+    def proc_for(self, role: str) -> str:
+        node = role_node(role)
+        if self.layout == "per-role":
+            return f"{role_kind(role)}-{node}"
+        if self.layout == "per-node":
+            return f"node-{node}"
+        if self.layout == "single":
+            return "all"
+        k, n = _groups(self.layout), len(self.scenario.nodes)
+        return f"group-{self.scenario.index[node] * min(k, n) // n}"
 
     @cached_property
     def kinds(self) -> dict[str, RoleKind]:
@@ -61,8 +82,8 @@ class ProcessLayout:
     def proc_of(self) -> dict[str, str]:
         """With co-located control (control_latency 0) a controller always shares its worker's process."""
         colocated = self.scenario.colocated_control
-        return {r: proc_for(self.layout, role_id("worker", role_node(r))
-                            if colocated and role_kind(r) == "controller" else r) for r in self.roles}
+        return {r: self.proc_for(role_id("worker", role_node(r))
+                                 if colocated and role_kind(r) == "controller" else r) for r in self.roles}
 
     @cached_property
     def procs(self) -> tuple[str, ...]:

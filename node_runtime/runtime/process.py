@@ -45,7 +45,7 @@ class ProcSpec:
 
 
 PR_SET_PDEATHSIG, PR_SET_NAME = 1, 15
-GROUPS = {"node": "zn", "all": "za"}  # per-node and single layouts; per-role processes are named for their kind
+GROUPS = {"node": "zn", "all": "za", "group": "zg"}  # per-node, single, groups:K; per-role: named for the kind
 
 
 def short_name(proc: str, plan: ProcessLayout) -> str:
