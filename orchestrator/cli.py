@@ -142,12 +142,17 @@ INTERRUPTIONS = {KeyboardInterrupt: "interrupted (Ctrl-C)", Terminated: "termina
 
 def keep_partial(sim: Simulation, where: Path, exc: BaseException, t0: float, console: Console) -> None:
     """Write what an episode that did not finish measured: summary.json marked ``incomplete`` (why, and
-    the last tick recorded) and the CSV rows so far."""
+    the last tick recorded) and the CSV rows so far. With no tick recorded, summary.json alone says why."""
+    reason = INTERRUPTIONS.get(type(exc)) or f"{type(exc).__name__}: {exc}"
     if not sim.metrics.ticks:
+        where.mkdir(parents=True, exist_ok=True)
+        (where / "summary.json").write_text(json.dumps({
+            "scenario": sim.scenario.name, "ticks": 0, "incomplete": {"reason": reason, "last_tick": None}},
+            indent=2) + "\n")
+        console.print(f"no tick was recorded: {where}/summary.json says why", markup=False)
         return
     summary = sim.summary()
-    summary["incomplete"] = {"reason": INTERRUPTIONS.get(type(exc)) or f"{type(exc).__name__}: {exc}",
-                             "last_tick": sim.metrics.ticks[-1]}
+    summary["incomplete"] = {"reason": reason, "last_tick": sim.metrics.ticks[-1]}
     summary["run"]["total_wall_s"] = round(time.perf_counter() - t0, 3)
     sim.metrics.write(where, summary)
     console.print(f"partial results ({len(sim.metrics.ticks)} ticks): {where}/summary.json, ticks.csv, nodes.csv",

@@ -44,13 +44,17 @@ class ProcessFailed(ClockError):
 
 class Clock:
     def __init__(self, transport: Transport, keys: Keys, plan: ProcessLayout, timeout: float = 30.0,
-                 health: Callable[[], None] | None = None) -> None:
+                 health: Callable[[], None] | None = None, why_silent: Callable[[list[str]], str] | None = None
+                 ) -> None:
+        """``health`` raises when a process is known to have failed; ``why_silent(procs)`` adds what is known
+        of processes that sent no report in time (e.g. their OS state)."""
         self.transport = transport
         self.keys = keys
         self.plan = plan
         self.procs = plan.procs
         self.timeout = timeout
         self.health = health
+        self.why_silent = why_silent
         self.episode = -1
         self.latest = -1  # the highest episode run or seen on the bus (another driver may have run some)
         self.tick = -1
@@ -169,9 +173,9 @@ class Clock:
             nodes = sorted({nd for p in silent for nd in self.plan.node_of_proc(p)})
             last = self.rejections.last
             refused = [f"{p}: {last[k]}" for p in silent if (k := self.keys.done(p)) in last]
-            raise ClockError(f"tick {self.tick}: no report within {self.timeout:.0f} s from "
-                             f"{', '.join(silent[:8])}{' ...' if len(silent) > 8 else ''} "
-                             f"(nodes {', '.join(nodes[:8])})"
+            state = self.why_silent(silent) if self.why_silent else ""
+            raise ClockError(f"tick {self.tick}: {', '.join(silent[:8])}{' ...' if len(silent) > 8 else ''} "
+                             f"(nodes {', '.join(nodes[:8])}) hung: no report within {self.timeout:g} s{state}"
                              + (f"; refused from them: {'; '.join(refused[:3])}" if refused else "")) from None
         dones = [self.dones[self.procs[i]] for i in opened]
         expect: dict[int, int] = {}

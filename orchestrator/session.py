@@ -30,7 +30,7 @@ from node_runtime.runtime.host import Host
 from node_runtime.runtime.inproc import InprocBus
 from node_runtime.runtime.keys import DEFAULT_PREFIX, Keys, new_sim_id
 from node_runtime.runtime.layout import Layout, ProcessLayout
-from node_runtime.runtime.process import ORCHESTRATOR
+from node_runtime.runtime.process import ORCHESTRATOR, READY_TIMEOUT
 from node_runtime.runtime.protocol import Done
 from node_runtime.runtime.security import Security, protocol
 from node_runtime.runtime.transport import Transport
@@ -45,6 +45,7 @@ from orchestrator.version import code_version
 
 TransportName = Literal["zenoh", "inproc"]
 ROUTER_ATTEMPTS = 5
+LEASE_MARGIN_S = 5.0  # a node's Zenoh session outlives the clock's timeout by this much
 QUERY_TIMEOUT_S = 5.0  # upper bound of the liveliness query at start; it answers at once when no other has the id
 
 
@@ -120,15 +121,20 @@ class Simulation:
             try:
                 refuse_taken_id(router, self.keys)
                 self.supervisor = Supervisor(router, self.keys, self.plan)
-                self.clock = Clock(router, self.keys, self.plan, timeout, health=self.supervisor.check)
+                self.clock = Clock(router, self.keys, self.plan, timeout, health=self.supervisor.check,
+                                   why_silent=self.supervisor.hung)
                 self.live = router.monitored(self.keys.metrics())
                 self.server = Server(router, self.keys, self.plan, self.clock, self.supervisor.check, placement)
                 remote = {p for procs in (placement or {}).values() for p in procs}
                 local = tuple(p for p in self.plan.procs if p not in remote)
                 if remote and on_waiting is not None:
                     on_waiting(placement)
-                self.startup_s = self.supervisor.start(scenario, self.layout, local_endpoint(self.endpoint), local,
-                                                       timeout=join_timeout if remote else 60.0, security=security)
+                # readiness may take longer than a tick on a big scenario, never less than --timeout;
+                # the lease outlives the clock's timeout, so a paused process is reported hung, not died
+                self.startup_s = self.supervisor.start(
+                    scenario, self.layout, local_endpoint(self.endpoint), local,
+                    timeout=join_timeout if remote else max(READY_TIMEOUT, timeout), security=security,
+                    lease_s=timeout + LEASE_MARGIN_S)
             except BaseException:
                 self.close()
                 raise

@@ -15,6 +15,8 @@ import signal
 import sys
 import time
 
+import psutil
+
 from node_runtime.model.spec import Scenario
 from node_runtime.runtime import process as node_process
 from node_runtime.runtime.forkserver import ForkServer
@@ -36,6 +38,16 @@ def how(status: int) -> str:
         return f"killed by {signal.Signals(-status).name}"
     except ValueError:
         return f"killed by signal {-status}"
+
+
+def paused(pid: int) -> str:
+    """How a live process is not running ("stopped by a signal", ...), or "" if it runs or is gone."""
+    try:
+        status = psutil.Process(pid).status()
+    except psutil.Error:
+        return ""
+    return {psutil.STATUS_STOPPED: "stopped by a signal (SIGSTOP?)", psutil.STATUS_TRACING_STOP: "stopped by a tracer",
+            psutil.STATUS_DISK_SLEEP: "blocked in the kernel"}.get(status, "")
 
 
 class Supervisor:
@@ -68,9 +80,17 @@ class Supervisor:
         elif proc in self.ready and not self.stopping:
             self.ready.discard(proc)
             pid = self.children.get(proc)
-            if pid is not None and self.forks is not None and not self.forks.wait([pid], EXIT_NOTICE_S):
-                self._exited(proc, pid)  # a local child: its exit notice says why
+            if pid is not None and self.forks is not None:
+                if not self.forks.wait([pid], EXIT_NOTICE_S):
+                    self._exited(proc, pid)  # a local child: its exit notice says why
+                if state := paused(pid):
+                    raise ProcessFailed(proc, self.nodes(proc), f"hung: {state}; its Zenoh session lapsed")
             raise ProcessFailed(proc, self.nodes(proc), "died: its liveliness token vanished")
+
+    def hung(self, procs: list[str]) -> str:
+        """Why these processes sent no report: what their OS state says, for the local ones."""
+        states = [f"{p} {state}" for p in procs if (pid := self.children.get(p)) is not None and (state := paused(pid))]
+        return f" ({'; '.join(states)})" if states else ""
 
     def check(self) -> None:
         """Raise if a local child has exited while it should be running."""
@@ -88,16 +108,17 @@ class Supervisor:
         raise ProcessFailed(proc, self.nodes(proc), f"exited unexpectedly ({how(status)}){first}", why)
 
     def start(self, scenario: Scenario, layout: Layout, endpoint: str, procs: tuple[str, ...] | None = None,
-              timeout: float = 60.0, security: Security | None = None) -> float:
+              timeout: float = 60.0, security: Security | None = None, lease_s: float | None = None) -> float:
         """Start the local processes and wait for every process of the layout to be ready.
 
         ``procs``: the ones to start here (default all); others are expected to join from other hosts.
+        ``lease_s``: how long the router keeps the session of a process that went silent.
         Returns the seconds it took.
         """
         t0 = time.perf_counter()
         self.forks = ForkServer.shared()
         for proc in procs if procs is not None else self.plan.procs:
-            spec = ProcSpec(proc, scenario, layout, endpoint, self.keys, tuple(sys.path), security)
+            spec = ProcSpec(proc, scenario, layout, endpoint, self.keys, tuple(sys.path), security, lease_s=lease_s)
             self.children[proc] = self.forks.start(proc, node_process.main, spec)
         self.wait_ready(timeout)
         return time.perf_counter() - t0
@@ -122,6 +143,10 @@ class Supervisor:
         if self.forks is None:
             return []
         pids = list(self.children.values())
+        for pid in pids:  # a stopped process cannot act on the stop: no grace for it
+            if paused(pid):
+                with contextlib.suppress(ProcessLookupError):
+                    os.kill(pid, signal.SIGKILL)
         left = self.forks.wait(pids, grace)
         forced = [p for p, pid in self.children.items() if pid in left]
         for sig, wait in ((signal.SIGTERM, 2.0), (signal.SIGKILL, 5.0)):

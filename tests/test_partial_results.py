@@ -80,3 +80,18 @@ def test_an_interrupted_run_keeps_its_ticks(tmp_path, signum, reason):
     summary, ticks = read(tmp_path / "out")
     assert summary["incomplete"]["reason"] == reason
     assert summary["ticks"] == len(ticks) == summary["incomplete"]["last_tick"] + 1 >= 30  # tick 30 was running
+
+
+def test_a_run_that_fails_before_its_first_tick_still_says_why(tmp_path):
+    from rich.console import Console
+
+    from orchestrator.cli import keep_partial
+    from orchestrator.clock import ClockError
+    from orchestrator.scenario import load_scenario
+    from orchestrator.session import Simulation
+
+    with Simulation(load_scenario("aot1"), transport="inproc") as sim:
+        keep_partial(sim, tmp_path / "run", ClockError("tick 0: worker-rpi3_1 hung"), 0.0, Console(quiet=True))
+    summary = json.loads((tmp_path / "run" / "summary.json").read_text())
+    assert summary == {"scenario": "aot1", "ticks": 0,
+                       "incomplete": {"reason": "ClockError: tick 0: worker-rpi3_1 hung", "last_tick": None}}

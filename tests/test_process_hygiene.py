@@ -85,3 +85,28 @@ def test_an_env_over_zenoh_holds_no_shared_memory_after_close():
             env.step(dict.fromkeys(env.agents, 0))
         env.close()
         assert _shm_descriptors() == []
+
+
+def test_a_paused_node_is_reported_hung_within_the_timeout(tmp_path):
+    """SIGSTOP: the process is alive but silent. The run ends after --timeout, says "hung" with the node's
+    name, keeps what was measured, and kills the stopped process at once. The timeout is past where
+    Zenoh's default lease (10 s) used to drop the session, ending the run early as "died"."""
+    run = Launch("aot1", "--steps", "100000", "--timeout", "16", "--out", str(tmp_path))
+    run.wait_for("processes ready")
+    children = run.descendants()
+    victim = run.node("zw-rpi3_1")
+    paused_at = time.monotonic()
+    victim.suspend()
+    try:
+        code = run.finish(40)
+    finally:
+        if victim.is_running():
+            victim.resume()
+    elapsed = time.monotonic() - paused_at
+    assert code == 1
+    message = [ln for ln in run.err if ln.startswith("error:")]
+    assert message and "hung" in message[0] and "worker-rpi3_1" in message[0], run.err[-5:]
+    assert 16 <= elapsed < 16 + 6, f"took {elapsed:.1f} s"
+    assert_all_gone(children)
+    summary = (tmp_path / "summary.json").read_text()
+    assert '"incomplete"' in summary and "hung" in summary

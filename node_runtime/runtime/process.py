@@ -42,6 +42,7 @@ class ProcSpec:
     paths: tuple[str, ...] = ()  # the orchestrator's sys.path, where user extensions may live
     security: Security | None = None  # TLS and login for the session (deploy/README.md)
     settings: dict[str, Any] | None = None  # a user's Zenoh configuration (zenohedge-node --zenoh-config)
+    lease_s: float | None = None  # how long the router keeps a silent session (default: Zenoh's 10 s)
 
 
 PR_SET_PDEATHSIG, PR_SET_NAME = 1, 15
@@ -70,7 +71,10 @@ def run(spec: ProcSpec) -> int:
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C reaches the whole group: the orchestrator handles it
     use_lean_runtime()
     extend_path(spec.paths)
-    transport = ZenohTransport.client(spec.endpoint, spec.security, spec.settings)
+    settings = dict(spec.settings or {})
+    if spec.lease_s is not None:  # a paused process must stay "hung", not "died", until the clock's timeout
+        settings.setdefault("transport/link/tx/lease", round(spec.lease_s * 1000))
+    transport = ZenohTransport.client(spec.endpoint, spec.security, settings or None)
     try:
         plan = ProcessLayout(spec.scenario, spec.layout)
         _prctl(PR_SET_NAME, short_name(spec.proc, plan).encode())
