@@ -298,8 +298,11 @@ class ZenohEdgeEnv(ParallelEnv):
 
     def _open(self) -> Simulation:
         if self.connect is not None:
-            return Simulation.attach(self.connect, self.sim_id, timeout=self.timeout, security=self.security)
-        return Simulation(self.scenario, transport=self.transport, layout=self.layout, timeout=self.timeout)
+            sim = Simulation.attach(self.connect, self.sim_id, timeout=self.timeout, security=self.security)
+        else:
+            sim = Simulation(self.scenario, transport=self.transport, layout=self.layout, timeout=self.timeout)
+        sim.metrics.history = False  # infos need the running totals only: memory stays flat over long episodes
+        return sim
 
     def _observe(self) -> None:
         by_role = self.sim.observations()

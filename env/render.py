@@ -49,10 +49,10 @@ class Renderer:
         """node -> (queue, occupancy, buffer, overloaded) as reported in the last tick."""
         from orchestrator.metrics import F
 
-        history = self.env.sim.metrics.nodes
-        if not history:
+        metrics = self.env.sim.metrics
+        if not metrics.n_ticks:
             return {}
-        last = history[-1]
+        last = metrics.last_nodes
         out = {}
         for i, n in enumerate(self.sc.nodes):
             q, u = int(last[i, F["queue"]]), int(last[i, F["undecided"]])

@@ -117,6 +117,7 @@ def cmd_launch(args: argparse.Namespace) -> int:
                           f"ZenohEdgeEnv(connect=\"{sim.endpoint}\", sim_id=\"{sim.keys.sim_id}\")", markup=False)
         for episode in range(args.episodes):
             where = out if args.episodes == 1 else out / f"episode-{episode}"
+            sim.metrics.stream(where)  # ticks.csv and nodes.csv grow as the episode runs
             try:
                 summary = run_episode(sim, ticks, None if seed is None else seed + episode, args, console)
             except (KeyboardInterrupt, Terminated, ClockError, ConservationError) as exc:
@@ -144,7 +145,7 @@ def keep_partial(sim: Simulation, where: Path, exc: BaseException, t0: float, co
     """Write what an episode that did not finish measured: summary.json marked ``incomplete`` (why, and
     the last tick recorded) and the CSV rows so far. With no tick recorded, summary.json alone says why."""
     reason = INTERRUPTIONS.get(type(exc)) or f"{type(exc).__name__}: {exc}"
-    if not sim.metrics.ticks:
+    if not sim.metrics.n_ticks:
         where.mkdir(parents=True, exist_ok=True)
         (where / "summary.json").write_text(json.dumps({
             "scenario": sim.scenario.name, "ticks": 0, "incomplete": {"reason": reason, "last_tick": None}},
@@ -152,10 +153,10 @@ def keep_partial(sim: Simulation, where: Path, exc: BaseException, t0: float, co
         console.print(f"no tick was recorded: {where}/summary.json says why", markup=False)
         return
     summary = sim.summary()
-    summary["incomplete"] = {"reason": reason, "last_tick": sim.metrics.ticks[-1]}
+    summary["incomplete"] = {"reason": reason, "last_tick": sim.metrics.last_tick}
     summary["run"]["total_wall_s"] = round(time.perf_counter() - t0, 3)
     sim.metrics.write(where, summary)
-    console.print(f"partial results ({len(sim.metrics.ticks)} ticks): {where}/summary.json, ticks.csv, nodes.csv",
+    console.print(f"partial results ({sim.metrics.n_ticks} ticks): {where}/summary.json, ticks.csv, nodes.csv",
                   markup=False)
 
 

@@ -19,7 +19,7 @@ from __future__ import annotations
 import csv
 import json
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from functools import cache
 from pathlib import Path
 from typing import Any
@@ -30,7 +30,7 @@ from node_runtime.model.role import STAT_FIELDS, role_node
 from node_runtime.model.spec import Scenario
 from node_runtime.runtime.layout import ProcessLayout
 from node_runtime.runtime.protocol import Done
-from orchestrator.catalogue import CHANGES, METRIC, Agg, Form, Metric, Out, shown
+from orchestrator.catalogue import CATALOGUE, CHANGES, METRIC, Agg, Form, Metric, Out, shown
 
 # in_flight: tasks and results a role sent that have not arrived yet; response_time_sum and penalised_s:
 # seconds, for the penalised response time
@@ -41,6 +41,7 @@ GENERATED, COMPLETED = F["generated"], F["completed"]
 N_STATS = len(STAT_FIELDS)
 # generated = completed + dropped + in_system, counter by counter
 CONSERVED = tuple(f for name in ("completed", "dropped", "in_system") for f in METRIC[name].fields)
+EPISODE_MEANS = tuple(m for m in CATALOGUE if m.episode_mean)  # summarised by their mean over the ticks
 
 
 class ConservationError(RuntimeError):
@@ -173,8 +174,37 @@ def bus_record(report: TickReport, metrics: Metrics, sim_id: str, episode: int) 
     return record
 
 
+STREAM_BLOCK = 256  # ticks gathered before their rows are written: vectorised, and memory stays bounded
+
+
+@dataclass
+class _Rows:
+    """Consecutive ticks not yet written as rows, and the values just before the first (to take changes)."""
+
+    before_totals: np.ndarray
+    before_nodes: np.ndarray
+    ticks: list[int] = field(default_factory=list)
+    totals: list[np.ndarray] = field(default_factory=list)
+    nodes: list[np.ndarray] = field(default_factory=list)
+    means: list[float | str] = field(default_factory=list)  # mean response time of the tick's completions, or ""
+
+    def add(self, tick: int, totals: np.ndarray, nodes: np.ndarray, rts: list[float]) -> None:
+        self.ticks.append(tick)
+        self.totals.append(totals)
+        self.nodes.append(nodes)
+        self.means.append(float(np.mean(rts)) if rts else "")
+
+
 class Metrics:
-    def __init__(self, plan: ProcessLayout) -> None:
+    """Sums the processes' counters every tick and keeps what the episode's results need.
+
+    The summary is built from running aggregates, so it costs the same memory after ten ticks or a
+    million. ticks.csv and nodes.csv are either streamed to files as the ticks come (``stream``: the
+    CLI's case, so a long run's memory stays flat and an interrupted one keeps its rows) or, with
+    ``history``, rebuilt at the end from the per-tick arrays kept in memory (tests, short runs).
+    """
+
+    def __init__(self, plan: ProcessLayout, history: bool = True) -> None:
         sc = plan.scenario
         self.scenario = sc
         self.roles = plan.roles
@@ -185,18 +215,59 @@ class Metrics:
         self.incidence = incidence
         self.capacity = np.array([n.capacity * sc.dt if n.has("worker") else 0.0 for n in sc.nodes])
         self.penalty = penalty_s(sc)
+        self.history = history
+        self._streaming_to: Path | None = None
+        self._sink: list[Any] = []  # open files of the stream, with their csv writers
         self.reset()
 
     def reset(self) -> None:
-        self.ticks: list[int] = []
-        self.totals: list[np.ndarray] = []
-        self.nodes: list[np.ndarray] = []
+        self.close_stream()
+        self.n_ticks = 0
+        self.last_tick: int | None = None
+        self.last_totals = np.zeros(len(FIELDS))
+        self.last_nodes = np.zeros((len(self.node_ids), len(FIELDS)))
+        self._mean_sums: dict[str, Any] = {}  # episode_mean metric -> sum over the ticks (network, per node)
+        self._rows = _Rows(np.zeros(len(FIELDS)), np.zeros((len(self.node_ids), len(FIELDS))))
         self.response_times: list[float] = []
         self.rt_by_node: dict[str, list[float]] = {}
-        self._prev_totals = np.zeros(len(FIELDS))
-        self._prev_nodes = np.zeros((len(self.node_ids), len(FIELDS)))
         self._matrix = np.zeros((len(self.roles), len(FIELDS)))
         self._landing: dict[int, list[tuple[int, int]]] = {}  # arrival tick -> [(role, tasks and results)]
+        if self._streaming_to is not None:
+            self._open_stream(self._streaming_to)
+
+    # ----- streaming the per-tick tables -----
+
+    def stream(self, out_dir: Path | None) -> None:
+        """From the next reset on, write ticks.csv and nodes.csv into ``out_dir`` as the ticks come
+        (None: stop streaming). The stream replaces the in-memory history, which is then no longer kept."""
+        self._streaming_to = out_dir
+        if out_dir is not None:
+            self.history = False
+
+    def _open_stream(self, out_dir: Path) -> None:
+        out_dir.mkdir(parents=True, exist_ok=True)
+        for name, header in (("ticks.csv", self.tick_header()), ("nodes.csv", self.node_header())):
+            fh = (out_dir / name).open("w", newline="")
+            w = csv.writer(fh)
+            w.writerow(header)
+            self._sink += [fh, w]
+
+    def close_stream(self) -> None:
+        """Write the rows not written yet and close the files."""
+        if self._sink:
+            self._flush()
+        for fh in self._sink[::2]:
+            fh.close()
+        self._sink = []
+
+    def _flush(self) -> None:
+        rows = self._rows
+        if rows.ticks:
+            self._sink[1].writerows(self._tick_rows(rows))
+            self._sink[3].writerows(self._node_rows(rows))
+            self._rows = _Rows(rows.totals[-1], rows.nodes[-1])
+
+    # ----- every tick -----
 
     def add(self, tick: int, dones: list[Done]) -> TickReport:
         m = self._matrix
@@ -220,11 +291,16 @@ class Metrics:
         totals = m.sum(axis=0)
         nodes = self.incidence @ m
         self.check(tick, totals)
-        report = TickReport(tick, totals, totals - self._prev_totals, nodes, nodes - self._prev_nodes, rts)
-        self._prev_totals, self._prev_nodes = totals, nodes
-        self.ticks.append(tick)
-        self.totals.append(totals)
-        self.nodes.append(nodes)
+        report = TickReport(tick, totals, totals - self.last_totals, nodes, nodes - self.last_nodes, rts)
+        if self.history or self._sink:
+            self._rows.add(tick, totals, nodes, rts)
+            if self._sink and len(self._rows.ticks) >= STREAM_BLOCK:
+                self._flush()
+        for metric in EPISODE_MEANS:
+            network, per_node = self._mean_sums.get(metric.name, (0.0, 0.0))
+            self._mean_sums[metric.name] = (network + total(metric, totals), per_node + total(metric, nodes))
+        self.last_totals, self.last_nodes, self.last_tick = totals, nodes, tick
+        self.n_ticks += 1
         self.response_times.extend(rts)
         return report
 
@@ -240,7 +316,7 @@ class Metrics:
     # ----- episode results -----
 
     def summary(self) -> dict[str, Any]:
-        if not self.totals:
+        if not self.n_ticks:
             raise RuntimeError("no tick recorded")
         sc = self.scenario
         out: dict[str, Any] = {
@@ -248,30 +324,30 @@ class Metrics:
             "scenario_hash": sc.digest(),
             "source": sc.source,
             "seed": None,  # filled in by the session, which knows the episode's seed
-            "ticks": len(self.totals),
+            "ticks": self.n_ticks,
             "dt": sc.dt,
         }
-        levels = np.array(self.totals)
+        means = {k: network / self.n_ticks for k, (network, _) in self._mean_sums.items()}
         for m in shown(Out.SUMMARY):
             section, _, key = m.key(Out.SUMMARY).rpartition(".")
             where = out.setdefault(section, {}) if section else out
-            self._episode(where, key, m, Out.SUMMARY, levels, self.capacity.sum(), self.response_times)
-        nodes = np.array(self.nodes)
+            self._episode(where, key, m, Out.SUMMARY, self.last_totals, self.n_ticks, means.get(m.name),
+                          self.capacity.sum(), self.response_times)
         out["nodes"] = {}
         for i, nid in enumerate(self.node_ids):
             where = out["nodes"][nid] = {}
+            node_means = {k: per_node[i] / self.n_ticks for k, (_, per_node) in self._mean_sums.items()}
             for m in shown(Out.SUMMARY_NODES):
-                self._episode(where, m.key(Out.SUMMARY_NODES), m, Out.SUMMARY_NODES, nodes[:, i], self.capacity[i],
-                              self.rt_by_node.get(nid, []))
+                self._episode(where, m.key(Out.SUMMARY_NODES), m, Out.SUMMARY_NODES, self.last_nodes[i],
+                              self.n_ticks, node_means.get(m.name), self.capacity[i], self.rt_by_node.get(nid, []))
         return out
 
     @staticmethod
-    def _episode(into: dict[str, Any], key: str, m: Metric, out: Out, levels: np.ndarray, capacity: float,
-                 times: list[float]) -> None:
-        """``m`` over the episode, from its ticks' ``levels`` (ticks x FIELDS): a count's total, a level at
-        the end (or its mean over the ticks), the share of the episode's capacity; for samples the count,
-        mean, p50, p95 and max, or the mean alone in a node's row."""
-        end = levels[-1]
+    def _episode(into: dict[str, Any], key: str, m: Metric, out: Out, end: np.ndarray, ticks: int,
+                 mean: float | None, capacity: float, times: list[float]) -> None:
+        """``m`` over the episode, from the row of FIELDS at its ``end`` and, for an episode_mean metric,
+        its ``mean`` over the ``ticks``: a count's total, a level at the end (or its mean), the share of the
+        episode's capacity; for samples the count, mean, p50, p95 and max, or the mean alone in a node's row."""
         if m.agg is Agg.SAMPLES:
             rt = np.array(times)
             if out is Out.SUMMARY_NODES:
@@ -284,46 +360,56 @@ class Metrics:
         elif m.agg is Agg.RATIO:
             into[key] = ratio(m, end)
         elif m.agg is Agg.SHARE:
-            capacity = capacity * len(levels)
+            capacity = capacity * ticks
             into[key] = float(end[counters(m)[0]] / capacity) if capacity else 0.0
         elif m.episode_mean:
-            into[key] = float(np.array([total(m, t) for t in levels]).mean())
+            into[key] = float(mean)
         else:
             put(into, key, m, m.form(out), end)
 
-    def tick_table(self) -> tuple[list[str], list[list[Any]]]:
-        levels = np.array(self.totals)
-        change = levels - np.vstack([np.zeros(len(FIELDS)), levels[:-1]])
-        means = [float(np.mean(times)) if times else "" for times in self._rt_per_tick()]
-        table = output_values(Out.TICKS, levels, change, self.capacity.sum(), samples=lambda m: means)
-        dt = self.scenario.dt
-        return (["tick", "time_s", *table],
-                [[tick, tick * dt, *row] for tick, *row in zip(self.ticks, *table.values(), strict=True)])
+    def tick_header(self) -> list[str]:
+        one = self.last_totals[None, :]
+        return ["tick", "time_s", *output_values(Out.TICKS, one, one, self.capacity.sum(), samples=lambda m: [])]
 
-    def _rt_per_tick(self) -> list[list[float]]:
-        """Response times grouped by tick (completions are counted in the same order they were added)."""
-        out, pos, prev = [], 0, 0
-        for t in self.totals:
-            n = int(t[F["completed"]]) - prev
-            prev = int(t[F["completed"]])
-            out.append(self.response_times[pos:pos + n])
-            pos += n
-        return out
+    def node_header(self) -> list[str]:
+        one = self.last_nodes[None]
+        return ["tick", "node", *output_values(Out.NODES, one, one, self.capacity)]
+
+    def tick_table(self) -> tuple[list[str], list[list[Any]]]:
+        """ticks.csv from the history (``history=True``)."""
+        return self.tick_header(), self._tick_rows(self._rows)
 
     def node_table(self) -> tuple[list[str], list[list[Any]]]:
-        levels = np.array(self.nodes)
-        change = levels - np.concatenate([np.zeros((1, *levels.shape[1:])), levels[:-1]])
-        table = output_values(Out.NODES, levels, change, self.capacity)
-        columns = list(table.values())
-        rows = []
-        for k, tick in enumerate(self.ticks):
+        """nodes.csv from the history (``history=True``)."""
+        return self.node_header(), self._node_rows(self._rows)
+
+    def _tick_rows(self, rows: _Rows) -> list[list[Any]]:
+        levels = np.array(rows.totals)
+        change = levels - np.vstack([rows.before_totals, levels[:-1]])
+        table = output_values(Out.TICKS, levels, change, self.capacity.sum(), samples=lambda m: rows.means)
+        dt = self.scenario.dt
+        return [[tick, tick * dt, *row] for tick, *row in zip(rows.ticks, *table.values(), strict=True)]
+
+    def _node_rows(self, rows: _Rows) -> list[list[Any]]:
+        levels = np.array(rows.nodes)
+        change = levels - np.concatenate([rows.before_nodes[None], levels[:-1]])
+        columns = list(output_values(Out.NODES, levels, change, self.capacity).values())
+        out = []
+        for k, tick in enumerate(rows.ticks):
             at = [column[k] for column in columns]
-            rows.extend([tick, nid, *(column[i] for column in at)] for i, nid in enumerate(self.node_ids))
-        return ["tick", "node", *table], rows
+            out.extend([tick, nid, *(column[i] for column in at)] for i, nid in enumerate(self.node_ids))
+        return out
 
     def write(self, out_dir: Path, summary: dict[str, Any]) -> None:
+        """summary.json, and the tables: the stream's files are closed (they are complete), or, when the
+        episode was not streamed into ``out_dir``, the tables are written from the history."""
         out_dir.mkdir(parents=True, exist_ok=True)
         (out_dir / "summary.json").write_text(json.dumps(summary, indent=2) + "\n")
+        if self._sink and self._streaming_to is not None and self._streaming_to.resolve() == out_dir.resolve():
+            self.close_stream()
+            return
+        if not self.history:
+            raise RuntimeError("no per-tick history was kept: stream the tables into the output directory")
         for name, (header, rows) in (("ticks.csv", self.tick_table()), ("nodes.csv", self.node_table())):
             with (out_dir / name).open("w", newline="") as fh:
                 w = csv.writer(fh)

@@ -19,7 +19,7 @@ def stats(**values: float) -> tuple:
 
 @pytest.fixture
 def metrics() -> Metrics:
-    plan = ProcessLayout(load_scenario("examples/minimal"), "all")  # roles: worker:edge 0, client:edge 1, ...
+    plan = ProcessLayout(load_scenario("examples/minimal"), "single")  # roles: worker:edge 0, client:edge 1, ...
     return Metrics(plan)
 
 
