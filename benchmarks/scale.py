@@ -1,0 +1,128 @@
+"""How the emulator scales with the node count: start-up, ticks/s and memory for N = 100, 300, 1000.
+
+    python benchmarks/scale.py                              # N = 100 300 1000, groups:8 over Zenoh
+    python benchmarks/scale.py --nodes 100 300 --groups 4 --ticks 100 --json scale.json
+
+Each N is a random-geometric network (mean degree about 12, every node a tier-0 sensing node with
+lambda = 0.1, the node-side least_queue policy) generated with the scenario generator. In-process:
+the time to build and reset the simulation, then ticks/s. Over Zenoh with the ``groups:K`` layout (K
+node processes, each a block of nodes, around one router): start-up until every process is ready,
+ticks/s next to a bare Zenoh barrier with the same K processes (timed in alternating chunks, the
+ratio is the median of the per-chunk ratios), and the summed resident memory of this process and all
+its children at the end.
+"""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+import json
+import math
+import statistics
+import time
+from pathlib import Path
+from typing import Any
+
+import psutil
+from rich.console import Console
+from rich.table import Table
+
+from orchestrator.scenario import ScenarioError, load_scenario
+from orchestrator.session import Simulation
+from orchestrator.viewers.bench import BareBarrier
+
+RADIUS = 40.0  # metres
+DEGREE = 12  # mean degree aimed at: the square's side is chosen for it
+HEADERS = {"inproc_setup_s": "set-up s", "inproc_ticks_per_s": "ticks/s", "processes": "procs",
+           "zenoh_startup_s": "start s", "zenoh_ticks_per_s": "ticks/s", "barrier_ticks_per_s": "barrier",
+           "rss_mb": "RSS MB"}
+
+
+def scenario(n: int) -> Any:
+    """A connected random-geometric scenario of ``n`` nodes (the first placement seed that connects it)."""
+    size = round(math.sqrt(n * math.pi * RADIUS**2 / DEGREE))
+    for seed in range(100):
+        data = {"name": f"rg{n}", "simulation": {"steps": 10**6, "seed": 7, "policy": "least_queue"},
+                "workload": {"arrival": {"kind": "constant", "rate": 0.1}},
+                "topology": {"generator": {"kind": "random_geometric", "n": n, "radius": RADIUS, "size": size,
+                                           "seed": seed, "profile": "tier0"}}}
+        try:
+            return load_scenario(data, name_hint=f"rg{n}")
+        except ScenarioError:  # disconnected: try the next placement
+            continue
+    raise RuntimeError(f"no connected placement of {n} nodes in 100 seeds")
+
+
+def rss_mb() -> float:
+    me = psutil.Process()
+    total = me.memory_info().rss
+    for child in me.children(recursive=True):
+        with contextlib.suppress(psutil.NoSuchProcess):  # gone while we looked
+            total += child.memory_info().rss
+    return total / 2**20
+
+
+def inproc(sc: Any, ticks: int) -> dict[str, float]:
+    t0 = time.perf_counter()
+    with Simulation(sc, transport="inproc") as sim:
+        sim.reset()
+        build = time.perf_counter() - t0
+        t0 = time.perf_counter()
+        for _ in range(ticks):
+            sim.step()
+        rate = ticks / (time.perf_counter() - t0)
+    return {"inproc_setup_s": round(build, 2), "inproc_ticks_per_s": round(rate, 1)}
+
+
+def zenoh(sc: Any, groups: int, ticks: int, rounds: int) -> dict[str, float]:
+    t0 = time.perf_counter()
+    with Simulation(sc, transport="zenoh", layout=f"groups:{groups}") as sim:
+        sim.reset()
+        startup = time.perf_counter() - t0
+        barrier = BareBarrier(len(sim.plan.procs))
+        try:
+            own, base = [], []
+            chunk = max(1, ticks // rounds)
+            for _ in range(rounds):
+                t1 = time.perf_counter()
+                for _ in range(chunk):
+                    sim.step()
+                own.append(chunk / (time.perf_counter() - t1))
+                base.append(barrier.rate(chunk))
+            memory = rss_mb()
+        finally:
+            barrier.close()
+    return {"processes": len(sim.plan.procs), "zenoh_startup_s": round(startup, 2),
+            "zenoh_ticks_per_s": round(statistics.median(own), 1),
+            "barrier_ticks_per_s": round(statistics.median(base), 1),
+            "ratio": round(statistics.median([a / b for a, b in zip(own, base, strict=True)]), 3),
+            "rss_mb": round(memory)}
+
+
+def main() -> None:
+    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    p.add_argument("--nodes", type=int, nargs="+", default=[100, 300, 1000], help="node counts (default 100 300 1000)")
+    p.add_argument("--groups", type=int, default=8, help="node processes over Zenoh (layout groups:K; default 8)")
+    p.add_argument("--ticks", type=int, default=200, help="ticks timed per measurement (default 200)")
+    p.add_argument("--rounds", type=int, default=4, help="alternating chunks against the barrier (default 4)")
+    p.add_argument("--json", type=Path, help="also write the rows here")
+    args = p.parse_args()
+    console = Console()
+    rows = []
+    for n in args.nodes:
+        console.print(f"N = {n} ...")
+        sc = scenario(n)
+        rows.append({"nodes": n, "links": len(sc.links), **inproc(sc, args.ticks),
+                     **zenoh(sc, min(args.groups, n), args.ticks, args.rounds)})
+    table = Table(title=f"random-geometric networks; in-process, then Zenoh with layout groups:{args.groups}")
+    for key in rows[0]:
+        table.add_column(HEADERS.get(key, key), justify="right")
+    for r in rows:
+        table.add_row(*(f"{v:,}" if isinstance(v, int) else f"{v:,.2f}" for v in r.values()))
+    console.print(table)
+    if args.json:
+        args.json.write_text(json.dumps(rows, indent=1) + "\n")
+
+
+if __name__ == "__main__":
+    main()
