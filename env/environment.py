@@ -29,7 +29,7 @@ from pettingzoo import ParallelEnv
 from env.actions import ActionRules
 from env.observations import DictObservation, FlatObservation, ObservationBuilder, ObservationLayout
 from env.overrides import ScenarioOverrides
-from env.reward import PaperWeights, RewardContext, RewardFn, RewardTerms, nominal_arrivals, paper_terms, resolve_reward
+from env.reward import PaperWeights, RewardContext, RewardFn, RewardTerms, nominal_arrivals, resolve_reward, terms_for
 from node_runtime.model.plugins import load
 from node_runtime.model.role import role_id
 from node_runtime.model.spec import Scenario
@@ -117,6 +117,7 @@ class ZenohEdgeEnv(ParallelEnv):
         self.transport = transport
         self.layout = layout
         self.reward_fn = resolve_reward(reward or sc.extra.get("reward") or "paper")
+        self.terms_fn = terms_for(self.reward_fn)  # what infos["reward_terms"] shows
         self.weights = reward_weights or PaperWeights()
         self.arrivals = nominal_arrivals(sc)
         self.max_steps = max_steps or sc.episode_ticks // sc.decision_interval
@@ -212,9 +213,9 @@ class ZenohEdgeEnv(ParallelEnv):
             raw = self._raw[agent]
             controller_actions[self._role[agent]] = action
             if isinstance(action, int):
-                terms[agent] = (paper_terms(raw, raw.tasks[0], action, dt, self.weights),)
+                terms[agent] = (self.terms_fn(raw, raw.tasks[0], action, dt, self.weights, self.arrivals),)
             else:
-                terms[agent] = tuple(paper_terms(raw, t, a, dt, self.weights)
+                terms[agent] = tuple(self.terms_fn(raw, t, a, dt, self.weights, self.arrivals)
                                      for t, a in zip(raw.tasks, action, strict=True))
         for agent in resolved.invalid:
             self._invalid[agent] += 1

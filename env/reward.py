@@ -166,6 +166,17 @@ def sparse_reward(ctx: RewardContext) -> float:
 REWARDS: dict[str, RewardFn] = {"paper": paper_reward, "reference": reference_reward, "sparse": sparse_reward}
 
 
+TermsFn = Callable[[Observation, TaskView, int, float, PaperWeights, Mapping[str, float]], RewardTerms]
+
+
+def terms_for(reward: RewardFn) -> TermsFn:
+    """The terms ``infos[agent]["reward_terms"]`` shows: the reference implementation's under its reward,
+    the paper's under any other (the paper's own, sparse, a user's)."""
+    if reward is reference_reward:
+        return lambda obs, task, action, dt, w, arrivals: reference_terms(obs, task, action, dt, arrivals, w)
+    return lambda obs, task, action, dt, w, arrivals: paper_terms(obs, task, action, dt, w)
+
+
 def resolve_reward(reward: str | RewardFn) -> RewardFn:
     """A built-in reward by name, a callable, or a callable's import path ("module:function")."""
     if callable(reward):

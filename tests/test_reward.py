@@ -123,3 +123,27 @@ def test_the_env_selects_the_reference_reward_by_name():
         assert all(r <= 2.0 for r in placed)  # U - (D + O) with D, O >= 0 when kept local
     finally:
         env.close()
+
+
+@pytest.mark.parametrize("reward", ["paper", "reference"])
+def test_the_infos_terms_are_those_of_the_reward_in_use(reward):
+    """Under either built-in reward, each agent's reward is the sum of the terms its infos list."""
+    import numpy as np
+
+    from env import ZenohEdgeEnv
+
+    env = ZenohEdgeEnv("aot1", transport="inproc", reward=reward, max_steps=40, seed=4)
+    rng = np.random.default_rng(0)
+    try:
+        observations, _ = env.reset(seed=4)
+        checked = 0
+        while env.agents:  # random valid actions, so that offloads are placed too
+            actions = {a: int(rng.choice(np.flatnonzero(observations[a]["action_mask"]))) for a in env.agents}
+            observations, rewards, _, _, infos = env.step(actions)
+            for agent, r in rewards.items():
+                if terms := infos[agent]["reward_terms"]:
+                    assert r == pytest.approx(sum(t["reward"] for t in terms))
+                    checked += 1
+        assert checked > 0
+    finally:
+        env.close()
