@@ -3,6 +3,9 @@
 from __future__ import annotations
 
 import json
+import os
+import shutil
+import subprocess
 from pathlib import Path
 from typing import Any
 
@@ -72,3 +75,20 @@ def same(a: Any, b: Any) -> bool:
     if isinstance(a, np.ndarray):
         return a.dtype == b.dtype and np.array_equal(a, b)
     return a == b
+
+
+NETNS = ROOT / "deploy" / "netns.sh"
+
+
+@pytest.fixture
+def hosts():
+    """Two network namespaces standing for two hosts (deploy/netns.sh): zedge-host1 and zedge-host2."""
+    if os.geteuid() != 0 or shutil.which("ip") is None:
+        pytest.skip("network namespaces need root and iproute2")
+    subprocess.run([NETNS, "down"], check=True, capture_output=True)
+    made = subprocess.run([NETNS, "up", "2"], capture_output=True, text=True)
+    if made.returncode != 0:
+        subprocess.run([NETNS, "down"], capture_output=True)
+        pytest.skip(f"cannot create network namespaces here: {made.stderr.strip()}")
+    yield ["zedge-host1", "zedge-host2"]
+    subprocess.run([NETNS, "down"], check=True, capture_output=True)

@@ -8,7 +8,6 @@ from __future__ import annotations
 
 import json
 import os
-import shutil
 import subprocess
 import sys
 
@@ -20,20 +19,6 @@ from tests.conftest import ROOT, model_part, run_summary
 from tests.launcher import Launch, assert_all_gone
 
 pytestmark = pytest.mark.zenoh
-NETNS = ROOT / "deploy" / "netns.sh"
-
-
-@pytest.fixture
-def hosts():
-    if os.geteuid() != 0 or shutil.which("ip") is None:
-        pytest.skip("network namespaces need root and iproute2")
-    subprocess.run([NETNS, "down"], check=True, capture_output=True)
-    made = subprocess.run([NETNS, "up", "2"], capture_output=True, text=True)
-    if made.returncode != 0:
-        subprocess.run([NETNS, "down"], capture_output=True)
-        pytest.skip(f"cannot create network namespaces here: {made.stderr.strip()}")
-    yield ["zedge-host1", "zedge-host2"]
-    subprocess.run([NETNS, "down"], check=True, capture_output=True)
 
 
 def net_namespace(pid: int) -> str:
