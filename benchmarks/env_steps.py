@@ -25,7 +25,7 @@ from env import ZenohEdgeEnv
 from orchestrator.viewers.bench import BareBarrier
 from orchestrator.viewers.progress import progress_steps
 
-CONFIGS = ("inproc:single", "zenoh:per-role", "zenoh:per-node")
+CONFIGS = ("inproc:single", "zenoh:per-role", "zenoh:per-node", "zenoh:groups:2")
 
 
 def measure(scenario: str, transport: str, layout: str, steps: int, rounds: int) -> dict:
@@ -78,7 +78,7 @@ def main() -> None:
     with progress_steps(len(args.scenarios) * len(args.configs), "env_steps") as step:
         for scenario in args.scenarios:
             for config in args.configs:
-                transport, layout = config.split(":")
+                transport, layout = config.split(":", 1)
                 step(f"{scenario} {config}")
                 rows.append(measure(scenario, transport, layout, args.steps, args.rounds))
     table = Table(title=f"env.step() steps/s, medians of {args.rounds} alternating chunks of "

@@ -24,7 +24,7 @@ from node_runtime.runtime.zenoh_bus import close_session, use_lean_runtime, zeno
 from orchestrator.scenario import load_scenario
 from orchestrator.session import Simulation, open_router
 
-CONFIGS = (("inproc", "single"), ("zenoh", "per-role"), ("zenoh", "per-node"))
+CONFIGS = (("inproc", "single"), ("zenoh", "per-role"), ("zenoh", "per-node"), ("zenoh", "groups:2"))
 
 
 @dataclass
