@@ -57,8 +57,8 @@ class ZenohEdgeEnv(ParallelEnv):
         seed: seed of the first episode (later resets without a seed draw from a stream it seeds).
         transport: "zenoh" (node processes over a Zenoh router) or "inproc" (same code, one process).
         layout: "per-role" (default for zenoh), "per-node", "single" (default for inproc) or "groups:K".
-        reward: "paper" (Eq. 1–5, see docs/reward.md), "reference", "sparse", a callable ``f(RewardContext)`` or its
-            import path (default: the scenario's ``reward`` key, else "paper").
+        reward: "paper" (Eq. 1–5, see docs/reward.md), "reference", "sparse", "team", a callable
+            ``f(RewardContext)`` or its import path (default: the scenario's ``reward`` key, else "paper").
         observation: an ``ObservationBuilder`` subclass or its import path (default: the scenario's
             ``observation`` key, else the documented Dict observation), or "flat": one float32 vector and
             the action mask per agent, padded to the largest degree, with numbers-only infos (for MARL
@@ -230,6 +230,7 @@ class ZenohEdgeEnv(ParallelEnv):
         node_delta = reports[0].node_delta if len(reports) == 1 else sum(r.node_delta for r in reports)
         capacity = self.sim.metrics.capacity * len(reports)  # the step's cycles, for a share
         deltas = _by_node(output_values(Out.ENV_DELTA, reports[-1].nodes, node_delta, capacity))
+        network_delta = output_values(Out.ENV_DELTA, reports[-1].totals, sum(r.delta for r in reports), capacity.sum())
         nodes = _by_node(output_values(Out.ENV, reports[-1].nodes, node_delta, capacity))
         tick = self.sim.tick
         rewards, infos = {}, {}
@@ -238,7 +239,7 @@ class ZenohEdgeEnv(ParallelEnv):
             delta = deltas[row]
             agent_terms = terms.get(agent, ())
             ctx = RewardContext(agent, self.node_of[agent], before[agent], resolved.actions[agent], self._raw[agent],
-                                agent_terms, delta, dt, self.weights, self.arrivals)
+                                agent_terms, delta, dt, self.weights, self.arrivals, network_delta)
             rewards[agent] = float(self.reward_fn(ctx))
             infos[agent] = {"tick": tick, "node": nodes[row],
                             "reward_terms": [t.as_dict() for t in agent_terms],

@@ -27,7 +27,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable, Mapping
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any
 
 from node_runtime.model.plugins import is_import_path, load
@@ -139,6 +139,7 @@ class RewardContext:
     dt: float
     weights: PaperWeights  # the env's r_u and chi weights
     arrivals: Mapping[str, float]  # each node's nominal task arrival rate, tasks/s (``nominal_arrivals``)
+    network_delta: dict[str, float] = field(default_factory=dict)  # the same changes as node_delta, network-wide
 
 
 RewardFn = Callable[[RewardContext], float]
@@ -163,7 +164,16 @@ def sparse_reward(ctx: RewardContext) -> float:
     return ctx.node_delta["completed"] - ctx.node_delta["dropped"]
 
 
-REWARDS: dict[str, RewardFn] = {"paper": paper_reward, "reference": reference_reward, "sparse": sparse_reward}
+def team_reward(ctx: RewardContext) -> float:
+    """Tasks completed minus tasks dropped in the whole network during the step: the same for every agent.
+
+    A cooperative reward: keeping a task local, which frees a shared server for the others' tasks, pays
+    every agent, where a per-agent reward credits it to nobody (docs/reward.md)."""
+    return ctx.network_delta["completed"] - ctx.network_delta["dropped"]
+
+
+REWARDS: dict[str, RewardFn] = {"paper": paper_reward, "reference": reference_reward, "sparse": sparse_reward,
+                                "team": team_reward}
 
 
 TermsFn = Callable[[Observation, TaskView, int, float, PaperWeights, Mapping[str, float]], RewardTerms]

@@ -147,3 +147,23 @@ def test_the_infos_terms_are_those_of_the_reward_in_use(reward):
         assert checked > 0
     finally:
         env.close()
+
+
+def test_the_team_reward_is_the_networks_completions_minus_drops_for_every_agent():
+    """Checked against the episode's own counters: the team rewards of all steps add up to the episode's
+    completed - dropped, and every agent gets the same reward in a step."""
+    from env import ZenohEdgeEnv
+
+    env = ZenohEdgeEnv("aot1", transport="inproc", reward="team", max_steps=150, seed=2)
+    try:
+        env.reset(seed=2)
+        total = 0.0
+        while env.agents:
+            _, rewards, _, _, infos = env.step({a: 1 for a in env.agents})  # offload where possible
+            assert len(set(rewards.values())) == 1
+            total += next(iter(rewards.values()))
+        totals = next(iter(infos.values()))["episode"]["totals"]
+        assert totals["completed"] > 0 and totals["dropped"]["total"] > 0
+        assert total == totals["completed"] - totals["dropped"]["total"]
+    finally:
+        env.close()
