@@ -107,7 +107,7 @@ def test_a_paused_node_is_reported_hung_within_the_timeout(tmp_path):
     assert code == 1
     message = [ln for ln in run.err if ln.startswith("error:")]
     assert message and "hung" in message[0] and "worker-rpi3_1" in message[0], run.err[-5:]
-    assert 16 <= elapsed < 16 + 6, f"took {elapsed:.1f} s"
+    assert 16 <= elapsed < 16 + 14, f"took {elapsed:.1f} s"  # not before the timeout; shutdown may be slow under load
     assert_all_gone(children)
     summary = (tmp_path / "summary.json").read_text()
     assert '"incomplete"' in summary and "hung" in summary
