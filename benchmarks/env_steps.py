@@ -13,7 +13,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import statistics
 import time
 from pathlib import Path
 
@@ -22,7 +21,7 @@ from rich.console import Console
 from rich.table import Table
 
 from env import ZenohEdgeEnv
-from orchestrator.viewers.bench import BareBarrier
+from orchestrator.viewers.bench import BareBarrier, alternate
 from orchestrator.viewers.progress import progress_steps
 
 CONFIGS = ("inproc:single", "zenoh:per-role", "zenoh:per-node", "zenoh:groups:2")
@@ -48,22 +47,14 @@ def measure(scenario: str, transport: str, layout: str, steps: int, rounds: int)
         run(50)  # warm-up
         processes = len(env.sim.plan.procs) if transport == "zenoh" else 1
         barrier = BareBarrier(processes) if transport == "zenoh" else None
-        chunk = max(1, steps // rounds)
-        own, base = [], []
-        for _ in range(rounds):
-            own.append(run(chunk))
-            if barrier is not None:
-                base.append(barrier.rate(chunk))
+        rate, base, ratio = alternate(run, barrier, steps, rounds)
     finally:
         if barrier is not None:
             barrier.close()
         env.close()
-    row = {"scenario": scenario, "transport": transport, "layout": layout, "processes": processes,
-           "steps_per_s": round(statistics.median(own), 1), "barrier_ticks_per_s": None, "ratio": None}
-    if base:
-        row["barrier_ticks_per_s"] = round(statistics.median(base), 1)
-        row["ratio"] = round(statistics.median([a / b for a, b in zip(own, base, strict=True)]), 3)
-    return row
+    return {"scenario": scenario, "transport": transport, "layout": layout, "processes": processes,
+            "steps_per_s": round(rate, 1), "barrier_ticks_per_s": None if base is None else round(base, 1),
+            "ratio": None if ratio is None else round(ratio, 3)}
 
 
 def main() -> None:

@@ -18,7 +18,6 @@ import argparse
 import contextlib
 import json
 import math
-import statistics
 import time
 from pathlib import Path
 from typing import Any
@@ -29,7 +28,7 @@ from rich.table import Table
 
 from orchestrator.scenario import ScenarioError, load_scenario
 from orchestrator.session import Simulation
-from orchestrator.viewers.bench import BareBarrier
+from orchestrator.viewers.bench import BareBarrier, alternate, ticks_per_s
 
 RADIUS = 40.0  # metres
 DEGREE = 12  # mean degree aimed at: the square's side is chosen for it
@@ -67,10 +66,7 @@ def inproc(sc: Any, ticks: int) -> dict[str, float]:
     with Simulation(sc, transport="inproc") as sim:
         sim.reset()
         build = time.perf_counter() - t0
-        t0 = time.perf_counter()
-        for _ in range(ticks):
-            sim.step()
-        rate = ticks / (time.perf_counter() - t0)
+        rate = ticks_per_s(sim)(ticks)
     return {"inproc_setup_s": round(build, 2), "inproc_ticks_per_s": round(rate, 1)}
 
 
@@ -81,21 +77,12 @@ def zenoh(sc: Any, groups: int, ticks: int, rounds: int) -> dict[str, float]:
         startup = time.perf_counter() - t0
         barrier = BareBarrier(len(sim.plan.procs))
         try:
-            own, base = [], []
-            chunk = max(1, ticks // rounds)
-            for _ in range(rounds):
-                t1 = time.perf_counter()
-                for _ in range(chunk):
-                    sim.step()
-                own.append(chunk / (time.perf_counter() - t1))
-                base.append(barrier.rate(chunk))
+            rate, base, ratio = alternate(ticks_per_s(sim), barrier, ticks, rounds)
             memory = rss_mb()
         finally:
             barrier.close()
     return {"processes": len(sim.plan.procs), "zenoh_startup_s": round(startup, 2),
-            "zenoh_ticks_per_s": round(statistics.median(own), 1),
-            "barrier_ticks_per_s": round(statistics.median(base), 1),
-            "ratio": round(statistics.median([a / b for a, b in zip(own, base, strict=True)]), 3),
+            "zenoh_ticks_per_s": round(rate, 1), "barrier_ticks_per_s": round(base, 1), "ratio": round(ratio, 3),
             "rss_mb": round(memory)}
 
 

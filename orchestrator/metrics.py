@@ -22,7 +22,7 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from functools import cache
 from pathlib import Path
-from typing import Any
+from typing import IO, Any
 
 import numpy as np
 
@@ -216,8 +216,9 @@ class Metrics:
         self.capacity = np.array([n.capacity * sc.dt if n.has("worker") else 0.0 for n in sc.nodes])
         self.penalty = penalty_s(sc)
         self.history = history
-        self._streaming_to: Path | None = None
-        self._sink: list[Any] = []  # open files of the stream, with their csv writers
+        self._stream_to: Path | None = None  # where each episode's tables are streamed (``stream``)
+        self._files: list[IO[str]] = []  # ticks.csv, nodes.csv while they are open
+        self._writers: list[Any] = []  # their csv writers
         self.reset()
 
     def reset(self) -> None:
@@ -232,40 +233,41 @@ class Metrics:
         self.rt_by_node: dict[str, list[float]] = {}
         self._matrix = np.zeros((len(self.roles), len(FIELDS)))
         self._landing: dict[int, list[tuple[int, int]]] = {}  # arrival tick -> [(role, tasks and results)]
-        if self._streaming_to is not None:
-            self._open_stream(self._streaming_to)
+        if self._stream_to is not None:
+            self._open_tables(self._stream_to)
 
-    # ----- streaming the per-tick tables -----
+    # ----- the per-tick tables -----
 
-    def stream(self, out_dir: Path | None) -> None:
-        """From the next reset on, write ticks.csv and nodes.csv into ``out_dir`` as the ticks come
-        (None: stop streaming). The stream replaces the in-memory history, which is then no longer kept."""
-        self._streaming_to = out_dir
-        if out_dir is not None:
-            self.history = False
+    def stream(self, out_dir: Path) -> None:
+        """From the next reset on, write ticks.csv and nodes.csv into ``out_dir`` as the ticks come. The
+        stream replaces the in-memory history, which is then no longer kept."""
+        self._stream_to = out_dir
+        self.history = False
 
-    def _open_stream(self, out_dir: Path) -> None:
+    def _open_tables(self, out_dir: Path) -> None:
         out_dir.mkdir(parents=True, exist_ok=True)
         for name, header in (("ticks.csv", self.tick_header()), ("nodes.csv", self.node_header())):
             fh = (out_dir / name).open("w", newline="")
-            w = csv.writer(fh)
-            w.writerow(header)
-            self._sink += [fh, w]
+            self._files.append(fh)
+            self._writers.append(csv.writer(fh))
+            self._writers[-1].writerow(header)
 
     def close_stream(self) -> None:
         """Write the rows not written yet and close the files."""
-        if self._sink:
+        if self._files:
             self._flush()
-        for fh in self._sink[::2]:
+        for fh in self._files:
             fh.close()
-        self._sink = []
+        self._files, self._writers = [], []
 
     def _flush(self) -> None:
         rows = self._rows
         if rows.ticks:
-            self._sink[1].writerows(self._tick_rows(rows))
-            self._sink[3].writerows(self._node_rows(rows))
-            self._rows = _Rows(rows.totals[-1], rows.nodes[-1])
+            ticks, nodes = self._writers
+            ticks.writerows(self._tick_rows(rows))
+            nodes.writerows(self._node_rows(rows))
+            if not self.history:  # streamed rows leave memory; a history keeps them for tick_table()
+                self._rows = _Rows(rows.totals[-1], rows.nodes[-1])
 
     # ----- every tick -----
 
@@ -292,9 +294,9 @@ class Metrics:
         nodes = self.incidence @ m
         self.check(tick, totals)
         report = TickReport(tick, totals, totals - self.last_totals, nodes, nodes - self.last_nodes, rts)
-        if self.history or self._sink:
+        if self.history or self._files:
             self._rows.add(tick, totals, nodes, rts)
-            if self._sink and len(self._rows.ticks) >= STREAM_BLOCK:
+            if self._files and len(self._rows.ticks) >= STREAM_BLOCK:
                 self._flush()
         for metric in EPISODE_MEANS:
             network, per_node = self._mean_sums.get(metric.name, (0.0, 0.0))
@@ -401,17 +403,12 @@ class Metrics:
         return out
 
     def write(self, out_dir: Path, summary: dict[str, Any]) -> None:
-        """summary.json, and the tables: the stream's files are closed (they are complete), or, when the
-        episode was not streamed into ``out_dir``, the tables are written from the history."""
+        """summary.json, and the tables: a streamed episode's are completed and closed (they are in the
+        stream's directory, which is ``out_dir``); otherwise they are written from the history."""
         out_dir.mkdir(parents=True, exist_ok=True)
         (out_dir / "summary.json").write_text(json.dumps(summary, indent=2) + "\n")
-        if self._sink and self._streaming_to is not None and self._streaming_to.resolve() == out_dir.resolve():
-            self.close_stream()
-            return
-        if not self.history:
-            raise RuntimeError("no per-tick history was kept: stream the tables into the output directory")
-        for name, (header, rows) in (("ticks.csv", self.tick_table()), ("nodes.csv", self.node_table())):
-            with (out_dir / name).open("w", newline="") as fh:
-                w = csv.writer(fh)
-                w.writerow(header)
-                w.writerows(rows)
+        if not self._files:
+            if not self.history:
+                raise RuntimeError("no per-tick history was kept: stream the tables into the output directory")
+            self._open_tables(out_dir)  # the history is one block of rows, written like the stream's
+        self.close_stream()

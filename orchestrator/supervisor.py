@@ -41,13 +41,14 @@ def how(status: int) -> str:
 
 
 def paused(pid: int) -> str:
-    """How a live process is not running ("stopped by a signal", ...), or "" if it runs or is gone."""
+    """How a live process is stopped ("stopped by a signal", ...), or "" if it runs or is gone. A stopped
+    process cannot act on anything, a stop included."""
     try:
         status = psutil.Process(pid).status()
     except psutil.Error:
         return ""
-    return {psutil.STATUS_STOPPED: "stopped by a signal (SIGSTOP?)", psutil.STATUS_TRACING_STOP: "stopped by a tracer",
-            psutil.STATUS_DISK_SLEEP: "blocked in the kernel"}.get(status, "")
+    return {psutil.STATUS_STOPPED: "stopped by a signal (SIGSTOP?)",
+            psutil.STATUS_TRACING_STOP: "stopped by a tracer"}.get(status, "")
 
 
 class Supervisor:

@@ -14,6 +14,7 @@ import os
 import queue
 import statistics
 import time
+from collections.abc import Callable
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
@@ -97,37 +98,50 @@ class BareBarrier:
         self.router.close()
 
 
-def measure(name: str, transport: str, layout: str, ticks: int, rounds: int) -> tuple[int, float, float | None,
-                                                                                         float | None]:
-    """(processes, emulator ticks/s, barrier ticks/s, ratio): medians over ``rounds`` alternating chunks.
+def alternate(rate: Callable[[int], float], barrier: BareBarrier | None, ticks: int, rounds: int
+              ) -> tuple[float, float | None, float | None]:
+    """(rate, barrier rate, ratio): medians over ``rounds`` chunks of ``ticks / rounds``, ``rate(n)`` (what is
+    measured, per second) and the barrier timed in turn.
 
     Both sets of processes stay up together (idle ones cost nothing) and the two are timed in turn, so a
     drift of the machine's speed hits both alike; the ratio is the median of the per-round ratios.
     """
-    scenario = load_scenario(name)
     chunk = max(1, ticks // rounds)
-    with Simulation(scenario, transport=transport, layout=layout) as sim:
-        sim.reset(policy="random")
-        for _ in range(min(50, ticks)):  # warm-up
+    own, base = [], []
+    for _ in range(rounds):
+        own.append(rate(chunk))
+        if barrier is not None:
+            base.append(barrier.rate(chunk))
+    if barrier is None:
+        return statistics.median(own), None, None
+    return statistics.median(own), statistics.median(base), statistics.median(
+        [a / b for a, b in zip(own, base, strict=True)])
+
+
+def ticks_per_s(sim: Simulation) -> Callable[[int], float]:
+    """``rate(n)``: step ``sim`` n ticks and return the ticks per second of wall time."""
+    def rate(n: int) -> float:
+        t0 = time.perf_counter()
+        for _ in range(n):
             sim.step()
+        return n / (time.perf_counter() - t0)
+    return rate
+
+
+def measure(name: str, transport: str, layout: str, ticks: int, rounds: int) -> tuple[int, float, float | None,
+                                                                                         float | None]:
+    """(processes, emulator ticks/s, barrier ticks/s, ratio), from ``alternate``."""
+    with Simulation(load_scenario(name), transport=transport, layout=layout) as sim:
+        sim.reset(policy="random")
+        ticks_per_s(sim)(min(50, ticks))  # warm-up
         procs = len(sim.plan.procs)
         barrier = BareBarrier(procs) if transport == "zenoh" else None
         try:
-            own, base = [], []
-            for _ in range(rounds):
-                t0 = time.perf_counter()
-                for _ in range(chunk):
-                    sim.step()
-                own.append(chunk / (time.perf_counter() - t0))
-                if barrier is not None:
-                    base.append(barrier.rate(chunk))
+            rate, base, ratio = alternate(ticks_per_s(sim), barrier, ticks, rounds)
         finally:
             if barrier is not None:
                 barrier.close()
-    if barrier is None:
-        return 1, statistics.median(own), None, None
-    return procs, statistics.median(own), statistics.median(base), statistics.median(
-        [a / b for a, b in zip(own, base, strict=True)])
+    return (procs if barrier else 1), rate, base, ratio
 
 
 def run(scenarios: list[str], ticks: int, configs=CONFIGS, rounds: int = 5, progress=None) -> list[Row]:
