@@ -1,8 +1,9 @@
 """Heuristic policies that read the same observations as the learning agents and respect the masks.
 
-They are the comparison points of the paper (local, random, least queue) plus two stronger ones
-(round robin, greedy). In batch mode the tasks of one step are placed one after another, and each
-placed task counts against its target, so that a batch does not pile onto one node.
+They are the comparison points of the paper (local, random, least queue) plus three stronger ones
+(round robin, greedy, greedy_backlog): the twins of the node-side policies of the same names. In batch
+mode the tasks of one step are placed one after another, and each placed task counts against its
+target, so that a batch does not pile onto one node.
 """
 
 from __future__ import annotations
@@ -125,4 +126,17 @@ class Greedy(Baseline):
         return transfer + (nb[NeighbourField.QUEUE] + extra + 1) * cycles / capacity
 
 
-BASELINES: dict[str, type[Baseline]] = {p.name: p for p in (Local, Random, RoundRobin, LeastQueue, Greedy)}
+class GreedyBacklog(Greedy):
+    """Greedy, with the seconds of transfer already queued on the link to a neighbour added to its
+    estimate: the per-link FIFO contention that plain greedy does not see."""
+
+    name = "greedy_backlog"
+
+    @staticmethod
+    def estimate(obs: Observation, task: np.ndarray, action: int, extra: float) -> float:
+        estimate = Greedy.estimate(obs, task, action, extra)
+        return estimate if action == 0 else estimate + obs["neighbours"][action - 1][NeighbourField.BACKLOG_S]
+
+
+BASELINES: dict[str, type[Baseline]] = {p.name: p for p in (Local, Random, RoundRobin, LeastQueue, Greedy,
+                                                            GreedyBacklog)}

@@ -81,9 +81,12 @@ def specs_of(env: Any) -> dict[str, AgentSpec]:
     return {a: AgentSpec.of(env.observation_space(a), env.action_space(a)) for a in env.possible_agents}
 
 
+OWN_DIM, TASK_DIM, NEIGHBOUR_DIM, ESTIMATE_DIM = 7, 7, 10, 4  # the blocks of ``flatten``'s output
+
+
 def flat_dim(slots: int) -> int:
     """Length of ``flatten``'s output for an agent with ``slots`` neighbour slots."""
-    return 7 + 7 + 10 * slots + 3 * (1 + slots)
+    return OWN_DIM + TASK_DIM + NEIGHBOUR_DIM * slots + ESTIMATE_DIM * (1 + slots)
 
 
 def flatten(own: np.ndarray, task: np.ndarray, neighbours: np.ndarray) -> np.ndarray:
@@ -92,10 +95,12 @@ def flatten(own: np.ndarray, task: np.ndarray, neighbours: np.ndarray) -> np.nda
     Blocks, in order (each documented in docs/agents.md):
       own (7): symlog of queue, occupancy, buffer, capacity [Mcycles/s], undecided; tier; fill = occupancy/buffer
       task (7): present, cpi, symlog of instructions [M], input [MB], output [MB], time left [s], ticks waited
-      neighbours (9 per slot): present, tier, symlog of queue, occupancy, buffer, capacity [Mcycles/s],
-        rate [Mbit/s], age [ticks]; fill
-      estimates (3 per target: local, then each slot): symlog of the task's wait, execution and transfer
-        times [s] at that target, the quantities ``greedy`` adds up; 0 without a task or a neighbour.
+      neighbours (10 per slot): present, tier, symlog of queue, occupancy, buffer, capacity [Mcycles/s],
+        rate [Mbit/s], age [ticks]; fill; symlog of the link's backlog [s]
+      estimates (4 per target: local, then each slot): symlog of the task's wait, execution and transfer
+        times [s] at that target (the quantities ``greedy`` adds up) and of its slack: time to deadline
+        minus all of them and the link's backlog (> 0: it should finish in time there); 0 without a task
+        or a neighbour.
     Magnitudes stay within about [-1, 10] on every bundled scenario, whatever its scale.
     """
     own = own.astype(np.float64)
@@ -134,8 +139,10 @@ def flatten(own: np.ndarray, task: np.ndarray, neighbours: np.ndarray) -> np.nda
         transfer = np.zeros_like(execution)
         transfer[:, 1:] = np.where(valid[:, 1:] > 0, bits[:, None] / rate, 0.0)
     wait = queue * execution
-    est = np.stack([symlog(wait), symlog(execution), symlog(transfer)], axis=2)
-    est = np.nan_to_num(est, nan=0.0, posinf=20.0)
+    backlog = np.concatenate([np.zeros_like(present)[:, None], nb[..., n.BACKLOG_S]], axis=1)
+    slack = np.where(valid > 0, task[:, None, t.TIME_LEFT_S] - (wait + execution + transfer + backlog), 0.0)
+    est = np.stack([symlog(wait), symlog(execution), symlog(transfer), symlog(slack)], axis=2)
+    est = np.nan_to_num(est, nan=0.0, posinf=20.0, neginf=-20.0)
     rows = len(own)
     return np.concatenate([own_f, task_f, nb_f.reshape(rows, -1), est.reshape(rows, -1)], axis=1).astype(np.float32)
 
@@ -192,6 +199,39 @@ def mlp(n_in: int, hidden: Sequence[int], n_out: int, out_gain: float = 1.0) -> 
         layers += [_init(nn.Linear(a, b), np.sqrt(2)), nn.ReLU()]
     layers.append(_init(nn.Linear(sizes[-1], n_out), out_gain))
     return nn.Sequential(*layers)
+
+
+class TargetScorer(nn.Module):
+    """An actor that scores each target (keep local, then each neighbour slot) with one shared MLP.
+
+    The score of target j is ``mlp([own, task, target_j])``, where target_j holds what ``flatten`` knows of
+    that target: the neighbour's block (the node's own numbers, in the same columns, for local), whether it
+    is local, and the task's estimates there. The same weights serve every slot, so each decision teaches
+    the network about every target it compared, a neighbour learnt in one slot is understood in any
+    other, and the policy does not depend on the order of the neighbours or their number: it transfers
+    to other degrees and topologies. Any columns after the estimates (the agent id) are not used.
+    """
+
+    def __init__(self, slots: int, hidden: Sequence[int], out_gain: float = 0.01) -> None:
+        super().__init__()
+        self.slots = slots
+        self.score = mlp(OWN_DIM + TASK_DIM + 1 + NEIGHBOUR_DIM + ESTIMATE_DIM, hidden, 1, out_gain)
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        lead, s = x.shape[:-1], self.slots
+        context = x[..., :OWN_DIM + TASK_DIM]
+        start = OWN_DIM + TASK_DIM
+        neighbours = x[..., start:start + NEIGHBOUR_DIM * s].reshape(*lead, s, NEIGHBOUR_DIM)
+        start += NEIGHBOUR_DIM * s
+        estimates = x[..., start:start + ESTIMATE_DIM * (1 + s)].reshape(*lead, 1 + s, ESTIMATE_DIM)
+        own = x[..., :OWN_DIM]  # symlog queue, occupancy, buffer, capacity, undecided; tier; fill
+        zero = torch.zeros_like(own[..., :1])
+        local = torch.cat([zero + 1, own[..., 5:6], own[..., 0:4], zero, zero, own[..., 6:7], zero], dim=-1)
+        targets = torch.cat([local.unsqueeze(-2), neighbours], dim=-2)  # (..., 1 + S, NEIGHBOUR_DIM)
+        is_local = torch.zeros(*lead, 1 + s, 1, dtype=x.dtype, device=x.device)
+        is_local[..., 0, :] = 1.0
+        rows = torch.cat([context.unsqueeze(-2).expand(*lead, 1 + s, -1), is_local, targets, estimates], dim=-1)
+        return self.score(rows).squeeze(-1)
 
 
 def _init(layer: nn.Linear, gain: float) -> nn.Linear:

@@ -105,12 +105,14 @@ class Learner(ABC):
 
     # ----- features -----
 
+    def spec(self, group: str) -> AgentSpec:
+        return self.specs[self.agents[0] if group == SHARED else group]
+
     def input_dim(self, group: str) -> int:
-        spec = self.specs[self.agents[0] if group == SHARED else group]
-        return flat_dim(spec.slots) + (len(self.agents) if group == SHARED else 0)
+        return flat_dim(self.spec(group).slots) + (len(self.agents) if group == SHARED else 0)
 
     def n_actions(self, group: str) -> int:
-        return self.specs[self.agents[0] if group == SHARED else group].n_actions
+        return self.spec(group).n_actions
 
     def groups(self) -> list[str]:
         return [SHARED] if self.config.shared else list(self.agents)

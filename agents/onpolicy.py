@@ -25,7 +25,16 @@ import numpy as np
 import torch
 from torch import nn
 
-from agents.common import AgentSpec, MaskedCategorical, Observation, flat_dim, flatten_one, mlp, one_hot
+from agents.common import (
+    AgentSpec,
+    MaskedCategorical,
+    Observation,
+    TargetScorer,
+    flat_dim,
+    flatten_one,
+    mlp,
+    one_hot,
+)
 from agents.learner import Closed, Learner, LearnerConfig
 
 
@@ -38,16 +47,23 @@ class ActorCriticConfig(LearnerConfig):
     max_grad_norm: float = 0.5
     anneal_lr: bool = False  # decay the learning rate linearly to 0 over the training horizon
     centralised_critic: bool = False  # the critic sees every agent's observation (MAPPO)
+    actor: str = "targets"  # "targets": one MLP scores each target (TargetScorer); "mlp": one logit per slot
     sample_eval: bool = True  # act() samples the learnt policy; False: its most likely action
 
 
-class ActorCritic(nn.Module):
-    """Separate actor and critic MLPs (CleanRL's layout); a small last actor layer keeps the first policy
-    close to uniform over the valid actions."""
+ACTORS = ("targets", "mlp")
 
-    def __init__(self, dim: int, critic_dim: int, hidden: tuple[int, ...], n_actions: int) -> None:
+
+class ActorCritic(nn.Module):
+    """Separate actor and critic networks (CleanRL's layout); a small last actor layer keeps the first
+    policy close to uniform over the valid actions."""
+
+    def __init__(self, dim: int, critic_dim: int, hidden: tuple[int, ...], spec: AgentSpec, actor: str) -> None:
         super().__init__()
-        self.actor = mlp(dim, hidden, n_actions, out_gain=0.01)
+        if actor not in ACTORS:
+            raise ValueError(f"actor must be one of {', '.join(ACTORS)}, not {actor!r}")
+        self.actor = (TargetScorer(spec.slots, hidden) if actor == "targets"
+                      else mlp(dim, hidden, spec.n_actions, out_gain=0.01))
         self.critic = mlp(critic_dim, hidden, 1, out_gain=1.0)
 
     def value(self, x: torch.Tensor) -> torch.Tensor:
@@ -80,8 +96,8 @@ class OnPolicyLearner(Learner):
     def __init__(self, specs: Mapping[str, AgentSpec], config: ActorCriticConfig | None = None,
                  device: str = "cpu") -> None:
         super().__init__(specs, config, device)
-        self.nets = {g: ActorCritic(self.input_dim(g), self.critic_dim(g), self.config.hidden,
-                                    self.n_actions(g)).to(self.device) for g in self.groups()}
+        self.nets = {g: ActorCritic(self.input_dim(g), self.critic_dim(g), self.config.hidden, self.spec(g),
+                                    self.config.actor).to(self.device) for g in self.groups()}
         self.optimizers = {g: torch.optim.Adam(n.parameters(), lr=self.config.lr, eps=1e-5)
                            for g, n in self.nets.items()}
         self.rollout: dict[str, list[Record]] = {g: [] for g in self.groups()}

@@ -1,4 +1,4 @@
-"""Regime cards: what the five baselines achieve in each scenario family, at two arrival rates.
+"""Regime cards: what the baselines achieve in each scenario family, at two arrival rates.
 
 A card says which regime a family is in before anyone trains on it: whether offloading pays (does any
 heuristic complete more than `local`?) and whether one heuristic dominates (is the same baseline best
@@ -89,7 +89,7 @@ def card(family: Family, rows: Sequence[dict[str, Any]]) -> str:
     episodes = len({r["episode"] for r in rows})
     steps = rows[0]["steps"]
     lines = [f"## {family.name}: `{family.scenario}`", "", family.about, "",
-             f"Five baselines, {episodes} evaluation episodes of {steps} steps each (mean ± 95% CI). "
+             f"{len(BASELINES)} baselines, {episodes} evaluation episodes of {steps} steps each (mean ± 95% CI). "
              "Score: mean time per generated task, a task not completed counts its deadline (lower is better).", ""]
     header = ["λ", "baseline", *(title for _, title, _, _ in METRICS)]
     lines += ["| " + " | ".join(header) + " |", "|" + " --- |" * len(header)]

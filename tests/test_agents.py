@@ -6,13 +6,19 @@ import numpy as np
 import pytest
 import torch
 import torch.nn.functional as F
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from agents import BASELINES, DDQN, PPO, A2CConfig, DDQNConfig, PPOConfig, evaluate, load_learner, make_policy, train
 from agents.a2c import A2C
-from agents.common import AgentSpec, MaskedCategorical, flat_dim, flatten_one, masked_argmax
+from agents.common import AgentSpec, MaskedCategorical, TargetScorer, flat_dim, flatten_one, masked_argmax
 from agents.ddqn import td_target
 from agents.onpolicy import Record
 from env import ScenarioOverrides, TaskField, ZenohEdgeEnv
+from env.observations import DictObservation, ObservationLayout
+from node_runtime.model.policies import make_policy as make_node_policy
+from node_runtime.model.view import NodeView, TaskView
+from node_runtime.model.view import Observation as View
 
 # A slow task source beside a fast idle worker over a fast link: offloading is clearly the better choice.
 SLOW_FAST = {
@@ -63,7 +69,7 @@ def test_baselines_pick_only_valid_actions(scenario):
         assert choices > 0, name
         if name == "local":
             assert offloads == 0
-        elif name != "greedy":  # greedy keeps the AoT tasks local: 80 s of transfer beat no queue
+        elif name not in ("greedy", "greedy_backlog"):  # they keep AoT tasks local: 80 s of transfer beat no queue
             assert offloads > 0, name
     env.close()
 
@@ -79,11 +85,34 @@ def test_least_queue_and_greedy_choose_as_documented():
     assert BASELINES["least_queue"]().act({"a": obs}) == {"a": 0}
     # greedy: local (2 + 1) * 0.08e9 / 4e6 = 60 s; n1: 2 s transfer + 3 * 0.8 s; n2 full; n3: 0.02 s + 6 * 0.8 s
     assert BASELINES["greedy"]().act({"a": obs}) == {"a": 1}
+    obs["neighbours"][0, 8] = 1.0  # 1 s of transfers queued on the link to n1: 5.4 s against n3's 4.82 s
+    assert BASELINES["greedy"]().act({"a": obs}) == {"a": 1}
+    assert BASELINES["greedy_backlog"]().act({"a": obs}) == {"a": 3}
     obs["neighbours"][0, 0] = 0
     obs["action_mask"] = np.array([1, 0, 1, 1], np.int8)
     assert BASELINES["greedy"]().act({"a": obs}) == {"a": 3}
     rr = BASELINES["round_robin"]()
     assert [rr.act({"a": obs})["a"] for _ in range(4)] == [0, 2, 3, 0]
+
+
+@settings(max_examples=200, deadline=None)
+@given(st.data())
+def test_deterministic_baselines_choose_as_their_node_side_twins(data):
+    # The agent-side baselines read the encoded arrays; the node-side policies of the same names read the
+    # controller's raw view. On the same view they must place the task alike (seconds-scale values, so
+    # float32 encoding cannot flip a choice).
+    def node(name: str, worker: bool = True) -> NodeView:
+        return NodeView(name, data.draw(st.integers(0, 8)), data.draw(st.integers(0, 12)), 12,
+                        data.draw(st.sampled_from([1e8, 4e8, 1e9, 4e9])), 1,
+                        data.draw(st.sampled_from([1e6, 1e7, 1e8])), 1, worker,
+                        data.draw(st.sampled_from([0.0, 0.5, 3.0, 20.0])))
+    degree = data.draw(st.integers(1, 4))
+    neighbours = [node(f"n{i}", data.draw(st.booleans())) for i in range(degree)]
+    task = TaskView(7, data.draw(st.sampled_from([1e8, 1e9])), 1e6, 1e5, 1.0, 60.0, 30.0, 0, "me")
+    view = View(5, "me", node("me"), 1, [task], neighbours)
+    encoded = DictObservation(ObservationLayout(degree, degree, None)).encode(view)
+    for name in ("local", "least_queue", "greedy", "greedy_backlog"):
+        assert BASELINES[name]().act({"a": encoded})["a"] == make_node_policy(name).decide(view)[0], name
 
 
 # ----- common pieces -----
@@ -111,6 +140,49 @@ def test_flatten_has_the_documented_size_and_finite_values():
             assert x.shape == (flat_dim(slots),) and np.isfinite(x).all() and np.abs(x).max() < 20
         obs, *_ = env.step(BASELINES["random"](0).act(obs))
     env.close()
+
+
+def test_estimates_and_slack_match_a_hand_computed_example():
+    # own: queue 2, capacity 0.004 Gcycles/s; task: 0.08 G instructions, 1 MB in, 1 MB out, 50 s left
+    obs = {"own": np.array([2, 3, 10, 0.004, 1, 0], np.float32),
+           "task": np.array([1, 0.08, 1.0, 1.0, 1, 50, 0], np.float32),
+           # present, queue, occupancy, buffer, capacity, tier, rate, age, backlog
+           "neighbours": np.array([[1, 1, 1, 10, 0.1, 1, 8.0, 1, 0.5], [0] * 9], np.float32),
+           "action_mask": np.array([1, 1, 0], np.int8)}
+    est = flatten_one(obs)[7 + 7 + 10 * 2:].reshape(3, 4)
+    # local: wait 2 * 20 s, execution 20 s, no transfer, slack 50 - 60 = -10 s
+    # neighbour: wait 1 * 0.8 s, execution 0.8 s, transfer 16 Mbit / 8 Mbit/s = 2 s, slack 50 - 3.6 - 0.5 s
+    expected = np.array([[40, 20, 0, -10], [0.8, 0.8, 2, 45.9], [0, 0, 0, 0]])
+    np.testing.assert_allclose(est, np.sign(expected) * np.log1p(np.abs(expected)), rtol=1e-5)
+
+
+def test_target_scorer_follows_its_targets_not_their_slots():
+    torch.manual_seed(0)
+    slots = 4
+    scorer = TargetScorer(slots, (16,), out_gain=1.0)
+    x = torch.randn(3, flat_dim(slots) + 5)  # 5 trailing columns (an agent id) that it ignores
+    logits = scorer(x)
+    assert logits.shape == (3, 1 + slots)
+    start = 14
+    nb = x[:, start:start + 10 * slots].reshape(3, slots, 10)
+    est = x[:, start + 10 * slots:start + 10 * slots + 4 * (1 + slots)].reshape(3, 1 + slots, 4)
+    order = torch.tensor([2, 0, 3, 1])  # permute the neighbour slots, with their estimates
+    y = x.clone()
+    y[:, start:start + 10 * slots] = nb[:, order].reshape(3, -1)
+    y[:, start + 10 * slots:start + 10 * slots + 4 * (1 + slots)] = est[:, torch.cat([torch.tensor([0]), order + 1])
+                                                                        ].reshape(3, -1)
+    y[:, flat_dim(slots):] = torch.randn(3, 5)
+    permuted = scorer(y)
+    torch.testing.assert_close(permuted[:, 0], logits[:, 0])
+    torch.testing.assert_close(permuted[:, 1:], logits[:, 1:][:, order])
+    # a scorer for another degree uses the same weights
+    wider = TargetScorer(slots + 2, (16,), out_gain=1.0)
+    wider.load_state_dict(scorer.state_dict())
+
+
+def test_unknown_actor_is_refused():
+    with pytest.raises(ValueError, match="actor must be one of"):
+        PPO({"a": AgentSpec(2, 3)}, PPOConfig(actor="cnn"))
 
 
 # ----- DDQN -----
