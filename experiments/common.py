@@ -16,6 +16,7 @@ import torch
 
 from agents import LEARNERS, LearnerConfig
 from env import ScenarioOverrides, ZenohEdgeEnv
+from env.reward import REWARDS
 from orchestrator.scenario.errors import ScenarioError
 
 
@@ -68,7 +69,7 @@ def add_env_arguments(parser: argparse.ArgumentParser, scenario: bool = True) ->
                             "(default: the scenario's; 0.17 in aot1..aot4)")
     g.add_argument("--max-steps", type=positive_int, default=None,
                    help="decision steps per episode (default: the scenario's, 1000; rq1/rq2 --quick: 300)")
-    g.add_argument("--reward", default="paper", choices=["paper", "reference", "sparse", "team"],
+    g.add_argument("--reward", default="paper", choices=list(REWARDS),
                    help="paper (default: Eq. 1-5 of the paper), reference (the reference implementation's), "
                         "sparse (completed - dropped at the agent's node) or team (the same, network-wide, "
                         "shared by all agents); docs/reward.md")

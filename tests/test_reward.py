@@ -107,6 +107,22 @@ def test_nominal_arrivals_split_a_clients_rate_over_its_targets():
     assert sum(arrivals.values()) == pytest.approx(sc.workload.arrival.rate * len(sc.clients))
 
 
+def test_a_scenario_may_name_every_built_in_reward():
+    from env import ZenohEdgeEnv
+    from env.reward import REWARDS
+    from orchestrator.scenario import load_scenario
+    from orchestrator.scenario.schema import REWARD_NAMES
+
+    assert tuple(REWARDS) == REWARD_NAMES  # the names the scenario format accepts are the env's
+    for name, fn in REWARDS.items():
+        scenario = load_scenario({"reward": name, "topology": {
+            "nodes": [{"id": "a", "client": True, "controller": True}, {"id": "b"}],
+            "links": [{"between": ["a", "b"], "rate_bps": 1.0e8}]}}, name_hint="two")
+        env = ZenohEdgeEnv(scenario, transport="inproc")
+        assert env.reward_fn is fn, name
+        env.close()
+
+
 def test_the_env_selects_the_reference_reward_by_name():
     from env import ZenohEdgeEnv
 

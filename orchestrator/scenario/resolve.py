@@ -27,6 +27,7 @@ from orchestrator.scenario.errors import ScenarioError, describe, key_path
 from orchestrator.scenario.schema import (
     BUILTIN_PROFILES,
     NODE_DEFAULTS,
+    REWARD_NAMES,
     DeadlineCfg,
     ScenarioFile,
     TaskCfg,
@@ -178,8 +179,12 @@ class _Resolver:
             checks[("simulation.policy", cfg.simulation.policy)] = (Policy, False)
         if cfg.workload.source:
             checks[("workload.source", cfg.workload.source)] = (TaskSource, False)
-        if cfg.reward and cfg.reward not in ("paper", "reference", "sparse"):
-            checks[("reward", cfg.reward)] = (None, True)
+        if cfg.reward and cfg.reward not in REWARD_NAMES:
+            if is_import_path(cfg.reward):
+                checks[("reward", cfg.reward)] = (None, True)
+            else:
+                self.error("reward", f"expected one of {', '.join(REWARD_NAMES)} or an import path "
+                                     f"'module:function' (got {cfg.reward!r})")
         if checks or cfg.observation:
             importable_from(self.base)
         for (key, path), (base, callable_ok) in checks.items():

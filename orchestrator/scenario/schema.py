@@ -244,11 +244,14 @@ class FailureCfg(Strict):
     duration: Count
 
 
+REWARD_NAMES = ("paper", "reference", "sparse", "team")  # the environment's built-in rewards (env.reward.REWARDS)
+
+
 class ScenarioFile(Strict):
     name: str | None = None
     description: str = ""
     roles: RolesCfg = RolesCfg()
-    reward: str | None = None  # for the environment: "paper", "reference", "sparse", or an import path of a callable
+    reward: str | None = None  # for the environment: one of REWARD_NAMES, or an import path of a callable
     observation: str | None = None  # for the environment: import path of an observation builder class
     simulation: SimulationCfg = SimulationCfg()
     network: NetworkCfg = NetworkCfg()
