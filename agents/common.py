@@ -81,7 +81,10 @@ def specs_of(env: Any) -> dict[str, AgentSpec]:
     return {a: AgentSpec.of(env.observation_space(a), env.action_space(a)) for a in env.possible_agents}
 
 
-OWN_DIM, TASK_DIM, NEIGHBOUR_DIM, ESTIMATE_DIM = 7, 7, 10, 4  # the blocks of ``flatten``'s output
+# The columns of ``flatten``'s own and neighbour blocks, in order, and the sizes of its four blocks
+OWN_COLUMNS = ("queue", "occupancy", "buffer", "capacity", "undecided", "tier", "fill")
+NEIGHBOUR_COLUMNS = ("present", "tier", "queue", "occupancy", "buffer", "capacity", "rate", "age", "fill", "backlog")
+OWN_DIM, TASK_DIM, NEIGHBOUR_DIM, ESTIMATE_DIM = len(OWN_COLUMNS), 7, len(NEIGHBOUR_COLUMNS), 4
 
 
 def flat_dim(slots: int) -> int:
@@ -224,9 +227,11 @@ class TargetScorer(nn.Module):
         neighbours = x[..., start:start + NEIGHBOUR_DIM * s].reshape(*lead, s, NEIGHBOUR_DIM)
         start += NEIGHBOUR_DIM * s
         estimates = x[..., start:start + ESTIMATE_DIM * (1 + s)].reshape(*lead, 1 + s, ESTIMATE_DIM)
-        own = x[..., :OWN_DIM]  # symlog queue, occupancy, buffer, capacity, undecided; tier; fill
-        zero = torch.zeros_like(own[..., :1])
-        local = torch.cat([zero + 1, own[..., 5:6], own[..., 0:4], zero, zero, own[..., 6:7], zero], dim=-1)
+        # the node itself as a target: its own columns where a neighbour has them, present, no link
+        own = x[..., :OWN_DIM]
+        local = torch.stack([own[..., OWN_COLUMNS.index(c)] if c in OWN_COLUMNS
+                             else torch.full_like(own[..., 0], float(c == "present")) for c in NEIGHBOUR_COLUMNS],
+                            dim=-1)
         targets = torch.cat([local.unsqueeze(-2), neighbours], dim=-2)  # (..., 1 + S, NEIGHBOUR_DIM)
         is_local = torch.zeros(*lead, 1 + s, 1, dtype=x.dtype, device=x.device)
         is_local[..., 0, :] = 1.0
