@@ -66,8 +66,10 @@ def total(m: Metric, rows: np.ndarray) -> Any:
 
 def penalty_s(sc: Scenario) -> float:
     """What a task that never completes costs the penalised response time: the scenario's longest
-    deadline (of its task types, or of its trace's rows), so it is never less than a completion's time."""
-    deadlines = [row.deadline for row in sc.workload.trace or ()] or [t.deadline for t in sc.workload.task_types]
+    deadline (of its trace's rows, or of its task types: a range's high end plus its grace), so it is
+    never less than a completion's time and letting a task expire never lowers the score."""
+    trace = sc.workload.trace
+    deadlines = [row.deadline for row in trace or ()] or [t.longest_deadline for t in sc.workload.task_types]
     return max(deadlines, default=0.0)
 
 

@@ -11,6 +11,7 @@ from orchestrator.catalogue import Out
 from orchestrator.metrics import Metrics, output_values, penalty_s
 from orchestrator.scenario import load_scenario
 from orchestrator.viewers.summary import rows
+from tests.conftest import run_summary, write_scenario
 
 
 def stats(**values: float) -> tuple:
@@ -25,6 +26,28 @@ def metrics() -> Metrics:
 
 def test_the_penalty_is_the_longest_deadline(metrics):
     assert penalty_s(metrics.scenario) == metrics.penalty == 100.0  # one task type, deadline 100 s
+
+
+def test_with_drawn_deadlines_the_penalty_is_the_high_end_plus_the_grace(tmp_path):
+    """A type with deadlines U[40, 80) + 5 s beside a fixed one: P = max(80 + 5, fixed), never the range's
+    low end (which a slow completion can exceed, so that letting tasks expire would lower the score)."""
+    for fixed, expected in ((90, 90.0), (60, 85.0)):
+        types = [{"name": "drawn", "deadline": {"low": 40, "high": 80, "grace": 5}},
+                 {"name": "fixed", "deadline": fixed}]
+        sc = load_scenario(write_scenario(tmp_path, {"workload": {"tasks": types},
+                                                     "topology": {"nodes": [{"id": "a", "client": True}]}}))
+        assert penalty_s(sc) == pytest.approx(expected)
+
+
+@pytest.mark.parametrize("policy", ["local", "greedy"])
+def test_no_completion_takes_longer_than_the_penalty(policy):
+    """On a scenario whose deadlines are drawn (U[40, 80) s, a task kept on an rpi3 takes 50 s of compute
+    alone), every completion, however late, costs less than a dropped task."""
+    sc = load_scenario("aot3_compute")
+    summary = run_summary(sc, ticks=400, seed=3, policy=policy)
+    assert summary["totals"]["completed"] > 0
+    assert summary["response_time"]["max"] <= penalty_s(sc) == 80.0
+    assert summary["response_time"]["max"] > 40.0  # the range's low end, the penalty before this was fixed
 
 
 def test_the_scores_of_a_tiny_trace(metrics):

@@ -80,6 +80,12 @@ class TaskType:
         """Whether each task of this type draws its own deadline."""
         return self.deadline_high is not None
 
+    @property
+    def longest_deadline(self) -> float:
+        """The bound of every deadline this type gives a task: the range's high end (or the fixed value)
+        plus the grace. No task of the type completes later than this."""
+        return (self.deadline_high if self.drawn else self.deadline) + self.grace
+
 
 @dataclass(frozen=True, slots=True)
 class Arrival:
