@@ -47,7 +47,7 @@ from experiments.common import (
 from experiments.distributed import add_ray_arguments, ray_problem, run_on_ray, wants_ray
 from experiments.plot import plot_study, summarise
 
-AGENTS = ("ddqn", "a2c", "ppo", "local", "random", "least_queue", "greedy", "round_robin")
+AGENTS = (*LEARNERS, *BASELINES)  # every learner, then every baseline
 
 
 @dataclass(frozen=True)

@@ -189,3 +189,12 @@ def test_confidence_interval_uses_student_t():
     mean, half = mean_ci([1.0, 2.0, 3.0])
     assert mean == 2.0 and half == pytest.approx(4.303 * 1.0 / 3**0.5)
     assert mean_ci([5.0]) == (5.0, 0.0)
+
+
+def test_the_studies_accept_every_learner_and_every_baseline():
+    """The studies' agent list is the registries', not a copy of them (greedy_backlog was once refused)."""
+    from agents import BASELINES, LEARNERS
+    from experiments.sweep import parser
+
+    args = parser("rq1", "test").parse_args(["--agents", *LEARNERS, *BASELINES])
+    assert args.agents == [*LEARNERS, *BASELINES]
