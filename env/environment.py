@@ -36,7 +36,7 @@ from node_runtime.model.spec import Scenario
 from node_runtime.model.view import Observation
 from node_runtime.runtime.layout import Layout
 from orchestrator.catalogue import Out
-from orchestrator.metrics import output_values
+from orchestrator.metrics import output_values, penalty_s
 from orchestrator.scenario import load_scenario
 from orchestrator.session import Simulation
 
@@ -57,8 +57,9 @@ class ZenohEdgeEnv(ParallelEnv):
         seed: seed of the first episode (later resets without a seed draw from a stream it seeds).
         transport: "zenoh" (node processes over a Zenoh router) or "inproc" (same code, one process).
         layout: "per-role" (default for zenoh), "per-node", "single" (default for inproc) or "groups:K".
-        reward: "paper" (Eq. 1–5, see docs/reward.md), "reference", "sparse", "team", a callable
-            ``f(RewardContext)`` or its import path (default: the scenario's ``reward`` key, else "paper").
+        reward: "paper" (Eq. 1–5, see docs/reward.md), "reference", "sparse", "team", "score", "team_score",
+            a callable ``f(RewardContext)`` or its import path (default: the scenario's ``reward`` key, else
+            "paper").
         observation: an ``ObservationBuilder`` subclass or its import path (default: the scenario's
             ``observation`` key, else the documented Dict observation), or "flat": one float32 vector and
             the action mask per agent, padded to the largest degree, with numbers-only infos (for MARL
@@ -120,6 +121,7 @@ class ZenohEdgeEnv(ParallelEnv):
         self.terms_fn = terms_for(self.reward_fn)  # what infos["reward_terms"] shows
         self.weights = reward_weights or PaperWeights()
         self.arrivals = nominal_arrivals(sc)
+        self.penalty = penalty_s(sc)  # what the headline score charges a task that does not complete
         self.max_steps = max_steps or sc.episode_ticks // sc.decision_interval
         self.render_mode = render_mode
         self.connect = connect
@@ -239,7 +241,7 @@ class ZenohEdgeEnv(ParallelEnv):
             delta = deltas[row]
             agent_terms = terms.get(agent, ())
             ctx = RewardContext(agent, self.node_of[agent], before[agent], resolved.actions[agent], self._raw[agent],
-                                agent_terms, delta, dt, self.weights, self.arrivals, network_delta)
+                                agent_terms, delta, dt, self.weights, self.arrivals, network_delta, self.penalty)
             rewards[agent] = float(self.reward_fn(ctx))
             infos[agent] = {"tick": tick, "node": nodes[row],
                             "reward_terms": [t.as_dict() for t in agent_terms],

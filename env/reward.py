@@ -140,6 +140,7 @@ class RewardContext:
     weights: PaperWeights  # the env's r_u and chi weights
     arrivals: Mapping[str, float]  # each node's nominal task arrival rate, tasks/s (``nominal_arrivals``)
     network_delta: dict[str, float] = field(default_factory=dict)  # the same changes as node_delta, network-wide
+    penalty: float = 0.0  # seconds the headline score charges a task that does not complete (its P)
 
 
 RewardFn = Callable[[RewardContext], float]
@@ -172,8 +173,26 @@ def team_reward(ctx: RewardContext) -> float:
     return ctx.network_delta["completed"] - ctx.network_delta["dropped"]
 
 
+def timeliness(delta: Mapping[str, float], penalty: float) -> float:
+    """Each completion in ``delta`` earns 1 - response / P: 1 when instant, 0 at the penalty. Summed over an
+    episode and the network this is generated - (penalised response time x generated) / P, so maximising it
+    minimises the headline score (the arrivals do not depend on the policy)."""
+    return delta["completed"] - delta["response_time_total"] / penalty
+
+
+def score_reward(ctx: RewardContext) -> float:
+    """The headline score, credited to the origin: each of the node's own tasks that completed during the
+    step earns 1 - response / P; a task that is dropped or never completes earns nothing."""
+    return timeliness(ctx.node_delta, ctx.penalty)
+
+
+def team_score_reward(ctx: RewardContext) -> float:
+    """``score`` over the whole network, the same for every agent (as ``team`` is to ``sparse``)."""
+    return timeliness(ctx.network_delta, ctx.penalty)
+
+
 REWARDS: dict[str, RewardFn] = {"paper": paper_reward, "reference": reference_reward, "sparse": sparse_reward,
-                                "team": team_reward}
+                                "team": team_reward, "score": score_reward, "team_score": team_score_reward}
 
 
 TermsFn = Callable[[Observation, TaskView, int, float, PaperWeights, Mapping[str, float]], RewardTerms]

@@ -71,8 +71,10 @@ def add_env_arguments(parser: argparse.ArgumentParser, scenario: bool = True) ->
                    help="decision steps per episode (default: the scenario's, 1000; rq1/rq2 --quick: 300)")
     g.add_argument("--reward", default="paper", choices=list(REWARDS),
                    help="paper (default: Eq. 1-5 of the paper), reference (the reference implementation's), "
-                        "sparse (completed - dropped at the agent's node) or team (the same, network-wide, "
-                        "shared by all agents); docs/reward.md")
+                        "sparse (completed - dropped at the agent's node), team (the same, network-wide, "
+                        "shared by all agents), score (each of the node's own tasks that completes earns "
+                        "1 - response / penalty: the headline score, credited to the origin) or team_score "
+                        "(the same, network-wide); docs/reward.md")
     g.add_argument("--transport", default="inproc", choices=["inproc", "zenoh"],
                    help="inproc (default: one process, same results as zenoh) or zenoh (node processes)")
 

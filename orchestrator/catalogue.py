@@ -149,6 +149,10 @@ CATALOGUE: tuple[Metric, ...] = (
            Out.SUMMARY | Out.SUMMARY_NODES | Out.TICKS | Out.BUS | Out.MONITOR | Out.TABLE,
            names={Out.TICKS: "response_time_mean", Out.SUMMARY_NODES: "response_time_mean",
                   Out.BUS: "response_times"}),
+    # the sum of the response times of the completions (of the node's own tasks, counted at the origin), for
+    # rewards that weigh each completion by its timeliness (env.reward.score_reward)
+    Metric("response_time_total", "s", Agg.COUNT, "response time (sum)", "rts", Out.ENV_DELTA,
+           fields=("response_time_sum",), dtype=float),
     # completed / generated so far: the share of the tasks created that came back in time
     Metric("completion_ratio", "ratio", Agg.RATIO, "completion ratio", "c/g",
            Out.SUMMARY | Out.SUMMARY_NODES | Out.TICKS | Out.BUS | Out.MONITOR | Out.TABLE,

@@ -165,21 +165,52 @@ def test_the_infos_terms_are_those_of_the_reward_in_use(reward):
         env.close()
 
 
-def test_the_team_reward_is_the_networks_completions_minus_drops_for_every_agent():
-    """Checked against the episode's own counters: the team rewards of all steps add up to the episode's
-    completed - dropped, and every agent gets the same reward in a step."""
+def shared_episode(scenario: str, reward: str, seed: int) -> tuple[float, dict, float]:
+    """One inproc episode of 150 steps in which every agent offloads where it can; checks that every agent
+    gets the same reward in each step, and returns their sum over the episode, the episode's summary
+    (from the last infos) and the env's penalty P."""
     from env import ZenohEdgeEnv
 
-    env = ZenohEdgeEnv("aot1", transport="inproc", reward="team", max_steps=150, seed=2)
+    env = ZenohEdgeEnv(scenario, transport="inproc", reward=reward, max_steps=150, seed=seed)
     try:
-        env.reset(seed=2)
+        env.reset(seed=seed)
         total = 0.0
         while env.agents:
-            _, rewards, _, _, infos = env.step({a: 1 for a in env.agents})  # offload where possible
+            _, rewards, _, _, infos = env.step({a: 1 for a in env.agents})
             assert len(set(rewards.values())) == 1
             total += next(iter(rewards.values()))
-        totals = next(iter(infos.values()))["episode"]["totals"]
-        assert totals["completed"] > 0 and totals["dropped"]["total"] > 0
-        assert total == totals["completed"] - totals["dropped"]["total"]
+        return total, next(iter(infos.values()))["episode"], env.penalty
     finally:
         env.close()
+
+
+def test_the_team_reward_is_the_networks_completions_minus_drops_for_every_agent():
+    """Checked against the episode's own counters: the team rewards of all steps add up to the episode's
+    completed - dropped."""
+    total, episode, _ = shared_episode("aot1", "team", seed=2)
+    totals = episode["totals"]
+    assert totals["completed"] > 0 and totals["dropped"]["total"] > 0
+    assert total == totals["completed"] - totals["dropped"]["total"]
+
+
+def test_the_score_reward_weighs_each_completion_by_its_timeliness():
+    """Two of the node's tasks came back in 10 s and 30 s, with P = 100 s: (1 - 0.1) + (1 - 0.3) = 1.6; the
+    team version reads the network's changes (3 completions summing 90 s: 3 - 0.9 = 2.1)."""
+    from env.reward import RewardContext, score_reward, team_score_reward
+
+    ctx = RewardContext("ctrl_a", "a", OBS, 0, OBS, (), {"completed": 2, "response_time_total": 40.0}, 1.0,
+                        PaperWeights(), {}, {"completed": 3, "response_time_total": 90.0}, penalty=100.0)
+    assert score_reward(ctx) == pytest.approx(1.6)
+    assert team_score_reward(ctx) == pytest.approx(2.1)
+
+
+@pytest.mark.parametrize("scenario", ["aot1", "aot3_compute"])
+def test_the_team_score_rewards_of_an_episode_add_up_to_the_headline_score(scenario):
+    """Over an episode, the team-score rewards add up to generated - penalised response time x generated / P
+    (read from the episode's own summary), so maximising them minimises the headline score; on aot3_compute
+    the deadlines are drawn, so P is the range's high end."""
+    total, episode, penalty = shared_episode(scenario, "team_score", seed=4)
+    generated = episode["totals"]["generated"]
+    assert episode["totals"]["completed"] > 0
+    expected = generated - episode["penalised_response_time"] * generated / penalty
+    assert total == pytest.approx(expected, rel=1e-9, abs=1e-9)

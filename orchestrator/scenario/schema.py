@@ -244,7 +244,8 @@ class FailureCfg(Strict):
     duration: Count
 
 
-REWARD_NAMES = ("paper", "reference", "sparse", "team")  # the environment's built-in rewards (env.reward.REWARDS)
+# the environment's built-in rewards (env.reward.REWARDS)
+REWARD_NAMES = ("paper", "reference", "sparse", "team", "score", "team_score")
 
 
 class ScenarioFile(Strict):
