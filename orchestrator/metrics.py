@@ -330,6 +330,7 @@ class Metrics:
             "seed": None,  # filled in by the session, which knows the episode's seed
             "ticks": self.n_ticks,
             "dt": sc.dt,
+            "penalty_s": self.penalty,  # what penalised_response_time charges a task that did not complete
         }
         means = {k: network / self.n_ticks for k, (network, _) in self._mean_sums.items()}
         for m in shown(Out.SUMMARY):

@@ -88,7 +88,7 @@ def test_every_output_shows_exactly_what_the_catalogue_declares(tmp_path):
         if m.form(Out.SUMMARY) is Form.PARTS_TOTAL:
             assert list(value) == [*(p.key for p in m.parts), "total"]
             assert value["total"] == pytest.approx(sum(value[p.key] for p in m.parts))
-    assert list(s) == ["scenario", "scenario_hash", "source", "seed", "ticks", "dt",
+    assert list(s) == ["scenario", "scenario_hash", "source", "seed", "ticks", "dt", "penalty_s",
                        *dict.fromkeys(m.key(Out.SUMMARY).partition(".")[0] for m in shown(Out.SUMMARY)),
                        "nodes", "policy", "code", "run"]
     for node in s["nodes"].values():

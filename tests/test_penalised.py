@@ -48,6 +48,7 @@ def test_no_completion_takes_longer_than_the_penalty(policy):
     assert summary["totals"]["completed"] > 0
     assert summary["response_time"]["max"] <= penalty_s(sc) == 80.0
     assert summary["response_time"]["max"] > 40.0  # the range's low end, the penalty before this was fixed
+    assert summary["penalty_s"] == 80.0  # the summary says what its score charged
 
 
 def test_the_scores_of_a_tiny_trace(metrics):
