@@ -64,6 +64,9 @@ class ZenohEdgeEnv(ParallelEnv):
             ``observation`` key, else the documented Dict observation), or "flat": one float32 vector and
             the action mask per agent, padded to the largest degree, with numbers-only infos (for MARL
             libraries; the full infos stay in ``env.step_details``).
+        info_numbers: in flat mode, False leaves every agent's infos empty: libraries that turn each info
+            number into a tensor every step (TorchRL's PettingZooWrapper) run faster without them, and
+            ``env.step_details`` still has them all.
         reward_weights: ``PaperWeights`` overriding the paper's r_u and chi weights.
         overrides: ``ScenarioOverrides`` of the decision mode, decision interval, batch size and arrival rate.
         max_steps: episode length in steps (default: the scenario's ``simulation.steps``, 1000); an episode
@@ -90,7 +93,7 @@ class ZenohEdgeEnv(ParallelEnv):
                  observation: type[ObservationBuilder] | str | None = None,
                  reward_weights: PaperWeights | None = None, overrides: ScenarioOverrides | None = None,
                  max_steps: int | None = None, agents: Sequence[str] | None = None, uniform_spaces: bool = False,
-                 invalid_action: str = "local", render_mode: str | None = None,
+                 invalid_action: str = "local", render_mode: str | None = None, info_numbers: bool = True,
                  connect: str | None = None, sim_id: str | None = None, timeout: float = 30.0,
                  security: str | Path | None = None) -> None:
         if overrides is not None and not isinstance(overrides, ScenarioOverrides):
@@ -143,6 +146,9 @@ class ZenohEdgeEnv(ParallelEnv):
         batch = None if sc.mode == "binary" else sc.batch_size
         builder = observation or sc.extra.get("observation") or DictObservation
         self.flat = builder == FLAT
+        if not info_numbers and not self.flat:
+            raise ValueError('info_numbers=False applies to observation="flat" only (its infos are numbers)')
+        self.info_numbers = info_numbers
         padded = uniform_spaces or self.flat
         self.layouts = {a: ObservationLayout(d, slots if padded else d, batch) for a, d in degrees.items()}
         if self.flat:
@@ -319,7 +325,10 @@ class ZenohEdgeEnv(ParallelEnv):
         return {"tick": self.sim.tick, "node": nodes[self._row[agent]], "reward_terms": [t.as_dict() for t in terms]}
 
     def _numbers(self, infos: dict[str, dict[str, Any]]) -> dict[str, dict[str, float]]:
-        """Flat mode's infos: the same keys at every reset and step, each a number (libraries stack them)."""
+        """Flat mode's infos: the same keys at every reset and step, each a number (libraries stack them);
+        none at all with ``info_numbers=False``."""
+        if not self.info_numbers:
+            return {agent: {} for agent in infos}
         out = {}
         for agent, info in infos.items():
             numbers = {"tick": info["tick"], "invalid_action": info.get("invalid_action", False),

@@ -96,3 +96,25 @@ def test_batch_mode_flat_masks_are_one_array():
         obs, _, _, _, infos = env.step(actions)
         assert not any(i["invalid_action"] for i in infos.values())
     env.close()
+
+
+def test_info_numbers_false_leaves_the_infos_empty_and_the_details_reachable():
+    """For libraries that make a tensor of every info number each step; the run itself is unchanged."""
+    lean, full = flat_env(info_numbers=False), flat_env()
+    obs, infos = lean.reset(seed=2)
+    f_obs, _ = full.reset(seed=2)
+    assert infos == {a: {} for a in lean.possible_agents}
+    rng = np.random.default_rng(1)
+    while lean.agents:
+        actions = masked_random(lean, obs, rng)
+        obs, rewards, _, _, infos = lean.step(actions)
+        f_obs, f_rewards, _, _, f_infos = full.step(actions)
+        assert infos == {a: {} for a in actions}
+        assert rewards == f_rewards
+        details = lean.step_details[lean.possible_agents[0]]
+        assert f_infos[lean.possible_agents[0]]["node_completed"] == details["node"]["completed"]
+    assert lean.summary()["totals"] == full.summary()["totals"]
+    lean.close()
+    full.close()
+    with pytest.raises(ValueError, match='info_numbers=False applies to observation="flat" only'):
+        ZenohEdgeEnv("aot2", transport="inproc", info_numbers=False)

@@ -68,3 +68,14 @@ def test_parallel_env_of_two_simulations_steps_and_resets():
     generated = td["next", "agents", "info", "node_generated"][:, STEPS - 1].sum(-1)
     assert generated[0] != generated[1]  # the workers got different seeds
     env.close()
+
+
+def test_without_info_numbers_the_wrapper_steps_with_no_info_keys():
+    base = ZenohEdgeEnv("aot2", transport="inproc", observation="flat", max_steps=STEPS, info_numbers=False)
+    env = PettingZooWrapper(base, use_mask=True, categorical_actions=True, group_map={"agents": base.possible_agents})
+    td = env.rollout(2 * STEPS + 2, break_when_any_done=False)
+    assert ("agents", "info") not in td["next"].keys(include_nested=True)
+    done = td["next", "done"].squeeze(-1)
+    assert torch.equal(done, (torch.arange(2 * STEPS + 2) + 1) % STEPS == 0)
+    assert td["agents", "action_mask"].gather(-1, td["agents", "action"].unsqueeze(-1)).all()
+    env.close()
