@@ -111,6 +111,7 @@ def test_info_numbers_false_leaves_the_infos_empty_and_the_details_reachable():
         f_obs, f_rewards, _, _, f_infos = full.step(actions)
         assert infos == {a: {} for a in actions}
         assert rewards == f_rewards
+        assert all(np.array_equal(obs[a]["observation"], f_obs[a]["observation"]) for a in obs)
         details = lean.step_details[lean.possible_agents[0]]
         assert f_infos[lean.possible_agents[0]]["node_completed"] == details["node"]["completed"]
     assert lean.summary()["totals"] == full.summary()["totals"]
