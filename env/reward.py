@@ -27,7 +27,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable, Mapping
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import Any
 
 from node_runtime.model.plugins import is_import_path, load
@@ -139,8 +139,8 @@ class RewardContext:
     dt: float
     weights: PaperWeights  # the env's r_u and chi weights
     arrivals: Mapping[str, float]  # each node's nominal task arrival rate, tasks/s (``nominal_arrivals``)
-    network_delta: dict[str, float] = field(default_factory=dict)  # the same changes as node_delta, network-wide
-    penalty: float = 0.0  # seconds the headline score charges a task that does not complete (its P)
+    network_delta: dict[str, float]  # the same changes as node_delta, network-wide
+    penalty: float  # seconds the headline score charges a task that does not complete (its P)
 
 
 RewardFn = Callable[[RewardContext], float]

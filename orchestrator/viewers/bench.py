@@ -141,7 +141,7 @@ def measure(name: str, transport: str, layout: str, ticks: int, rounds: int) -> 
         finally:
             if barrier is not None:
                 barrier.close()
-    return (procs if barrier else 1), rate, base, ratio
+    return (1 if barrier is None else procs), rate, base, ratio
 
 
 def run(scenarios: list[str], ticks: int, configs=CONFIGS, rounds: int = 5, progress=None) -> list[Row]:
