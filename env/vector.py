@@ -1,0 +1,169 @@
+"""``ZenohEdgeVectorEnv``: K in-process simulations stepped as one TorchRL batch.
+
+    from env.vector import ZenohEdgeVectorEnv
+    env = ZenohEdgeVectorEnv("aot2", num_envs=4, max_steps=300)     # batch_size (4,)
+    td = env.rollout(1000, break_when_any_done=False)               # (4, 1000); each sim resets on its own
+
+TorchRL's ``PettingZooWrapper`` turns every agent's observation, reward and info number into a tensor
+one by one, which costs about four times the simulation itself (docs/env.md, "Speed"). This env is
+native to TorchRL instead: each ``ZenohEdgeEnv(observation="flat", transport="inproc")`` yields NumPy
+arrays, which are stacked over agents and simulations and become one tensor per key per step. The keys
+and shapes are those of ``PettingZooWrapper(use_mask=True, categorical_actions=True)`` with all agents in
+one group "agents", with a leading K axis, so code written against the wrapper (the MAPPO example) runs
+on it unchanged. To use several cores, put it in TorchRL's ``ParallelEnv``: each worker then steps K
+simulations.
+
+Optional dependency: ``pip install -e ".[marl]"`` (TorchRL).
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+import torch
+from tensordict import TensorDict, TensorDictBase
+from torchrl.data import Binary, Categorical, Composite, Unbounded
+from torchrl.envs import EnvBase
+
+from env.environment import ZenohEdgeEnv
+
+GROUP = "agents"
+
+
+class ZenohEdgeVectorEnv(EnvBase):
+    """K flat-observation simulations of one scenario, stepped together in this process.
+
+    Args:
+        scenario: as for ``ZenohEdgeEnv``.
+        num_envs: K, the number of simulations (the env's ``batch_size`` is ``(K,)``).
+        info_numbers: put the flat infos under ``("agents", "info", key)`` (one (K, N) tensor per number).
+        **kwargs: any other ``ZenohEdgeEnv`` argument but ``observation`` and ``transport`` (flat and
+            in-process here), e.g. ``max_steps``, ``reward``, ``overrides``.
+
+    ``set_seed(s)`` seeds simulation k with ``s + k``; its later episodes draw their seeds from that
+    stream, exactly as one ``ZenohEdgeEnv`` seeded with ``s + k`` does.
+    """
+
+    def __init__(self, scenario: Any = "aot1", *, num_envs: int = 1, info_numbers: bool = True,
+                 **kwargs: Any) -> None:
+        if isinstance(num_envs, bool) or not isinstance(num_envs, int) or num_envs < 1:
+            raise ValueError(f"num_envs must be an integer >= 1, not {num_envs!r}")
+        for fixed in ("observation", "transport"):
+            if fixed in kwargs:
+                raise TypeError(f"ZenohEdgeVectorEnv is flat and in-process: {fixed}= cannot be given")
+        super().__init__(batch_size=torch.Size([num_envs]), allow_done_after_reset=False)
+        self.envs = [ZenohEdgeEnv(scenario, observation="flat", transport="inproc", info_numbers=info_numbers,
+                                  **kwargs) for _ in range(num_envs)]
+        first = self.envs[0]
+        self.agent_names = list(first.possible_agents)
+        self.group_map = {GROUP: self.agent_names}
+        self.info_numbers = info_numbers
+        self._info_keys: list[str] = []
+        self._last: list[dict[str, np.ndarray]] = [{} for _ in self.envs]  # each sim's latest arrays
+        self._seeds: list[int | None] = [None] * num_envs
+        self._make_specs(first)
+
+    # ----- specs -----
+
+    def _make_specs(self, env: ZenohEdgeEnv) -> None:
+        k, n = self.batch_size[0], len(self.agent_names)
+        space = env.observation_space(self.agent_names[0])
+        dim, actions = space["observation"].shape[0], space["action_mask"].shape[0]
+        _, infos = env.reset(seed=0)  # the info keys are only known from a reset
+        self._info_keys = list(infos[self.agent_names[0]]) if self.info_numbers else []
+        group = {
+            "observation": Composite(observation=Unbounded((k, n, dim), dtype=torch.float32), shape=(k, n)),
+            "action_mask": Binary(n=actions, shape=(k, n, actions), dtype=torch.bool),
+            "mask": Binary(n=n, shape=(k, n), dtype=torch.bool),
+        }
+        if self._info_keys:
+            group["info"] = Composite({key: Unbounded((k, n), dtype=torch.float32) for key in self._info_keys},
+                                      shape=(k, n))
+        self.observation_spec = Composite({GROUP: Composite(group, shape=(k, n))}, shape=(k,))
+        self.action_spec = Composite(
+            {GROUP: Composite(action=Categorical(actions, shape=(k, n), dtype=torch.int64), shape=(k, n))},
+            shape=(k,))
+        self.reward_spec = Composite({GROUP: Composite(reward=Unbounded((k, n, 1)), shape=(k, n))}, shape=(k,))
+        flags = {f: Categorical(2, shape=(k, n, 1), dtype=torch.bool) for f in ("done", "terminated", "truncated")}
+        self.done_spec = Composite({
+            GROUP: Composite(flags, shape=(k, n)),
+            **{f: Categorical(2, shape=(k, 1), dtype=torch.bool) for f in ("done", "terminated", "truncated")},
+        }, shape=(k,))
+
+    # ----- TorchRL API -----
+
+    def _set_seed(self, seed: int | None) -> None:
+        self._seeds = [None if seed is None else seed + i for i in range(len(self.envs))]
+
+    def _reset(self, tensordict: TensorDictBase | None = None, **kwargs: Any) -> TensorDictBase:
+        which = self._to_reset(tensordict)
+        for i in np.flatnonzero(which):
+            observations, infos = self.envs[i].reset(seed=self._seeds[i])
+            self._seeds[i] = None  # later episodes draw from the stream that seed started
+            self._last[i] = self._arrays(observations, infos)
+        return self._output(reward=False, ended=np.zeros(len(self.envs), dtype=bool))
+
+    def _step(self, tensordict: TensorDictBase) -> TensorDictBase:
+        actions = tensordict.get((GROUP, "action")).cpu().numpy()
+        rewards = np.zeros((len(self.envs), len(self.agent_names)), dtype=np.float32)
+        ended = np.zeros(len(self.envs), dtype=bool)
+        for i, env in enumerate(self.envs):
+            observations, reward, _, truncations, infos = env.step(dict(zip(self.agent_names, actions[i].tolist(),
+                                                                            strict=True)))
+            self._last[i] = self._arrays(observations, infos)
+            rewards[i] = [reward[a] for a in self.agent_names]
+            ended[i] = truncations[self.agent_names[0]]  # every agent's episode ends at the same step
+        out = self._output(reward=True, ended=ended)
+        out.set((GROUP, "reward"), torch.from_numpy(rewards).unsqueeze(-1))
+        return out
+
+    def close(self, *, raise_if_closed: bool = True) -> None:
+        for env in self.envs:
+            env.close()
+        super().close(raise_if_closed=raise_if_closed)
+
+    # ----- internals -----
+
+    def _to_reset(self, tensordict: TensorDictBase | None) -> np.ndarray:
+        """Which simulations to reset: all at the first reset, else those TorchRL's "_reset" flags name."""
+        everyone = np.ones(len(self.envs), dtype=bool)
+        if tensordict is None or not any(self._last):
+            return everyone
+        flag = tensordict.get("_reset", None)
+        if flag is None:
+            flag = tensordict.get((GROUP, "_reset"), None)
+            if flag is None:
+                return everyone
+            flag = flag.flatten(1).any(-1)
+        return flag.reshape(len(self.envs)).cpu().numpy()
+
+    def _arrays(self, observations: dict[str, dict[str, np.ndarray]], infos: dict[str, dict[str, float]]
+                ) -> dict[str, np.ndarray]:
+        agents = self.agent_names
+        out = {"observation": np.stack([observations[a]["observation"] for a in agents]),
+               "action_mask": np.stack([observations[a]["action_mask"] for a in agents]).astype(bool)}
+        if self._info_keys:
+            out["info"] = np.array([[infos[a][key] for key in self._info_keys] for a in agents], dtype=np.float32)
+        return out
+
+    def _output(self, *, reward: bool, ended: np.ndarray) -> TensorDictBase:
+        k, n = len(self.envs), len(self.agent_names)
+        observation = torch.from_numpy(np.stack([last["observation"] for last in self._last]))
+        mask = torch.from_numpy(np.stack([last["action_mask"] for last in self._last]))
+        truncated = torch.from_numpy(ended).reshape(k, 1)
+        group: dict[str, Any] = {
+            "observation": TensorDict({"observation": observation}, batch_size=(k, n)),
+            "action_mask": mask,
+            "mask": torch.ones(k, n, dtype=torch.bool),
+            "done": truncated.unsqueeze(1).expand(k, n, 1).clone(),
+            "terminated": torch.zeros(k, n, 1, dtype=torch.bool),
+            "truncated": truncated.unsqueeze(1).expand(k, n, 1).clone(),
+        }
+        if self._info_keys:
+            numbers = torch.from_numpy(np.stack([last["info"] for last in self._last]))  # (k, n, keys)
+            group["info"] = TensorDict({key: numbers[..., j] for j, key in enumerate(self._info_keys)},
+                                       batch_size=(k, n))
+        return TensorDict({GROUP: TensorDict(group, batch_size=(k, n)), "done": truncated.clone(),
+                           "terminated": torch.zeros(k, 1, dtype=torch.bool), "truncated": truncated.clone()},
+                          batch_size=(k,))
