@@ -7,11 +7,13 @@
 The second form draws a learning curve (``--baseline NAME=CSV``: the rows ``python -m experiments.evaluate
 ... --csv`` writes, drawn as a level line); it trains nothing.
 
-TorchRL's own multi-agent PPO recipe, in one file: ``PettingZooWrapper`` over ``observation="flat"``
-(all agents in one group), ``MultiAgentMLP`` with ``share_params=True`` for the actor (the one-hot agent
+TorchRL's own multi-agent PPO recipe, in one file: ``env.vector.ZenohEdgeVectorEnv`` (``--envs`` K
+simulations of ``observation="flat"`` stepped as one batch, with the keys of ``PettingZooWrapper`` and all
+agents in one group), ``MultiAgentMLP`` with ``share_params=True`` for the actor (the one-hot agent
 id in the observation tells the agents apart) and ``centralised=True`` for the critic (it sees every
 agent's observation), ``ProbabilisticActor`` with ``MaskedCategorical``, ``ClipPPOLoss`` with GAE and a
-``Collector`` (TorchRL 0.14's name for ``SyncDataCollector``). A frame is one environment step (every agent acts once).
+``Collector`` (TorchRL 0.14's name for ``SyncDataCollector``). A frame is one step of one simulation (every
+agent acts once), so a batch of ``--frames-per-batch`` frames holds that many steps over the K simulations.
 
 Every ``--eval-every`` batches the greedy policy (the most likely allowed action) plays ``--eval-episodes``
 episodes on the seeds ``agents.training.evaluate`` uses (100000, 100001, ...), so its numbers compare with
@@ -32,15 +34,20 @@ from tensordict.nn import TensorDictModule
 from torch import nn
 from torchrl.collectors import Collector
 from torchrl.data import LazyTensorStorage, ReplayBuffer, SamplerWithoutReplacement
-from torchrl.envs import PettingZooWrapper, RewardSum, TransformedEnv
+from torchrl.envs import EnvBase, RewardSum, TransformedEnv
 from torchrl.modules import MaskedCategorical, MultiAgentMLP, ProbabilisticActor
 from torchrl.objectives import ClipPPOLoss, ValueEstimators
 
 from agents.training import EVAL_SEED, episode_metrics
 from env import ScenarioOverrides, ZenohEdgeEnv
+from env.reward import REWARDS
+from env.vector import ZenohEdgeVectorEnv
 
-OBS = ("agents", "observation", "observation")  # where PettingZooWrapper puts the flat vector
+OBS = ("agents", "observation", "observation")  # where PettingZooWrapper and the vector env put the flat vector
 MASK = ("agents", "action_mask")
+# what the greedy evaluation reports, each the mean over its episodes (names as in experiments.evaluate's CSV)
+EVAL_METRICS = ("return", "completed", "dropped", "completion_ratio", "response_time_mean", "penalised_response_time",
+                "overloaded_node_ticks")
 
 
 class SymLog(nn.Module):
@@ -50,12 +57,16 @@ class SymLog(nn.Module):
         return torch.sign(x) * torch.log1p(x.abs())
 
 
+def settings(args: argparse.Namespace) -> dict:
+    return {"max_steps": args.max_steps, "reward": args.reward, "overrides": ScenarioOverrides(arrival_rate=args.lam)}
+
+
 def make_env(args: argparse.Namespace, seed: int) -> ZenohEdgeEnv:
-    return ZenohEdgeEnv(args.scenario, transport="inproc", observation="flat", max_steps=args.max_steps,
-                        reward=args.reward, overrides=ScenarioOverrides(arrival_rate=args.lam), seed=seed)
+    """One simulation, for the greedy evaluation."""
+    return ZenohEdgeEnv(args.scenario, transport="inproc", observation="flat", seed=seed, **settings(args))
 
 
-def build(args: argparse.Namespace, env: PettingZooWrapper) -> tuple[ProbabilisticActor, TensorDictModule]:
+def build(args: argparse.Namespace, env: EnvBase) -> tuple[ProbabilisticActor, TensorDictModule]:
     n_agents = len(env.group_map["agents"])
     n_obs = env.observation_spec[OBS].shape[-1]
     n_actions = env.full_action_spec["agents", "action"].space.n
@@ -92,8 +103,7 @@ def evaluate(actor: ProbabilisticActor, env: ZenohEdgeEnv, episodes: int) -> dic
             observations, rewards, *_ = env.step(greedy_actions(actor, observations, env.possible_agents))
             total += sum(rewards.values())
         rows.append({"return": total, **episode_metrics(env.step_details[env.possible_agents[0]]["episode"])})
-    keys = ("return", "completed", "dropped", "response_time_mean", "overloaded_node_ticks")
-    return {f"eval_{k}": float(np.mean([r[k] for r in rows])) for k in keys}
+    return {f"eval_{k}": float(np.mean([r[k] for r in rows])) for k in EVAL_METRICS}
 
 
 def parse(argv: list[str] | None = None) -> argparse.Namespace:
@@ -103,8 +113,11 @@ def parse(argv: list[str] | None = None) -> argparse.Namespace:
     p.add_argument("--seed", type=int, default=0, help="seed of the networks and of the training episodes")
     p.add_argument("--max-steps", type=int, default=300, help="steps per episode (default 300)")
     p.add_argument("--lam", type=float, default=0.17, help="task arrival rate per source (default 0.17)")
-    p.add_argument("--reward", default="sparse", choices=["paper", "sparse"], help="default sparse")
-    p.add_argument("--frames-per-batch", type=int, default=1200, help="steps collected per update (default 1200)")
+    p.add_argument("--reward", default="sparse", choices=list(REWARDS), help="default sparse (docs/reward.md)")
+    p.add_argument("--envs", type=int, default=4,
+                   help="simulations stepped together (K; default 4); simulation k's episodes are seeded from seed + k")
+    p.add_argument("--frames-per-batch", type=int, default=1200,
+                   help="steps collected per update, over all simulations (default 1200; a multiple of --envs)")
     p.add_argument("--epochs", type=int, default=4, help="passes over each batch (default 4)")
     p.add_argument("--minibatch", type=int, default=400, help="steps per gradient step (default 400)")
     p.add_argument("--lr", type=float, default=3e-4)
@@ -120,7 +133,10 @@ def parse(argv: list[str] | None = None) -> argparse.Namespace:
     p.add_argument("--png", type=Path, default=None, help="the picture --plot draws")
     p.add_argument("--baseline", action="append", default=[], metavar="NAME=CSV",
                    help="an experiments.evaluate CSV to draw as a level line (repeatable)")
-    return p.parse_args(argv)
+    args = p.parse_args(argv)
+    if args.envs < 1 or args.frames_per_batch % args.envs:
+        p.error(f"--envs must be >= 1 and divide --frames-per-batch (got {args.envs} and {args.frames_per_batch})")
+    return args
 
 
 def train(args: argparse.Namespace) -> tuple[dict[str, float], ProbabilisticActor]:
@@ -128,10 +144,9 @@ def train(args: argparse.Namespace) -> tuple[dict[str, float], ProbabilisticActo
     torch.manual_seed(args.seed)
     torch.set_num_threads(1)  # small networks: more threads only contend with the simulation
 
-    base = make_env(args, args.seed)
-    env = TransformedEnv(
-        PettingZooWrapper(base, use_mask=True, categorical_actions=True, group_map={"agents": base.possible_agents}),
-        RewardSum(in_keys=[("agents", "reward")], out_keys=[("agents", "episode_reward")]))
+    vector = ZenohEdgeVectorEnv(args.scenario, num_envs=args.envs, **settings(args))
+    vector.set_seed(args.seed)
+    env = TransformedEnv(vector, RewardSum(in_keys=[("agents", "reward")], out_keys=[("agents", "episode_reward")]))
     actor, critic = build(args, env)
     collector = Collector(env, actor, frames_per_batch=args.frames_per_batch, total_frames=args.frames)
     buffer = ReplayBuffer(storage=LazyTensorStorage(args.frames_per_batch), sampler=SamplerWithoutReplacement(),
@@ -180,8 +195,7 @@ def train(args: argparse.Namespace) -> tuple[dict[str, float], ProbabilisticActo
             if writer is None:
                 writer = csv.DictWriter(out, fieldnames=["batch", "frames", "wall_s", "train_return", "train_completed",
                                                          "loss_objective", "loss_critic", "loss_entropy",
-                                                         "eval_return", "eval_completed", "eval_dropped",
-                                                         "eval_response_time_mean", "eval_overloaded_node_ticks"])
+                                                         *(f"eval_{k}" for k in EVAL_METRICS)])
                 writer.writeheader()
             writer.writerow(row)
             out.flush()
@@ -193,7 +207,7 @@ def train(args: argparse.Namespace) -> tuple[dict[str, float], ProbabilisticActo
 
 
 def plot(curve: Path, png: Path, baselines: list[str]) -> None:
-    """Evaluation return and completed tasks per episode against frames, beside the baselines' means."""
+    """The greedy evaluations' completion, score and return against frames, beside the baselines' means."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -203,18 +217,20 @@ def plot(curve: Path, png: Path, baselines: list[str]) -> None:
         with open(path) as f:
             return list(csv.DictReader(f))
 
+    panels = (("completion_ratio", "tasks completed (share of generated)"),
+              ("penalised_response_time", "score: penalised response time (s, lower is better)"),
+              ("return", "return per episode (sum over agents)"))
     evaluated = [r for r in rows(curve) if r["eval_return"]]
-    fig, axes = plt.subplots(1, 2, figsize=(11, 4))
-    for ax, metric, title in zip(axes, ("return", "completed"), ("return per episode (sum over agents)",
-                                                                 "tasks completed per episode"), strict=True):
+    fig, axes = plt.subplots(1, len(panels), figsize=(15, 4))
+    for ax, (metric, title) in zip(axes, panels, strict=True):
         ax.plot([int(r["frames"]) for r in evaluated], [float(r[f"eval_{metric}"]) for r in evaluated],
                 marker="o", label="MAPPO (greedy)")
         for item in baselines:
             name, _, path = item.partition("=")
             ax.axhline(float(np.mean([float(r[metric]) for r in rows(Path(path))])), ls="--", lw=1,
                        color=f"C{1 + baselines.index(item)}", label=name)
-        ax.set(xlabel="frames (environment steps)", title=title)
-    axes[1].legend(fontsize=8)
+        ax.set(xlabel="frames (simulation steps)", title=title)
+    axes[-1].legend(fontsize=8)
     fig.tight_layout()
     fig.savefig(png, dpi=110)
 
