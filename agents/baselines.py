@@ -1,7 +1,7 @@
 """Heuristic policies that read the same observations as the learning agents and respect the masks.
 
-They are the comparison points of the paper (local, random, least queue) plus three stronger ones
-(round robin, greedy, greedy_backlog): the twins of the node-side policies of the same names. In batch
+They are the comparison points of the paper (local, random, least queue) plus four stronger ones
+(round robin, greedy, greedy_backlog, local_first): the twins of the node-side policies of the same names. In batch
 mode the tasks of one step are placed one after another, and each placed task counts against its
 target, so that a batch does not pile onto one node.
 """
@@ -138,5 +138,18 @@ class GreedyBacklog(Greedy):
         return estimate if action == 0 else estimate + obs["neighbours"][action - 1][NeighbourField.BACKLOG_S]
 
 
+class LocalFirst(GreedyBacklog):
+    """Keep the task when greedy_backlog's estimate for the node itself meets its deadline (the task's
+    time left); otherwise greedy_backlog's choice. Only tasks that would miss their deadline at home
+    are offloaded, which leaves the fast nodes to them."""
+
+    name = "local_first"
+
+    def choose(self, agent, obs, task, valid, extra):
+        if 0 in valid and self.estimate(obs, task, 0, extra[0]) <= task[TaskField.TIME_LEFT_S]:
+            return 0
+        return super().choose(agent, obs, task, valid, extra)
+
+
 BASELINES: dict[str, type[Baseline]] = {p.name: p for p in (Local, Random, RoundRobin, LeastQueue, Greedy,
-                                                            GreedyBacklog)}
+                                                            GreedyBacklog, LocalFirst)}

@@ -69,7 +69,7 @@ def test_baselines_pick_only_valid_actions(scenario):
         assert choices > 0, name
         if name == "local":
             assert offloads == 0
-        elif name not in ("greedy", "greedy_backlog"):  # they keep AoT tasks local: 80 s of transfer beat no queue
+        elif name not in ("greedy", "greedy_backlog", "local_first"):  # AoT tasks stay local: 80 s of transfer
             assert offloads > 0, name
     env.close()
 
@@ -88,6 +88,10 @@ def test_least_queue_and_greedy_choose_as_documented():
     obs["neighbours"][0, 8] = 1.0  # 1 s of transfers queued on the link to n1: 5.4 s against n3's 4.82 s
     assert BASELINES["greedy"]().act({"a": obs}) == {"a": 1}
     assert BASELINES["greedy_backlog"]().act({"a": obs}) == {"a": 3}
+    # local_first: 60 s at home against 50 s left, so greedy_backlog's choice; with 60 s left, home
+    assert BASELINES["local_first"]().act({"a": obs}) == {"a": 3}
+    obs["task"][TaskField.TIME_LEFT_S] = 60.0
+    assert BASELINES["local_first"]().act({"a": obs}) == {"a": 0}
     obs["neighbours"][0, 0] = 0
     obs["action_mask"] = np.array([1, 0, 1, 1], np.int8)
     assert BASELINES["greedy"]().act({"a": obs}) == {"a": 3}
@@ -111,7 +115,7 @@ def test_deterministic_baselines_choose_as_their_node_side_twins(data):
     task = TaskView(7, data.draw(st.sampled_from([1e8, 1e9])), 1e6, 1e5, 1.0, 60.0, 30.0, 0, "me")
     view = View(5, "me", node("me"), 1, [task], neighbours)
     encoded = DictObservation(ObservationLayout(degree, degree, None)).encode(view)
-    for name in ("local", "least_queue", "greedy", "greedy_backlog"):
+    for name in ("local", "least_queue", "greedy", "greedy_backlog", "local_first"):
         assert BASELINES[name]().act({"a": encoded})["a"] == make_node_policy(name).decide(view)[0], name
 
 

@@ -120,7 +120,21 @@ class GreedyBacklog(Greedy):
         return estimate if action == 0 else estimate + _target(obs, action).backlog_s
 
 
-POLICIES: dict[str, type[Policy]] = {p.name: p for p in (Local, Random, RoundRobin, LeastQueue, Greedy, GreedyBacklog)}
+class LocalFirst(GreedyBacklog):
+    """Keep the task when greedy_backlog's estimate for the node itself meets its deadline; otherwise
+    greedy_backlog's choice. It offloads only what would miss its deadline at home, so the fast nodes
+    are left to the tasks that need them instead of filling up with tasks that did not."""
+
+    name = "local_first"
+
+    def choose(self, obs, task, valid, extra):
+        if 0 in valid and self.estimate(obs, task, 0, extra[0]) <= task.time_left:
+            return 0
+        return super().choose(obs, task, valid, extra)
+
+
+POLICIES: dict[str, type[Policy]] = {p.name: p for p in (Local, Random, RoundRobin, LeastQueue, Greedy, GreedyBacklog,
+                                                         LocalFirst)}
 
 
 def make_policy(name: str) -> Policy:
