@@ -8,7 +8,7 @@ allowed is dropped by the router, silently for publications, with no answer for 
 
 - ``orchestrator`` (the orchestrator's own node processes): everything;
 - each placement group (login = group name): publishes only the ``Done`` and liveliness tokens of its
-  own processes, mail to the inboxes those processes may send to, the broadcast topics (states) and
+  own processes, mail to the inboxes those processes may send to, their broadcasts (states) and
   events of their own nodes;
 - ``driver``: publishes ticks and per-tick metrics, queries ``…/control``, announces ``…/alive/driver/*``;
 - ``monitor`` and everyone above: subscribes, watches tokens, queries ``…/session``.
@@ -44,8 +44,8 @@ def group_keys(keys: Keys, plan: ProcessLayout, procs: list[str]) -> tuple[list[
     for proc in procs:
         puts[keys.done(proc)] = None
         puts.update(dict.fromkeys(keys.inbox(dst) for dst in plan.destinations(proc)))
-        for role in plan.roles_of[proc]:
-            puts.update(dict.fromkeys(keys.topic(t) for t in plan.publications[role]))
+        if plan.listeners[proc]:
+            puts[keys.broadcasts(proc)] = None
         puts.update(dict.fromkeys(keys.events("*", node) for node in plan.node_of_proc(proc)))
     return list(puts), [keys.alive(proc) for proc in procs]
 

@@ -83,9 +83,9 @@ def test_every_refusal_in_process_leaves_the_results_alone(aot1):
         out.publish(inbox, Batch(e, t, "worker-rpi3_0", [envelope("worker:rpi3_0", "worker:nuc_0", t, t)]))
         out.publish(inbox, Batch(e + 5, t, "worker-rpi3_0", []))
         out.publish(inbox, Batch(e, -1, "worker-rpi3_0", []))
-        # a task on a state topic: each of its three subscribers refuses it
-        out.publish(keys.topic("state/rpi3_0"), Batch(e, t, "worker-rpi3_0",
-                                                      [envelope("worker:rpi3_0", "state/rpi3_0", t, t + 1)]))
+        # a task for a state topic, on the worker's broadcast key: each process hearing it refuses it
+        out.publish(keys.broadcasts("worker-rpi3_0"), Batch(e, t, "worker-rpi3_0",
+                                                            [envelope("worker:rpi3_0", "state/rpi3_0", t, t + 1)]))
         # dones: the wrong type, from nobody, on another's key, with an error for a later tick
         out.publish(keys.done("worker-rpi3_0"), Tick(e, t))
         out.publish(keys.done("intruder"), Done("intruder", e, t, {}, {}))
@@ -118,8 +118,7 @@ def test_every_refusal_in_process_leaves_the_results_alone(aot1):
     assert replayed, "no genuine batch was seen to replay"
     assert model_part(summary) == clean
     assert sim.transport.rejections.counts == {"wrong_shape": 1, "unknown_sender": 4, "wrong_tick": 2}
-    state_subscribers = [p for p in plan.procs if "state/rpi3_0" in plan.topics_of(p)]
-    expected = {"unknown_sender": 3 + len(state_subscribers), "wrong_shape": 1, "wrong_tick": 6}
+    expected = {"unknown_sender": 3 + len(plan.listeners["worker-rpi3_0"]), "wrong_shape": 1, "wrong_tick": 6}
     assert node_counts(sim) == expected
     assert summary["run"]["rejected_messages"] == {"orchestrator": {"unknown_sender": 4, "wrong_shape": 1,
                                                                     "wrong_tick": 2}, "nodes": expected}
@@ -166,7 +165,7 @@ def wired():
         targets[sim.keys.tick()] = driver.on_tick
         targets[sim.keys.tick(driver.proc)] = driver.on_tick
         targets[sim.keys.inbox(driver.proc)] = driver.on_batch
-    targets[sim.keys.topic("state/rpi3_0")] = next(d for d in sim.drivers if d.proc == "node-nuc_0").on_batch
+    targets[sim.keys.broadcasts("node-rpi3_0")] = next(d for d in sim.drivers if d.proc == "node-nuc_0").on_batch
     for key, handler in targets.items():
         bus.subscribe(key, counted(handler))
     yield bus, sorted(targets), calls
@@ -193,7 +192,7 @@ def test_handlers_take_anything(wired, data, payload):
 @pytest.mark.zenoh
 def test_garbage_on_every_kind_of_key_over_zenoh(aot1):
     """Real processes; an outside session on the router publishes on clock/done, a tick key, an inbox
-    key and a state key. Every message is refused and counted; the results are a clean run's."""
+    key and a broadcast key. Every message is refused and counted; the results are a clean run's."""
     clean = model_part(Simulation(aot1).run(TICKS, seed=SEED))
     with Simulation(aot1, transport="zenoh", layout="per-node") as sim:
         keys, plan = sim.keys, sim.plan
@@ -201,7 +200,7 @@ def test_garbage_on_every_kind_of_key_over_zenoh(aot1):
         outsider = ZenohTransport.client(sim.endpoint)
         try:
             done, tick = keys.done("node-rpi3_0"), keys.tick("node-rpi3_0")
-            inbox, state = keys.inbox("node-rpi3_0"), keys.topic("state/rpi3_0")
+            inbox, state = keys.inbox("node-rpi3_0"), keys.broadcasts("node-rpi3_0")
             outsider.wait_matching([done, tick, inbox, state], 30)
             for key in (done, tick, inbox, state):
                 outsider.put(key, b"\xc1 not msgpack")
@@ -214,8 +213,7 @@ def test_garbage_on_every_kind_of_key_over_zenoh(aot1):
                 Envelope(Kind.STATE, "worker:x", "state/x", 1, 1, 2, NodeState("x", 0, 0))]))
         finally:
             outsider.close()
-        hearers = [p for p in plan.procs if "state/rpi3_0" in plan.topics_of(p)]
-        expected = {"bad_msgpack": 2 + len(hearers), "unknown_sender": 1, "wrong_tick": 1}
+        expected = {"bad_msgpack": 2 + len(plan.listeners["node-rpi3_0"]), "unknown_sender": 1, "wrong_tick": 1}
         while sim.clock.node_rejected() != expected:  # processes report their counts in their next Done
             assert report.tick < TICKS - 1, f"counts never reached {expected}: {sim.clock.node_rejected()}"
             report = sim.step()

@@ -49,23 +49,22 @@ class HostDriver:
         self.rejections = transport.rejections
         self.rejections.who = self.proc
         # who may publish to this process, and where the envelopes they carry may go
-        topics = plan.topics_of(self.proc)
         self.senders = frozenset(p for p, them in plan.recipients.items() if self.proc in them)
         self.hosted = frozenset(host.by_id)
         self.proc_of = plan.proc_of
-        self.topics = frozenset(topics)
+        self.publications = plan.publications  # role -> the topics it broadcasts on
         # one detector per node covers every event kind, users' own included; publishers come lazily
         self.listeners = [transport.monitored(keys.events("*", node)) for node in host.nodes]
         self.monitors: dict[tuple[str, str], Monitored] = {}
         # the keys this process publishes on, built once rather than every tick
         self.done_key = keys.done(self.proc)
         self.inbox_keys = {p: keys.inbox(p) for p in plan.destinations(self.proc)}
-        self.topic_keys = {topic: keys.topic(topic) for topic in host.published_topics()}
+        self.broadcast_key = keys.broadcasts(self.proc) if plan.listeners[self.proc] else None
         transport.subscribe(keys.tick(), self.on_tick)
         transport.subscribe(keys.tick(self.proc), self.on_tick)
         transport.subscribe(keys.inbox(self.proc), self.on_batch)
-        for topic in topics:
-            transport.subscribe(keys.topic(topic), self.on_batch)
+        for proc in plan.broadcasters[self.proc]:
+            transport.subscribe(keys.broadcasts(proc), self.on_batch)
 
     def on_tick(self, key: str, cmd: Tick) -> None:
         if type(cmd) is not Tick:
@@ -126,8 +125,9 @@ class HostDriver:
                                 f"{self.tick} of episode {self.episode}")
         proc_of = self.proc_of
         for env in batch.envelopes:
-            if env.dst not in self.hosted and not (env.kind is Kind.STATE and env.dst in self.topics):
-                return UNKNOWN_SENDER, f"an envelope for {env.dst!r}, which is not here"
+            if env.dst not in self.hosted and not (env.kind is Kind.STATE
+                                                   and env.dst in self.publications.get(env.src, ())):
+                return UNKNOWN_SENDER, f"an envelope for {env.dst!r}, which is neither here nor its sender's topic"
             if proc_of.get(env.src) != batch.src:
                 return UNKNOWN_SENDER, f"an envelope from {env.src!r}, which {batch.src} does not host"
             if env.arrive <= batch.tick:
@@ -187,8 +187,8 @@ class HostDriver:
             done.rejected = dict(self.rejections.counts)
         for proc, envelopes in out.batches.items():
             self.transport.publish(self.inbox_keys[proc], Batch(self.episode, t, self.proc, envelopes))
-        for topic, envelopes in out.topics.items():
-            self.transport.publish(self.topic_keys[topic], Batch(self.episode, t, self.proc, envelopes))
+        if out.broadcasts:
+            self.transport.publish(self.broadcast_key, Batch(self.episode, t, self.proc, out.broadcasts))
         self.transport.publish(self.done_key, done)
         for kind, node, fields in out.events:  # best effort: monitors never slow the emulation down
             monitor = self.monitors.get((kind, node))

@@ -1,9 +1,10 @@
 """A host runs the roles placed in one process and sorts their mail.
 
 It knows nothing of the transport: ``run`` executes one tick of every role and returns what must
-leave the process (one batch per destination process, one per broadcast topic) together with the
-``Done`` report. Mail between co-located roles never leaves the host, but obeys the same rules:
-delivered at its arrival tick, applied in canonical order (arrive, sender role, seq).
+leave the process (one batch of mail per destination process, one batch of the broadcasts other
+processes hear) together with the ``Done`` report. Mail between co-located roles never leaves the
+host, but obeys the same rules: delivered at its arrival tick, applied in canonical order (arrive,
+sender role, seq).
 """
 
 from __future__ import annotations
@@ -27,7 +28,7 @@ NO_MAIL: tuple[Envelope, ...] = ()
 @dataclass(slots=True)
 class Outgoing:
     batches: dict[str, list[Envelope]]  # destination process -> envelopes
-    topics: dict[str, list[Envelope]]  # broadcast topic -> envelopes
+    broadcasts: list[Envelope]  # for every process in ``plan.listeners[proc]``
     done: Done
     events: list[tuple[str, str, dict]]  # (kind, node, fields), collected only while a monitor listens
 
@@ -49,13 +50,14 @@ class Host:
         self.by_id = {r.id: r for r in self.roles}
         self.drivable = {r.id for r in self.roles if plan.kind_of(r.id).agent}  # roles an agent can drive
         self.outboxes = {r.id: Outbox(r.id) for r in self.roles}
-        # For each topic: local subscribers, and remote processes that subscribe.
+        # For each topic: the subscribers here; and the topics other processes hear, which leave the host
         self.local_subs: dict[str, list[str]] = {}
-        self.remote_subs: dict[str, list[str]] = {}
+        self.heard_elsewhere: set[str] = set()
         for topic, subs in plan.subscribers.items():
             self.local_subs[topic] = [r for r in subs if r in self.by_id]
-            self.remote_subs[topic] = list(dict.fromkeys(
-                plan.proc_of[r] for r in subs if plan.proc_of[r] != proc))
+            if any(plan.proc_of[r] != proc for r in subs):
+                self.heard_elsewhere.add(topic)
+        self.listeners = plan.listeners[proc]
         # Co-located control (control_latency 0; the layout keeps a node's controller with its worker):
         # controllers answer before the other roles run and observe after them (``run``).
         self.colocated: list[tuple[Controller, str]] = []  # (controller, its worker's role id)
@@ -74,11 +76,6 @@ class Host:
     @property
     def nodes(self) -> list[str]:
         return list(dict.fromkeys(r.node.id for r in self.roles))
-
-    def published_topics(self) -> list[str]:
-        """Broadcast topics of this host's roles that some other process listens to."""
-        topics = [t for r in self.roles for t in self.plan.publications[r.id]]
-        return [t for t in topics if self.remote_subs.get(t)]
 
     def reset(self, episode: int, seed: int, external: frozenset[str] = frozenset(),
               policy: str | None = None) -> None:
@@ -183,7 +180,7 @@ class Host:
         proc_of = self.plan.proc_of
         role_index = self.plan.role_index
         batches: dict[str, list[Envelope]] = {}
-        topics: dict[str, list[Envelope]] = {}
+        broadcasts: list[Envelope] = []
         sent: dict[int, int] = {}
         flights: dict[int, dict[int, int]] = {}
         for role in ran:
@@ -202,17 +199,17 @@ class Host:
             for env in out.broadcasts:
                 for r in self.local_subs.get(env.dst, ()):
                     self.mail[r][env.arrive].append(env)
-                if self.remote_subs.get(env.dst):
-                    topics.setdefault(env.dst, []).append(env)
+                if env.dst in self.heard_elsewhere:
+                    broadcasts.append(env)
             out.envelopes.clear()
             out.broadcasts.clear()
         index = self.plan.proc_index
         for p in batches:
             sent[index[p]] = 1
-        for topic in topics:
-            for p in self.remote_subs[topic]:
+        if broadcasts:  # one batch reaches every listener, whichever topics it carries
+            for p in self.listeners:
                 sent[index[p]] = sent.get(index[p], 0) + 1
-        return Outgoing(batches, topics, self.report(t, ran, sent, flights), events)
+        return Outgoing(batches, broadcasts, self.report(t, ran, sent, flights), events)
 
     def report(self, t: int, ran: list[Role], sent: dict[int, int], flights: dict[int, dict[int, int]]) -> Done:
         """The Done of tick t. Its stats hold only the roles whose counters changed since the last

@@ -33,10 +33,9 @@ class Keys:
     def inbox(self, proc: str) -> str:
         return f"{self.root}/proc/{proc}/inbox"
 
-    def topic(self, topic: str) -> str:
-        """A broadcast topic of the model ("state/<node>") on the bus: ``…/node/<node>/state``."""
-        kind, node = topic.split("/", 1)
-        return f"{self.root}/node/{node}/{kind}"
+    def broadcasts(self, proc: str) -> str:
+        """One process's broadcasts (its workers' states): every tick's in one batch."""
+        return f"{self.root}/proc/{proc}/broadcast"
 
     def alive(self, proc: str = "*") -> str:
         return f"{self.root}/alive/{proc}"

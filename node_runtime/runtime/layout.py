@@ -118,14 +118,6 @@ class ProcessLayout:
                 out.setdefault(topic, []).append(r)
         return {t: tuple(rs) for t, rs in out.items()}
 
-    def topics_of(self, proc: str) -> tuple[str, ...]:
-        """Topics a process must subscribe to on the bus (for the roles it hosts)."""
-        seen: dict[str, None] = {}
-        for r in self.roles_of[proc]:
-            for t in self.subscriptions[r]:
-                seen[t] = None
-        return tuple(seen)
-
     def destinations(self, proc: str) -> tuple[str, ...]:
         """Processes this one may send mail to: those hosting roles of its nodes or their neighbours."""
         nodes: dict[str, None] = {}
@@ -137,14 +129,31 @@ class ProcessLayout:
         return tuple(procs)
 
     @cached_property
-    def recipients(self) -> dict[str, frozenset[str]]:
-        """Processes each process may publish to: those it may mail, and those hearing its roles' broadcasts."""
+    def listeners(self) -> dict[str, tuple[str, ...]]:
+        """The other processes hearing each process's broadcasts: those hosting a subscriber of a topic
+        that one of its roles publishes on. They all get the process's broadcasts of a tick as one batch,
+        so a process of many nodes sends one message per tick rather than one per node."""
         out = {}
         for proc in self.procs:
-            heard = (self.proc_of[r] for w in self.roles_of[proc] for topic in self.publications[w]
-                     for r in self.subscribers.get(topic, ()))
-            out[proc] = frozenset(self.destinations(proc)).union(heard) - {proc}
+            heard = {self.proc_of[r] for w in self.roles_of[proc] for topic in self.publications[w]
+                     for r in self.subscribers.get(topic, ())}
+            heard.discard(proc)
+            out[proc] = tuple(sorted(heard, key=self.proc_index.__getitem__))
         return out
+
+    @cached_property
+    def broadcasters(self) -> dict[str, tuple[str, ...]]:
+        """The processes whose broadcasts each process hears (the inverse of ``listeners``)."""
+        out: dict[str, list[str]] = {p: [] for p in self.procs}
+        for proc, them in self.listeners.items():
+            for p in them:
+                out[p].append(proc)
+        return {p: tuple(them) for p, them in out.items()}
+
+    @cached_property
+    def recipients(self) -> dict[str, frozenset[str]]:
+        """Processes each process may publish to: those it may mail, and those hearing its roles' broadcasts."""
+        return {proc: frozenset(self.destinations(proc)).union(self.listeners[proc]) for proc in self.procs}
 
     def node_of_proc(self, proc: str) -> tuple[str, ...]:
         """Nodes whose roles a process hosts (for error messages naming a node)."""

@@ -86,7 +86,9 @@ def run(spec: ProcSpec) -> int:
             orchestrator["seen" if alive else "gone"] = True
 
         transport.watch_tokens(spec.keys.alive(ORCHESTRATOR), on_orchestrator)
-        publishes = [*driver.inbox_keys.values(), *driver.topic_keys.values(), driver.done_key]
+        publishes = [*driver.inbox_keys.values(), driver.done_key]
+        if driver.broadcast_key is not None:
+            publishes.append(driver.broadcast_key)
         transport.wait_matching(publishes, READY_TIMEOUT)
         transport.declare_token(spec.keys.alive(spec.proc))
         transport.dispatch(until=lambda: driver.stopped or driver.failed is not None or orchestrator["gone"])
