@@ -41,6 +41,7 @@ class ZenohEdgeVectorEnv(EnvBase):
         **kwargs: any other ``ZenohEdgeEnv`` argument but ``observation`` and ``transport`` (flat and
             in-process here), e.g. ``max_steps``, ``reward``, ``overrides``.
 
+    In batch mode (B tasks placed per step) each agent's action and mask gain a B axis before the last.
     ``set_seed(s)`` seeds simulation k with ``s + k``; its later episodes draw their seeds from that
     stream, exactly as one ``ZenohEdgeEnv`` seeded with ``s + k`` does.
     """
@@ -69,12 +70,13 @@ class ZenohEdgeVectorEnv(EnvBase):
     def _make_specs(self, env: ZenohEdgeEnv) -> None:
         k, n = self.batch_size[0], len(self.agent_names)
         space = env.observation_space(self.agent_names[0])
-        dim, actions = space["observation"].shape[0], space["action_mask"].shape[0]
+        dim = space["observation"].shape[0]
+        *slots, actions = space["action_mask"].shape  # slots: () in binary mode, (B,) in batch mode
         _, infos = env.reset(seed=0)  # the info keys are only known from a reset
         self._info_keys = list(infos[self.agent_names[0]]) if self.info_numbers else []
         group = {
             "observation": Composite(observation=Unbounded((k, n, dim), dtype=torch.float32), shape=(k, n)),
-            "action_mask": Binary(n=actions, shape=(k, n, actions), dtype=torch.bool),
+            "action_mask": Binary(n=actions, shape=(k, n, *slots, actions), dtype=torch.bool),
             "mask": Binary(n=n, shape=(k, n), dtype=torch.bool),
         }
         if self._info_keys:
@@ -82,7 +84,7 @@ class ZenohEdgeVectorEnv(EnvBase):
                                       shape=(k, n))
         self.observation_spec = Composite({GROUP: Composite(group, shape=(k, n))}, shape=(k,))
         self.action_spec = Composite(
-            {GROUP: Composite(action=Categorical(actions, shape=(k, n), dtype=torch.int64), shape=(k, n))},
+            {GROUP: Composite(action=Categorical(actions, shape=(k, n, *slots), dtype=torch.int64), shape=(k, n))},
             shape=(k,))
         self.reward_spec = Composite({GROUP: Composite(reward=Unbounded((k, n, 1)), shape=(k, n))}, shape=(k,))
         flags = {f: Categorical(2, shape=(k, n, 1), dtype=torch.bool) for f in ("done", "terminated", "truncated")}

@@ -14,7 +14,7 @@ pytest.importorskip("torchrl")
 from torchrl.envs import ParallelEnv, PettingZooWrapper
 from torchrl.envs.utils import check_env_specs
 
-from env import ZenohEdgeEnv
+from env import ScenarioOverrides, ZenohEdgeEnv
 from env.vector import ZenohEdgeVectorEnv
 from tests.conftest import ROOT
 from tests.test_env_torchrl import STEPS, check_rollout, masked_random
@@ -75,6 +75,18 @@ def test_a_partial_reset_restarts_only_the_flagged_simulations():
     assert current["agents", "info", "tick"][:, 0].tolist() == [3.0, 0.0, 3.0]
     after = env.step(masked_random(current))["next"]
     assert after["agents", "info", "tick"][:, 0].tolist() == [4.0, 1.0, 4.0]  # the others went on
+    env.close()
+
+
+def test_batch_mode_places_b_tasks_per_agent_and_step():
+    batch = ScenarioOverrides(mode="batch", batch_size=3, arrival_rate=0.6)
+    check_env_specs(ZenohEdgeVectorEnv("aot2", num_envs=2, max_steps=STEPS, overrides=batch))  # spec-random actions
+    env = ZenohEdgeVectorEnv("aot2", num_envs=2, max_steps=STEPS, invalid_action="raise", overrides=batch)
+    td = env.rollout(STEPS + 2, masked_random, break_when_any_done=False)
+    mask, action = td["agents", "action_mask"], td["agents", "action"]
+    assert action.shape == (2, STEPS + 2, len(env.agent_names), 3) and mask.shape == (*action.shape, 19)
+    assert mask.gather(-1, action.unsqueeze(-1)).all()  # invalid_action="raise": the env checked them too
+    assert (action > 0).any()  # some tasks were offloaded
     env.close()
 
 
