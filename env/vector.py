@@ -38,8 +38,8 @@ class ZenohEdgeVectorEnv(EnvBase):
         scenario: as for ``ZenohEdgeEnv``.
         num_envs: K, the number of simulations (the env's ``batch_size`` is ``(K,)``).
         info_numbers: put the flat infos under ``("agents", "info", key)`` (one (K, N) tensor per number).
-        **kwargs: any other ``ZenohEdgeEnv`` argument but ``observation`` and ``transport`` (flat and
-            in-process here), e.g. ``max_steps``, ``reward``, ``overrides``.
+        **kwargs: any other ``ZenohEdgeEnv`` argument but ``observation``, ``transport`` and ``connect``
+            (flat and in-process here), e.g. ``max_steps``, ``reward``, ``overrides``.
 
     In batch mode (B tasks placed per step) each agent's action and mask gain a B axis before the last.
     ``set_seed(s)`` seeds simulation k with ``s + k``; its later episodes draw their seeds from that
@@ -50,7 +50,7 @@ class ZenohEdgeVectorEnv(EnvBase):
                  **kwargs: Any) -> None:
         if isinstance(num_envs, bool) or not isinstance(num_envs, int) or num_envs < 1:
             raise ValueError(f"num_envs must be an integer >= 1, not {num_envs!r}")
-        for fixed in ("observation", "transport"):
+        for fixed in ("observation", "transport", "connect"):
             if fixed in kwargs:
                 raise TypeError(f"ZenohEdgeVectorEnv is flat and in-process: {fixed}= cannot be given")
         super().__init__(batch_size=torch.Size([num_envs]), allow_done_after_reset=False)

@@ -114,6 +114,7 @@ def test_parallel_env_of_vector_envs_steps_four_simulations_on_two_workers():
     ({"num_envs": 2.0}, ValueError, "num_envs must be an integer >= 1"),
     ({"observation": "flat"}, TypeError, "observation= cannot be given"),
     ({"transport": "zenoh"}, TypeError, "transport= cannot be given"),
+    ({"connect": "tcp/127.0.0.1:7447"}, TypeError, "connect= cannot be given"),
 ])
 def test_bad_arguments_are_refused(kwargs, error, match):
     with pytest.raises(error, match=match):
