@@ -37,6 +37,8 @@ class ZenohEdgeVectorEnv(EnvBase):
     Args:
         scenario: as for ``ZenohEdgeEnv``.
         num_envs: K, the number of simulations (the env's ``batch_size`` is ``(K,)``).
+        seed: simulation k's first episode is seeded ``seed + k`` (as after ``set_seed(seed)``); without
+            one, the K seeds start from fresh entropy, still one apart.
         info_numbers: put the flat infos under ``("agents", "info", key)`` (one (K, N) tensor per number).
         **kwargs: any other ``ZenohEdgeEnv`` argument but ``observation``, ``transport`` and ``connect``
             (flat and in-process here), e.g. ``max_steps``, ``reward``, ``overrides``.
@@ -46,8 +48,8 @@ class ZenohEdgeVectorEnv(EnvBase):
     stream, exactly as one ``ZenohEdgeEnv`` seeded with ``s + k`` does.
     """
 
-    def __init__(self, scenario: Any = "aot1", *, num_envs: int = 1, info_numbers: bool = True,
-                 **kwargs: Any) -> None:
+    def __init__(self, scenario: Any = "aot1", *, num_envs: int = 1, seed: int | None = None,
+                 info_numbers: bool = True, **kwargs: Any) -> None:
         if isinstance(num_envs, bool) or not isinstance(num_envs, int) or num_envs < 1:
             raise ValueError(f"num_envs must be an integer >= 1, not {num_envs!r}")
         for fixed in ("observation", "transport", "connect"):
@@ -64,6 +66,8 @@ class ZenohEdgeVectorEnv(EnvBase):
         self._last: list[dict[str, np.ndarray]] = [{} for _ in self.envs]  # each sim's latest arrays
         self._seeds: list[int | None] = [None] * num_envs
         self._make_specs(first)
+        # every simulation's first reset gets its seed explicitly (the spec probe above reset the first one)
+        self._set_seed(int(np.random.SeedSequence().entropy % 2**31) if seed is None else seed)
 
     # ----- specs -----
 

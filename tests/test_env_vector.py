@@ -64,6 +64,20 @@ def test_each_simulation_is_the_single_env_of_its_seed_across_episode_ends():
     env.close()
 
 
+def test_a_seed_argument_seeds_simulation_k_with_seed_plus_k():
+    env = ZenohEdgeVectorEnv("aot2", num_envs=2, max_steps=STEPS, seed=5)
+    first = env.reset()["agents", "observation", "observation"]
+    for k in range(2):
+        single = ZenohEdgeEnv("aot2", transport="inproc", observation="flat", max_steps=STEPS)
+        observations, _ = single.reset(seed=5 + k)
+        assert np.array_equal(_stacked(observations, "observation"), first[k])
+        single.close()
+    unseeded = [ZenohEdgeVectorEnv("aot2", num_envs=1, max_steps=STEPS) for _ in range(2)]
+    a, b = (e.rollout(STEPS, masked_random)["next", "agents", "info", "node_generated"] for e in unseeded)
+    assert not torch.equal(a, b)  # fresh entropy, not a fixed seed
+    env.close()
+
+
 def test_a_partial_reset_restarts_only_the_flagged_simulations():
     """TorchRL resets the simulations that "_reset" flags, from the current step's data (as rollouts do)."""
     env = ZenohEdgeVectorEnv("aot2", num_envs=3, max_steps=STEPS)
