@@ -119,7 +119,8 @@ class Supervisor:
         t0 = time.perf_counter()
         self.forks = ForkServer.shared()
         for proc in procs if procs is not None else self.plan.procs:
-            spec = ProcSpec(proc, scenario, layout, endpoint, self.keys, tuple(sys.path), security, lease_s=lease_s)
+            spec = ProcSpec(proc, scenario, layout, endpoint, self.keys, tuple(sys.path), security, lease_s=lease_s,
+                            ready_timeout=timeout)
             self.children[proc] = self.forks.start(proc, node_process.main, spec)
         self.wait_ready(timeout)
         return time.perf_counter() - t0

@@ -4,10 +4,13 @@ node's own reason (its exception, and the end of its traceback), however the nod
 from __future__ import annotations
 
 import re
+import subprocess
+import sys
 import textwrap
 
 import pytest
 
+from node_runtime.runtime.zenoh_bus import ZenohTransport, free_port
 from tests.conftest import ROOT
 from tests.launcher import Launch, assert_all_gone
 
@@ -50,3 +53,31 @@ def test_the_error_names_the_process_and_its_reason(tmp_path, worker, how, messa
     trace = run.err[run.err.index(error) + 1:]
     assert any("failing_workers.py" in line for line in trace), "".join(run.err)
     assert_all_gone(children)
+
+
+def test_a_node_process_waits_for_its_peers_as_long_as_it_was_told():
+    """Readiness follows the orchestrator's timeout (ProcSpec.ready_timeout), not a fixed 60 s: a node
+    whose peers never subscribe gives up after it, naming what it waited for."""
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    router = ZenohTransport.router(endpoint)
+    code = textwrap.dedent(f"""
+        import time
+        from node_runtime.runtime.keys import Keys
+        from node_runtime.runtime.process import ProcSpec, run
+        from orchestrator.scenario import load_scenario
+        spec = ProcSpec("node-rpi3_0", load_scenario("aot1"), "per-node", {endpoint!r}, Keys("lonely"),
+                        ready_timeout=2.0)
+        start = time.monotonic()
+        try:
+            run(spec)
+        except Exception as exc:
+            print(type(exc).__name__, round(time.monotonic() - start, 1), exc)
+    """)
+    try:
+        out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60, cwd=ROOT)
+    finally:
+        router.close()
+    name, elapsed, message = out.stdout.strip().split(" ", 2)
+    assert name == "TransportError", out.stdout + out.stderr
+    assert "no subscriber appeared within 2 s" in message and "lonely/proc/" in message
+    assert 2.0 <= float(elapsed) < 30

@@ -43,6 +43,7 @@ class ProcSpec:
     security: Security | None = None  # TLS and login for the session (deploy/README.md)
     settings: dict[str, Any] | None = None  # a user's Zenoh configuration (zenohedge-node --zenoh-config)
     lease_s: float | None = None  # how long the router keeps a silent session (default: Zenoh's 10 s)
+    ready_timeout: float = READY_TIMEOUT  # how long to wait for the peers' subscriptions before giving up
 
 
 PR_SET_PDEATHSIG, PR_SET_NAME = 1, 15
@@ -89,7 +90,7 @@ def run(spec: ProcSpec) -> int:
         publishes = [*driver.inbox_keys.values(), driver.done_key]
         if driver.broadcast_key is not None:
             publishes.append(driver.broadcast_key)
-        transport.wait_matching(publishes, READY_TIMEOUT)
+        transport.wait_matching(publishes, spec.ready_timeout)
         transport.declare_token(spec.keys.alive(spec.proc))
         transport.dispatch(until=lambda: driver.stopped or driver.failed is not None or orchestrator["gone"])
         if driver.failed is not None:  # already reported in its Done; the exit notice says it again
