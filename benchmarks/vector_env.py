@@ -36,15 +36,15 @@ def masked_random(td):
     return td
 
 
-def rate(env: EnvBase, steps: int) -> tuple[float, int]:
-    """Agent-steps per second over ``steps`` steps of every simulation (after a warm-up), and the agent count."""
+def rate(env: EnvBase, steps: int) -> float:
+    """Agent-steps per second over ``steps`` steps of every simulation (after a warm-up)."""
     env.set_seed(0)
     env.rollout(10, masked_random, break_when_any_done=False)  # start the workers, first reset
     start = time.perf_counter()
     td = env.rollout(steps, masked_random, break_when_any_done=False)
     elapsed = time.perf_counter() - start
     env.close()
-    return td["agents", "action"].numel() / elapsed, td["agents", "action"].shape[-1]
+    return td["agents", "action"].numel() / elapsed
 
 
 def main() -> None:
@@ -72,7 +72,7 @@ def main() -> None:
                  for k in args.k if k >= w and k % w == 0]
     measured: dict[tuple[str, int], float] = {}
     for name, k, make in rows:
-        measured[name, k] = rate(make(), args.steps)[0]
+        measured[name, k] = rate(make(), args.steps)
         to_vector = measured[name, k] / measured[("vector", 1)] if ("vector", 1) in measured else None
         print(f"| {name} | {k} | {measured[name, k]:,.0f} | {measured[name, k] / measured['wrapper', 1]:.2f} | "
               f"{'–' if to_vector is None else f'{to_vector:.2f}'} |", flush=True)

@@ -61,23 +61,25 @@ class ZenohEdgeVectorEnv(EnvBase):
         first = self.envs[0]
         self.agent_names = list(first.possible_agents)
         self.group_map = {GROUP: self.agent_names}
-        self.info_numbers = info_numbers
-        self._info_keys: list[str] = []
-        self._last: list[dict[str, np.ndarray]] = [{} for _ in self.envs]  # each sim's latest arrays
         self._seeds: list[int | None] = [None] * num_envs
-        self._make_specs(first)
+        self._started = False  # the first reset resets every simulation, whatever it is asked
+        self._make_specs(first, info_numbers)
         # every simulation's first reset gets its seed explicitly (the spec probe above reset the first one)
         self._set_seed(int(np.random.SeedSequence().entropy % 2**31) if seed is None else seed)
 
     # ----- specs -----
 
-    def _make_specs(self, env: ZenohEdgeEnv) -> None:
+    def _make_specs(self, env: ZenohEdgeEnv, info_numbers: bool) -> None:
+        """The specs, and the arrays each step's simulations write their rows into."""
         k, n = self.batch_size[0], len(self.agent_names)
         space = env.observation_space(self.agent_names[0])
         dim = space["observation"].shape[0]
         *slots, actions = space["action_mask"].shape  # slots: () in binary mode, (B,) in batch mode
         _, infos = env.reset(seed=0)  # the info keys are only known from a reset
-        self._info_keys = list(infos[self.agent_names[0]]) if self.info_numbers else []
+        self._info_keys = list(infos[self.agent_names[0]]) if info_numbers else []
+        self._observation = np.zeros((k, n, dim), dtype=np.float32)
+        self._mask = np.zeros((k, n, *slots, actions), dtype=bool)
+        self._info = np.zeros((k, n, len(self._info_keys)), dtype=np.float32)
         group = {
             "observation": Composite(observation=Unbounded((k, n, dim), dtype=torch.float32), shape=(k, n)),
             "action_mask": Binary(n=actions, shape=(k, n, *slots, actions), dtype=torch.bool),
@@ -104,11 +106,12 @@ class ZenohEdgeVectorEnv(EnvBase):
 
     def _reset(self, tensordict: TensorDictBase | None = None, **kwargs: Any) -> TensorDictBase:
         which = self._to_reset(tensordict)
+        self._started = True
         for i in np.flatnonzero(which):
             observations, infos = self.envs[i].reset(seed=self._seeds[i])
             self._seeds[i] = None  # later episodes draw from the stream that seed started
-            self._last[i] = self._arrays(observations, infos)
-        return self._output(reward=False, ended=np.zeros(len(self.envs), dtype=bool))
+            self._write(i, observations, infos)
+        return self._output(ended=np.zeros(len(self.envs), dtype=bool))
 
     def _step(self, tensordict: TensorDictBase) -> TensorDictBase:
         actions = tensordict.get((GROUP, "action")).cpu().numpy()
@@ -117,10 +120,10 @@ class ZenohEdgeVectorEnv(EnvBase):
         for i, env in enumerate(self.envs):
             observations, reward, _, truncations, infos = env.step(dict(zip(self.agent_names, actions[i].tolist(),
                                                                             strict=True)))
-            self._last[i] = self._arrays(observations, infos)
+            self._write(i, observations, infos)
             rewards[i] = [reward[a] for a in self.agent_names]
             ended[i] = truncations[self.agent_names[0]]  # every agent's episode ends at the same step
-        out = self._output(reward=True, ended=ended)
+        out = self._output(ended=ended)
         out.set((GROUP, "reward"), torch.from_numpy(rewards).unsqueeze(-1))
         return out
 
@@ -134,7 +137,7 @@ class ZenohEdgeVectorEnv(EnvBase):
     def _to_reset(self, tensordict: TensorDictBase | None) -> np.ndarray:
         """Which simulations to reset: all at the first reset, else those TorchRL's "_reset" flags name."""
         everyone = np.ones(len(self.envs), dtype=bool)
-        if tensordict is None or not any(self._last):
+        if tensordict is None or not self._started:
             return everyone
         flag = tensordict.get("_reset", None)
         if flag is None:
@@ -144,19 +147,20 @@ class ZenohEdgeVectorEnv(EnvBase):
             flag = flag.flatten(1).any(-1)
         return flag.reshape(len(self.envs)).cpu().numpy()
 
-    def _arrays(self, observations: dict[str, dict[str, np.ndarray]], infos: dict[str, dict[str, float]]
-                ) -> dict[str, np.ndarray]:
-        agents = self.agent_names
-        out = {"observation": np.stack([observations[a]["observation"] for a in agents]),
-               "action_mask": np.stack([observations[a]["action_mask"] for a in agents]).astype(bool)}
-        if self._info_keys:
-            out["info"] = np.array([[infos[a][key] for key in self._info_keys] for a in agents], dtype=np.float32)
-        return out
+    def _write(self, i: int, observations: dict[str, dict[str, np.ndarray]], infos: dict[str, dict[str, float]]
+               ) -> None:
+        """Simulation i's latest observations, masks and info numbers, into its row of the batch."""
+        for j, agent in enumerate(self.agent_names):
+            self._observation[i, j] = observations[agent]["observation"]
+            self._mask[i, j] = observations[agent]["action_mask"]
+            if self._info_keys:
+                self._info[i, j] = [infos[agent][key] for key in self._info_keys]
 
-    def _output(self, *, reward: bool, ended: np.ndarray) -> TensorDictBase:
+    def _output(self, *, ended: np.ndarray) -> TensorDictBase:
+        """The batch as tensors: copies, since the arrays are overwritten by the next step."""
         k, n = len(self.envs), len(self.agent_names)
-        observation = torch.from_numpy(np.stack([last["observation"] for last in self._last]))
-        mask = torch.from_numpy(np.stack([last["action_mask"] for last in self._last]))
+        observation = torch.from_numpy(self._observation.copy())
+        mask = torch.from_numpy(self._mask.copy())
         truncated = torch.from_numpy(ended).reshape(k, 1)
         group: dict[str, Any] = {
             "observation": TensorDict({"observation": observation}, batch_size=(k, n)),
@@ -167,7 +171,7 @@ class ZenohEdgeVectorEnv(EnvBase):
             "truncated": truncated.unsqueeze(1).expand(k, n, 1).clone(),
         }
         if self._info_keys:
-            numbers = torch.from_numpy(np.stack([last["info"] for last in self._last]))  # (k, n, keys)
+            numbers = torch.from_numpy(self._info.copy())  # (k, n, keys)
             group["info"] = TensorDict({key: numbers[..., j] for j, key in enumerate(self._info_keys)},
                                        batch_size=(k, n))
         return TensorDict({GROUP: TensorDict(group, batch_size=(k, n)), "done": truncated.clone(),

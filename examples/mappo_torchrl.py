@@ -144,8 +144,7 @@ def train(args: argparse.Namespace) -> tuple[dict[str, float], ProbabilisticActo
     torch.manual_seed(args.seed)
     torch.set_num_threads(1)  # small networks: more threads only contend with the simulation
 
-    vector = ZenohEdgeVectorEnv(args.scenario, num_envs=args.envs, **settings(args))
-    vector.set_seed(args.seed)
+    vector = ZenohEdgeVectorEnv(args.scenario, num_envs=args.envs, seed=args.seed, **settings(args))
     env = TransformedEnv(vector, RewardSum(in_keys=[("agents", "reward")], out_keys=[("agents", "episode_reward")]))
     actor, critic = build(args, env)
     collector = Collector(env, actor, frames_per_batch=args.frames_per_batch, total_frames=args.frames)

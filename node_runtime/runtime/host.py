@@ -50,13 +50,10 @@ class Host:
         self.by_id = {r.id: r for r in self.roles}
         self.drivable = {r.id for r in self.roles if plan.kind_of(r.id).agent}  # roles an agent can drive
         self.outboxes = {r.id: Outbox(r.id) for r in self.roles}
-        # For each topic: the subscribers here; and the topics other processes hear, which leave the host
-        self.local_subs: dict[str, list[str]] = {}
-        self.heard_elsewhere: set[str] = set()
-        for topic, subs in plan.subscribers.items():
-            self.local_subs[topic] = [r for r in subs if r in self.by_id]
-            if any(plan.proc_of[r] != proc for r in subs):
-                self.heard_elsewhere.add(topic)
+        # For each topic: the subscribers here; and the topics of this host's roles that other processes hear
+        self.local_subs = {topic: [r for r in subs if r in self.by_id] for topic, subs in plan.subscribers.items()}
+        self.heard_elsewhere = {topic for r in self.roles for topic in plan.publications[r.id]
+                                if any(plan.proc_of[s] != proc for s in plan.subscribers.get(topic, ()))}
         self.listeners = plan.listeners[proc]
         # Co-located control (control_latency 0; the layout keeps a node's controller with its worker):
         # controllers answer before the other roles run and observe after them (``run``).
