@@ -26,6 +26,7 @@ from typing import Any, Literal
 from node_runtime.model.controller import Action
 from node_runtime.model.spec import Scenario
 from node_runtime.model.view import Observation
+from node_runtime.runtime.access import access_control
 from node_runtime.runtime.driver import HostDriver
 from node_runtime.runtime.host import Host
 from node_runtime.runtime.inproc import InprocBus
@@ -36,7 +37,6 @@ from node_runtime.runtime.protocol import Done
 from node_runtime.runtime.security import Security, protocol
 from node_runtime.runtime.transport import Transport, TransportError
 from node_runtime.runtime.zenoh_bus import ZenohTransport, free_port
-from orchestrator.access import access_control
 from orchestrator.clock import Clock
 from orchestrator.local_sims import local_endpoint
 from orchestrator.metrics import Metrics, TickReport, bus_record
@@ -95,7 +95,7 @@ class Simulation:
                  zenoh_settings: dict[str, Any] | None = None) -> None:
         """``placement`` (group -> processes) leaves those processes to ``zenohedge-node`` on other hosts;
         their start is awaited up to ``join_timeout`` seconds, after calling ``on_waiting(placement)``.
-        ``security``: TLS, logins and access control on the router (orchestrator/access.py), and the
+        ``security``: TLS, logins and access control on the router (node_runtime/runtime/access.py), and the
         identity of the local processes; ``zenoh_settings``: merged last into the router's configuration."""
         if transport not in ("zenoh", "inproc"):
             raise ValueError(f"transport must be 'zenoh' or 'inproc', not {transport!r}")

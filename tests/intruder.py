@@ -4,8 +4,8 @@ the orchestrator's liveliness token vanishes.
 
     python -m tests.intruder ENDPOINT SIM VICTIM [--security DIR] [--ca FILE] [--password P]
 
-Prints ``refused`` (exit 3) when the session cannot open, else ``connected`` and at the end
-``forged N``, the number of rounds it published.
+Prints ``refused`` (exit 3) when the session cannot open, else ``connected``, ``forging`` once its first
+round is out, and at the end ``forged N``, the number of rounds it published.
 """
 
 from __future__ import annotations
@@ -61,6 +61,8 @@ def main() -> int:
             session.get(keys.control(), payload=codec.encode(
                 {"type": "control", "release": "driver/x", "episode": 9}), timeout=0.1)
             rounds += 1
+            if rounds == 1:
+                print("forging", flush=True)
             if rounds * ROUND_S > LIMIT_S:
                 break
     print(f"forged {rounds}", flush=True)

@@ -6,8 +6,11 @@ all addresses here, and ``zenohedge-node`` runs one placement group inside each 
 
 from __future__ import annotations
 
+import contextlib
 import json
 import os
+import signal
+import socket
 import subprocess
 import sys
 
@@ -25,32 +28,60 @@ def net_namespace(pid: int) -> str:
     return os.readlink(f"/proc/{pid}/ns/net")
 
 
+def tcp_peers(pid: int) -> list[tuple[str, int]]:
+    """The remote (address, port) of each TCP connection the process holds, read in its own network namespace."""
+    inodes = set()
+    for fd in os.listdir(f"/proc/{pid}/fd"):
+        with contextlib.suppress(OSError):  # closed meanwhile
+            link = os.readlink(f"/proc/{pid}/fd/{fd}")
+            if link.startswith("socket:["):
+                inodes.add(link[8:-1])
+    peers = []
+    for table in ("tcp", "tcp6"):
+        with open(f"/proc/{pid}/net/{table}") as f:
+            for line in list(f)[1:]:
+                cols = line.split()
+                address, port = cols[2].split(":")
+                if cols[9] in inodes and cols[3] == "01" and len(address) == 8:  # ESTABLISHED, IPv4
+                    peers.append((socket.inet_ntoa(bytes.fromhex(address)[::-1]), int(port, 16)))
+    return peers
+
+
 def test_two_hosts_give_the_same_emulation(tmp_path, hosts):
+    """Host 1 runs its processes behind its own router (the default), host 2 connects each process to the
+    orchestrator's router (``--direct``): the same emulation as one host either way."""
     from orchestrator.session import free_port
 
     port = free_port("0.0.0.0")
     run = Launch("aot2", "--layout", "per-node", "--listen", f"0.0.0.0:{port}", "--sim-id", "deploytest",
                  "--placement", str(ROOT / "deploy" / "examples" / "aot2-two-hosts.yaml"), "--steps", "150",
-                 "--seed", "4", "--policy", "random", "--out", str(tmp_path / "run"))
+                 "--seed", "4", "--policy", "random", "--out", str(tmp_path / "run"), "--serve")
     run.wait_for("waiting for 18 processes on other hosts")
     groups = []
-    for i, (ns, group) in enumerate(zip(hosts, ["cluster-a", "cluster-b"], strict=True), start=1):
+    for i, (ns, group, how) in enumerate(zip(hosts, ["cluster-a", "cluster-b"], [[], ["--direct"]], strict=True),
+                                         start=1):
         groups.append(subprocess.Popen(
             ["ip", "netns", "exec", ns, sys.executable, "-m", "node_runtime.runtime.remote", "--connect",
-             f"tcp/10.77.{i}.1:{port}", "--sim", "deploytest", "--group", group],
+             f"tcp/10.77.{i}.1:{port}", "--sim", "deploytest", "--group", group, *how],
             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True))
-    run.wait_for("processes ready")
+    run.wait_for("serving until Ctrl-C")  # the episode is over; every process is still connected
     here = net_namespace(os.getpid())
-    remote = [p for g in groups for p in psutil.Process(g.pid).children(recursive=True) if p.name().startswith("zn-")]
-    assert len(remote) == 18
-    assert all(net_namespace(p.pid) != here for p in remote)  # they really run on the other "hosts"
+    remote = [[p for p in psutil.Process(g.pid).children(recursive=True) if p.name().startswith("zn-")]
+              for g in groups]
+    assert [len(r) for r in remote] == [9, 9]
+    assert all(net_namespace(p.pid) != here for r in remote for p in r)  # they really run on the other "hosts"
     local = [p for p in run.descendants() if p.name().startswith("zn-")]
     assert [p.name() for p in local] == ["zn-server_0"]
+    # host 1: one session crosses the network, its router's; host 2: one per process
+    assert tcp_peers(groups[0].pid) == [("10.77.1.1", port)]  # `ip netns exec` became zenohedge-node
+    assert all(tcp_peers(p.pid) == [] for p in remote[0])
+    assert all(tcp_peers(p.pid) == [("10.77.2.1", port)] for p in remote[1])
 
-    assert run.finish(120) == 0
+    run.proc.send_signal(signal.SIGTERM)
+    assert run.finish(120) == 130
     for g in groups:
         assert g.wait(30) == 0, g.stderr.read()
-    assert_all_gone(remote + local)
+    assert_all_gone([p for r in remote for p in r] + local)
 
     deployed = json.loads((tmp_path / "run" / "summary.json").read_text())
     alone = run_summary(load_scenario("aot2"), ticks=150, seed=4, policy="random")
@@ -98,17 +129,30 @@ def test_secure_two_hosts_refuse_outsiders(tmp_path, hosts):
         assert (attempt.returncode, out) == (3, "refused\n"), err
     inside = intruder("zedge-host1", tls, victim, "--security", str(secrets / "cluster-a"))  # a compromised host
     assert inside.stdout.readline() == "connected\n"
+    assert inside.stdout.readline() == "forging\n"
 
-    groups = [subprocess.Popen(
-        ["ip", "netns", "exec", ns, sys.executable, "-m", "node_runtime.runtime.remote", "--connect",
-         f"tls/10.77.{i}.1:{port}", "--sim", "securetest", "--group", group, "--security", str(secrets / group)],
-        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-        for i, (ns, group) in enumerate(zip(hosts, ["cluster-a", "cluster-b"], strict=True), start=1)]
+    def group(i: int, name: str) -> subprocess.Popen:
+        return subprocess.Popen(
+            ["ip", "netns", "exec", f"zedge-host{i}", sys.executable, "-m", "node_runtime.runtime.remote", "--connect",
+             f"tls/10.77.{i}.1:{port}", "--sim", "securetest", "--group", name, "--security", str(secrets / name)],
+            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+
+    # The same identity on host 1's own router: its access control is the orchestrator's, so forged ticks
+    # and Done reach neither the orchestrator nor the processes beside it. The run cannot start before
+    # host 2's processes are ready, so both intruders forge while it runs.
+    groups = [group(1, "cluster-a")]
+    local = groups[0].stderr.readline().rstrip().rpartition("connected to ")[2]
+    assert local.startswith("unixsock-stream/"), local
+    beside = intruder("zedge-host1", local, victim, "--security", str(secrets / "cluster-a"))
+    assert beside.stdout.readline() == "connected\n"
+    assert beside.stdout.readline() == "forging\n"
+    groups.append(group(2, "cluster-b"))
     assert run.finish(120) == 0, "".join(run.err)
     for g in groups:
         assert g.wait(30) == 0, g.stderr.read()
-    out, err = inside.communicate(timeout=60)
-    assert inside.returncode == 0 and out.startswith("forged ") and int(out.split()[1]) > 0, err
+    for forger in (inside, beside):
+        out, err = forger.communicate(timeout=60)
+        assert forger.returncode == 0 and out.split()[-2] == "forged" and int(out.split()[-1]) > 0, err
 
     deployed = json.loads((tmp_path / "run" / "summary.json").read_text())
     alone = run_summary(load_scenario("aot2"), ticks=150, seed=4, policy="random")

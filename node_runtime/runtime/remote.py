@@ -6,23 +6,34 @@ The orchestrator (``orchestrator launch … --placement FILE``) owns the clock a
 command asks it (query ``…/session``) for the scenario, the layout and the processes placed in
 ``--group``, starts them here through the same fork server as a local run, and stays until they
 end. They end when the orchestrator stops the run or vanishes; Ctrl-C here stops them too.
+
+This command's session is a Zenoh router joined to the orchestrator's: the processes started here
+connect to it over a unix socket in a private directory, so that mail between them stays on this host
+and the orchestrator's router holds one session per host, not one per process. ``--direct`` connects
+every process straight to the orchestrator's router instead.
 """
 
 from __future__ import annotations
 
 import argparse
 import contextlib
+import dataclasses
 import os
 import signal
 import sys
+import tempfile
 import threading
+from collections.abc import Callable
+from pathlib import Path
 from typing import Any
 
 from node_runtime.model.spec import Scenario
 from node_runtime.runtime import process as node_process
+from node_runtime.runtime.access import LOCAL_LINK, access_control
 from node_runtime.runtime.cli_options import add_security_options, add_sim_options, security_options
 from node_runtime.runtime.forkserver import ForkServer
 from node_runtime.runtime.keys import Keys
+from node_runtime.runtime.layout import ProcessLayout
 from node_runtime.runtime.process import ORCHESTRATOR, ProcSpec
 from node_runtime.runtime.security import Security, SecurityError
 from node_runtime.runtime.zenoh_bus import ZenohTransport
@@ -30,36 +41,88 @@ from node_runtime.runtime.zenoh_bus import ZenohTransport
 EXIT_OK, EXIT_FAILED, EXIT_USAGE = 0, 1, 2
 
 
+# The host's router gives up at once when the orchestrator's router does not answer, as a client does
+FAIL_FAST = {"connect/timeout_ms": 0, "connect/exit_on_failure": True}
+
+
+class GroupError(Exception):
+    """This host cannot take part: the message, one line, says why."""
+
+
 def run_group(endpoint: str, keys: Keys, group: str, timeout: float = 30.0, security: Security | None = None,
-              settings: dict[str, Any] | None = None) -> int:
-    """``security`` and ``settings`` (a Zenoh configuration): for this session and every process started."""
+              settings: dict[str, Any] | None = None, direct: bool = False) -> int:
+    """``security`` and ``settings`` (a Zenoh configuration): for this command's sessions and every process
+    started. ``direct``: every process opens its own session to ``endpoint``, with no router on this host."""
     try:
-        transport = ZenohTransport.client(endpoint, security, settings)
-    except Exception:  # zenoh.ZError: nothing answers, or the router refused our certificate or login
-        print(f"zenohedge-node: cannot connect to {endpoint}: no router answers there, or it refused this host's "
-              "certificate or login", file=sys.stderr)
+        transport = connect(lambda: ZenohTransport.client(endpoint, security, settings), endpoint)
+        try:
+            info = group_info(transport, endpoint, keys, group, timeout)
+        except GroupError:
+            transport.close()
+            raise
+        if direct:
+            return run_processes(transport, info, endpoint, keys, security, settings)
+        transport.close()  # this host's router, configured from what the orchestrator said, takes over
+        with tempfile.TemporaryDirectory(prefix="zenohedge-node-") as folder:  # mode 0700: this user's only
+            local = f"{LOCAL_LINK}/{folder}/router.sock"
+            rules = {}
+            if security is not None:  # the orchestrator's rules, for what this host's processes send each other
+                plan = ProcessLayout(info["scenario"], info["layout"])
+                rules = {"access_control": access_control(keys, plan, info["placement"], on_host=True)}
+            router = connect(lambda: ZenohTransport.router(local, [endpoint], host_login(security, Path(folder)),
+                                                           {**FAIL_FAST, **rules, **(settings or {})}), endpoint)
+            return run_processes(router, info, local, keys, security, settings)
+    except GroupError as exc:
+        print(f"zenohedge-node: {exc}", file=sys.stderr)
         return EXIT_USAGE
+
+
+def connect(open_session: Callable[[], ZenohTransport], endpoint: str) -> ZenohTransport:
+    try:
+        return open_session()
+    except Exception:  # zenoh.ZError: nothing answers, or the router refused our certificate or login
+        raise GroupError(f"cannot connect to {endpoint}: no router answers there, or it refused this host's "
+                         "certificate or login") from None
+
+
+def group_info(transport: ZenohTransport, endpoint: str, keys: Keys, group: str, timeout: float) -> dict[str, Any]:
+    """What the orchestrator says of the simulation, with ``scenario`` parsed and ``procs``, this group's."""
+    try:
+        info = transport.request(keys.session(), {"type": "session?"}, timeout=timeout)
+    except Exception as exc:  # no answer; or a refusal, e.g. from another ZenohEdge version
+        raise GroupError(f"simulation {keys.sim_id!r} at {endpoint}: {exc}") from None
+    placement = info.get("placement") or {}
+    if group not in placement:
+        raise GroupError(f"simulation {keys.sim_id} has no group {group!r}; groups: "
+                         f"{', '.join(sorted(placement)) or '(none: launch it with --placement)'}")
+    return {**info, "scenario": Scenario.from_dict(info["scenario"]), "group": group, "procs": placement[group]}
+
+
+def host_login(security: Security | None, folder: Path) -> Security | None:
+    """The host router's identity: the group's, accepting one login, the group's own, from local processes
+    (a Zenoh router that logs in with a password refuses every session unless it has a list of logins)."""
+    if security is None:
+        return None
+    users = folder / "users"
+    users.write_text(f"{security.user}:{security.password}\n")
+    return dataclasses.replace(security, users=str(users))
+
+
+def run_processes(transport: ZenohTransport, info: dict[str, Any], endpoint: str, keys: Keys,
+                  security: Security | None, settings: dict[str, Any] | None) -> int:
+    """Start the group's processes, connected to ``endpoint``, and stay until they end; closes ``transport``."""
     forks: ForkServer | None = None
     pids: list[int] = []
+    procs = info["procs"]
     try:
-        try:
-            info = transport.request(keys.session(), {"type": "session?"}, timeout=timeout)
-        except Exception as exc:  # no answer; or a refusal, e.g. from another ZenohEdge version
-            print(f"zenohedge-node: simulation {keys.sim_id!r} at {endpoint}: {exc}", file=sys.stderr)
-            return EXIT_USAGE
-        placement = info.get("placement") or {}
-        if group not in placement:
-            print(f"zenohedge-node: simulation {keys.sim_id} has no group {group!r}; groups: "
-                  f"{', '.join(sorted(placement)) or '(none: launch it with --placement)'}", file=sys.stderr)
-            return EXIT_USAGE
-        scenario = Scenario.from_dict(info["scenario"])
-        procs = placement[group]
         forks = ForkServer.shared()
         for proc in procs:
-            pids.append(forks.start(proc, node_process.main, ProcSpec(proc, scenario, info["layout"], endpoint, keys,
-                                                                      security=security, settings=settings)))
-        print(f"zenohedge-node: group {group}: started {len(procs)} processes of simulation {keys.sim_id} "
-              f"({', '.join(procs[:6])}{' ...' if len(procs) > 6 else ''})", file=sys.stderr, flush=True)
+            spec = ProcSpec(proc, info["scenario"], info["layout"], endpoint, keys, security=security,
+                            settings=settings)
+            pids.append(forks.start(proc, node_process.main, spec))
+        print(f"zenohedge-node: group {info['group']}: started {len(procs)} processes of simulation {keys.sim_id} "
+              f"({', '.join(procs[:6])}{' ...' if len(procs) > 6 else ''}), connected to {endpoint}",
+              file=sys.stderr, flush=True)
 
         gone = threading.Event()
         transport.watch_tokens(keys.alive(ORCHESTRATOR), lambda key, alive: alive or gone.set())
@@ -93,6 +156,9 @@ def main(argv: list[str] | None = None) -> None:
                     sim_help="the simulation id (launch --sim-id fixes it)")
     parser.add_argument("--group", required=True, help="the group of the placement file this host runs")
     parser.add_argument("--timeout", type=float, default=30.0, help="seconds to wait for the orchestrator")
+    parser.add_argument("--direct", action="store_true",
+                        help="connect every process to the orchestrator's router (one session per process across "
+                             "the network) instead of through a router this command runs on this host")
     add_security_options(parser, identity="group's",
                          config_help="a Zenoh JSON5 configuration file merged last into the configuration of this "
                                      "command's sessions and of the processes it starts (its settings win)")
@@ -102,7 +168,8 @@ def main(argv: list[str] | None = None) -> None:
     except SecurityError as exc:
         print(f"zenohedge-node: {exc}", file=sys.stderr)
         sys.exit(EXIT_USAGE)
-    sys.exit(run_group(args.connect, Keys(args.sim, args.prefix), args.group, args.timeout, security, settings))
+    sys.exit(run_group(args.connect, Keys(args.sim, args.prefix), args.group, args.timeout, security, settings,
+                       args.direct))
 
 
 if __name__ == "__main__":

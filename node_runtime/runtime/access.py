@@ -1,4 +1,5 @@
-"""Access control on the simulation's keys, enforced by the Zenoh router (docs/bus.md, "Security").
+"""Access control on the simulation's keys, enforced by the Zenoh routers (docs/bus.md, "Security"): the
+orchestrator's, and the one ``zenohedge-node`` runs on each host for its processes.
 
 With a security directory the router accepts only sessions whose TLS client certificate is signed by the
 deployment's CA and whose login is in its ``users`` file. On top of that, this module writes the router's
@@ -26,6 +27,7 @@ from node_runtime.runtime.layout import ProcessLayout
 
 ORCHESTRATOR, DRIVER, MONITOR = "orchestrator", "driver", "monitor"
 IDENTITIES = (ORCHESTRATOR, DRIVER, MONITOR)
+LOCAL_LINK = "unixsock-stream"  # how a host's processes reach its router
 EVERY_MESSAGE = ["put", "delete", "declare_subscriber", "query", "reply", "declare_queryable", "liveliness_token",
                  "declare_liveliness_subscriber", "liveliness_query"]
 
@@ -50,8 +52,20 @@ def group_keys(keys: Keys, plan: ProcessLayout, procs: list[str]) -> tuple[list[
     return list(puts), [keys.alive(proc) for proc in procs]
 
 
-def access_control(keys: Keys, plan: ProcessLayout, placement: dict[str, list[str]]) -> dict[str, Any]:
-    """The router's ``access_control`` configuration section for this simulation and placement."""
+def _host_subject(name: str) -> dict[str, Any]:
+    """On a host's router: the orchestrator is the router it joined, known by its TLS certificate (it does
+    not log in here); everyone else comes over the local unix socket with a login and no certificate."""
+    if name == ORCHESTRATOR:
+        return {"id": name, "cert_common_names": [name]}
+    return {"id": name, "usernames": [name], "link_protocols": [LOCAL_LINK]}
+
+
+def access_control(keys: Keys, plan: ProcessLayout, placement: dict[str, list[str]],
+                   on_host: bool = False) -> dict[str, Any]:
+    """The router's ``access_control`` configuration section for this simulation and placement.
+
+    ``on_host``: for the router ``zenohedge-node`` runs on a host, which holds its processes to the same
+    rules, so that a session there cannot forge to its neighbours what the orchestrator's router refuses."""
     reading = [
         _rule("read", ["declare_subscriber", "declare_liveliness_subscriber", "liveliness_query"],
               [f"{keys.prefix}/**"]),
@@ -77,6 +91,6 @@ def access_control(keys: Keys, plan: ProcessLayout, placement: dict[str, list[st
                   _rule(f"group-{group}-token", ["liveliness_token"], tokens)]
         policies.append({"id": f"group-{group}", "rules": [*read, f"group-{group}-put", f"group-{group}-token"],
                          "subjects": [group]})
-    subjects = [_subject(name) for name in (*IDENTITIES, *placement)]
+    subjects = [(_host_subject if on_host else _subject)(name) for name in (*IDENTITIES, *placement)]
     return {"enabled": True, "default_permission": "deny", "rules": rules, "subjects": subjects,
             "policies": policies}
