@@ -39,7 +39,7 @@ from orchestrator.clock import ClockError, ProcessFailed
 from orchestrator.metrics import ConservationError, TickReport
 from orchestrator.placement import load_placement
 from orchestrator.scenario import ScenarioError, load_scenario
-from orchestrator.session import SimIdInUse, Simulation, node_policies
+from orchestrator.session import RouterUnavailable, SimIdInUse, Simulation, node_policies
 from orchestrator.viewers import monitor
 from orchestrator.viewers.progress import progress_steps
 from orchestrator.viewers.summary import policy_text, rows
@@ -414,7 +414,7 @@ def main(argv: list[str] | None = None) -> int:
         for line in exc.errors:
             fail(line)
         return EXIT_USAGE
-    except (UsageError, SimIdInUse, SecurityError) as exc:
+    except (UsageError, SimIdInUse, RouterUnavailable, SecurityError) as exc:
         fail(f"orchestrator: {exc}")
         return EXIT_USAGE
     except (ClockError, ConservationError) as exc:

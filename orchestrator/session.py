@@ -51,6 +51,10 @@ LEASE_MARGIN_S = 5.0  # a node's Zenoh session outlives the clock's timeout by t
 QUERY_TIMEOUT_S = 5.0  # upper bound of the liveliness query at start; it answers at once when no other has the id
 
 
+class RouterUnavailable(Exception):
+    """The router cannot listen where the user asked (``--listen``)."""
+
+
 class SimIdInUse(RuntimeError):
     """Another orchestrator on the same Zenoh network already uses this simulation id."""
 
@@ -68,6 +72,9 @@ def open_router(host: str = "127.0.0.1", port: int | None = None, join: list[str
             return ZenohTransport.router(endpoint, join, security, settings), endpoint
         except Exception as exc:  # zenoh raises ZError when the port is taken
             last = exc
+    if port:  # the user's choice: say so in one line
+        raise RouterUnavailable(f"cannot listen on {host}:{port}: {str(last).split(' at /')[0]} "
+                                "(another program holds the port, or the address is not this host's)")
     raise RuntimeError(f"could not open a Zenoh router on {host}: {last}")
 
 

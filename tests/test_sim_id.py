@@ -1,8 +1,9 @@
-"""Simulation ids on joined routers: an id already in use on the network is refused at start."""
+"""Refused at start, in one line: a simulation id already in use on joined routers, a port another program holds."""
 
 from __future__ import annotations
 
 import signal
+import socket
 
 import pytest
 
@@ -32,3 +33,15 @@ def test_a_taken_sim_id_on_joined_routers_is_refused(tmp_path):
     first.proc.send_signal(signal.SIGTERM)
     assert first.finish(30) == 130
     assert_all_gone(children)
+
+
+def test_a_port_another_program_holds_is_one_line(tmp_path):
+    with socket.socket() as holder:
+        holder.bind(("127.0.0.1", 0))
+        holder.listen()
+        port = holder.getsockname()[1]
+        run = Launch("aot1", "--steps", "5", "--listen", f"127.0.0.1:{port}", "--out", str(tmp_path / "run"))
+        assert run.finish(60) == 2
+    assert run.err[-1].startswith(f"orchestrator: cannot listen on 127.0.0.1:{port}: ")
+    assert "Address already in use" in run.err[-1] and "Traceback" not in "".join(run.err)
+    assert not (tmp_path / "run").exists()
