@@ -33,12 +33,7 @@ def load_placement(path: str | Path, plan: ProcessLayout) -> dict[str, list[str]
     if plan.layout == "single":
         raise ScenarioError([f"{label}: the 'single' layout has one process; use per-role or per-node"])
     errors: list[str] = []
-    owner: dict[str, str] = {}
-    procs_of_node: dict[str, list[str]] = {}
-    for role, proc in plan.proc_of.items():
-        procs_of_node.setdefault(role.split(":", 1)[1], [])
-        if proc not in procs_of_node[role.split(":", 1)[1]]:
-            procs_of_node[role.split(":", 1)[1]].append(proc)
+    owner: dict[str, str] = {}  # node -> group
     placement: dict[str, list[str]] = {}
     for group, nodes in data["groups"].items():
         where = f"groups.{group}"
@@ -50,13 +45,23 @@ def load_placement(path: str | Path, plan: ProcessLayout) -> dict[str, list[str]
             continue
         placement[group] = []
         for i, node in enumerate(nodes):
-            if node not in procs_of_node:
+            if node not in plan.scenario.node:
                 errors.append(f"{label}: {where}[{i}]: unknown node {node!r} in scenario {plan.scenario.name}")
             elif node in owner:
                 errors.append(f"{label}: {where}[{i}]: node {node!r} is already placed in group {owner[node]!r}")
             else:
                 owner[node] = group
-                placement[group].extend(procs_of_node[node])
+    # A process runs on one host: every node it holds must be in the same group (or in none)
+    for proc in plan.procs:
+        nodes = plan.node_of_proc(proc)
+        where = {owner.get(node) for node in nodes}
+        if len(where) > 1:
+            held = ", ".join(f"{node} ({owner.get(node) or 'unplaced'})" for node in nodes[:6])
+            held += " ..." if len(nodes) > 6 else ""
+            errors.append(f"{label}: process {proc} of layout {plan.layout} holds nodes of different groups: {held}; "
+                          "place all of its nodes in one group")
+        elif (group := where.pop()) is not None and group in placement:
+            placement[group].append(proc)
     if errors:
         raise ScenarioError(errors)
     return placement

@@ -17,6 +17,7 @@ import sys
 import psutil
 import pytest
 
+from node_runtime.runtime.layout import ProcessLayout
 from orchestrator.scenario import load_scenario
 from tests.conftest import ROOT, model_part, run_summary
 from tests.launcher import Launch, assert_all_gone
@@ -98,6 +99,28 @@ def test_bad_placement_is_a_clear_error(tmp_path):
         f"{bad}: groups.a[1]: unknown node 'nope' in scenario aot2",
         f"{bad}: groups.b[0]: node 'rpi3_0' is already placed in group 'a'",
     ]
+
+
+
+def test_a_process_split_between_hosts_is_refused(tmp_path):
+    """With groups:K a process holds a block of nodes: a placement that puts them on different hosts (or
+    some on none) is refused, and each process of a group is started once, however many nodes it holds."""
+    from orchestrator.placement import load_placement
+    from orchestrator.scenario import ScenarioError
+
+    two_hosts = ROOT / "deploy" / "examples" / "aot2-two-hosts.yaml"
+    with pytest.raises(ScenarioError) as refused:
+        load_placement(two_hosts, ProcessLayout(load_scenario("aot2"), "groups:4"))
+    assert refused.value.errors == [
+        f"{two_hosts}: process group-1 of layout groups:4 holds nodes of different groups: rpi3_5 (cluster-a), "
+        "nuc_0 (cluster-a), tx2_0 (cluster-a), tx2_1 (cluster-a), rpi3_6 (cluster-b); place all of its nodes in "
+        "one group",
+        f"{two_hosts}: process group-3 of layout groups:4 holds nodes of different groups: nuc_1 (cluster-b), "
+        "tx2_2 (cluster-b), tx2_3 (cluster-b), server_0 (unplaced); place all of its nodes in one group"]
+    plan = ProcessLayout(load_scenario("aot2"), "groups:2")
+    whole = tmp_path / "whole.yaml"
+    whole.write_text(f"groups:\n  a: [{', '.join(plan.node_of_proc('group-0'))}]\n")
+    assert load_placement(whole, plan) == {"a": ["group-0"]}  # once, not once per node
 
 
 def intruder(ns: str, endpoint: str, *args: str) -> subprocess.Popen:
