@@ -37,8 +37,9 @@ HEADERS = {"inproc_setup_s": "set-up s", "inproc_ticks_per_s": "ticks/s", "proce
            "rss_mb": "RSS MB"}
 
 
-def scenario(n: int) -> Any:
-    """A connected random-geometric scenario of ``n`` nodes (the first placement seed that connects it)."""
+def scenario_data(n: int) -> dict[str, Any]:
+    """A connected random-geometric scenario of ``n`` nodes, as a scenario file holds it (the first
+    placement seed that connects it)."""
     size = round(math.sqrt(n * math.pi * RADIUS**2 / DEGREE))
     for seed in range(100):
         data = {"name": f"rg{n}", "simulation": {"steps": 10**6, "seed": 7, "policy": "least_queue"},
@@ -46,10 +47,15 @@ def scenario(n: int) -> Any:
                 "topology": {"generator": {"kind": "random_geometric", "n": n, "radius": RADIUS, "size": size,
                                            "seed": seed, "profile": "tier0"}}}
         try:
-            return load_scenario(data, name_hint=f"rg{n}")
+            load_scenario(data, name_hint=f"rg{n}")
+            return data
         except ScenarioError:  # disconnected: try the next placement
             continue
     raise RuntimeError(f"no connected placement of {n} nodes in 100 seeds")
+
+
+def scenario(n: int) -> Any:
+    return load_scenario(scenario_data(n), name_hint=f"rg{n}")
 
 
 def rss_mb() -> float:

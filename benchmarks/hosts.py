@@ -1,0 +1,136 @@
+"""Several hosts, emulated with network namespaces: start-up, ticks/s and memory of N nodes whose node
+processes run on H "hosts", each behind the router `zenohedge-node` runs there.
+
+    sudo python benchmarks/hosts.py --nodes 1000 10000 --hosts 4 --groups 16
+
+Needs root and iproute2 (deploy/netns.sh makes the namespaces and removes them at the end). Each N is
+benchmarks/scale.py's random-geometric network, written to a scenario file, with the layout groups:K;
+host h runs processes group-(h·K/H) … of it, placed by a placement file, and the orchestrator runs none.
+The orchestrator is the real CLI (`orchestrator launch --listen 0.0.0.0:PORT --placement …`), each host a
+real `zenohedge-node` inside its namespace; the figures are the run's own (summary.json: start-up until
+every process is ready, ticks/s) and the peak resident memory summed over every process. All hosts
+share this machine's cores, so this measures the protocol and the routers at N, not H machines' speed.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+from typing import Any
+
+import psutil
+import yaml
+from rich.console import Console
+from rich.table import Table
+from scale import scenario_data  # the sibling script: run this one as python benchmarks/hosts.py
+
+from node_runtime.runtime.layout import ProcessLayout
+from orchestrator.scenario import load_scenario
+from orchestrator.session import free_port
+
+ROOT = Path(__file__).resolve().parent.parent
+NETNS = ROOT / "deploy" / "netns.sh"
+SIM = "bench"
+
+
+def placement(data: dict[str, Any], procs: int, hosts: int) -> dict[str, list[str]]:
+    """host<h> -> the nodes of its share of the groups:K processes, whole processes only."""
+    plan = ProcessLayout(load_scenario(data, name_hint=data["name"]), f"groups:{procs}")
+    share = -(-procs // hosts)
+    return {f"host{h + 1}": [n for p in plan.procs[h * share:(h + 1) * share] for n in plan.node_of_proc(p)]
+            for h in range(hosts) if plan.procs[h * share:(h + 1) * share]}
+
+
+def peak_rss(roots: list[subprocess.Popen], until: subprocess.Popen) -> float:
+    """Poll the summed RSS of ``roots`` and their descendants until ``until`` exits; the peak, in MB."""
+    peak = 0
+    while until.poll() is None:
+        total = 0
+        for root in roots:
+            try:
+                family = [psutil.Process(root.pid), *psutil.Process(root.pid).children(recursive=True)]
+            except psutil.NoSuchProcess:
+                continue
+            for proc in family:
+                try:
+                    total += proc.memory_info().rss
+                except psutil.NoSuchProcess:
+                    continue
+        peak = max(peak, total)
+        time.sleep(0.5)
+    return peak / 2**20
+
+
+def measure(n: int, procs: int, hosts: int, ticks: int, work: Path) -> dict[str, Any]:
+    data = scenario_data(n)
+    (work / "scenario.yaml").write_text(yaml.safe_dump(data))
+    groups = placement(data, procs, hosts)
+    (work / "placement.yaml").write_text(yaml.safe_dump({"groups": groups}))
+    port = free_port("0.0.0.0")
+    log = work / f"launch-{n}.log"
+    t0 = time.perf_counter()
+    with open(log, "w") as err:
+        launch = subprocess.Popen([sys.executable, "-m", "orchestrator.cli", "launch", str(work / "scenario.yaml"),
+                                   "--layout", f"groups:{procs}", "--listen", f"0.0.0.0:{port}", "--sim-id", SIM,
+                                   "--placement", str(work / "placement.yaml"), "--steps", str(ticks),
+                                   "--timeout", "600", "--out", str(work / f"run-{n}")],
+                                  stdout=subprocess.DEVNULL, stderr=err, cwd=ROOT)
+    while "waiting for" not in log.read_text():  # the router listens: the hosts may connect
+        if launch.poll() is not None:
+            raise RuntimeError(f"launch failed:\n{log.read_text()}")
+        time.sleep(0.1)
+    members = [subprocess.Popen(["ip", "netns", "exec", f"zedge-host{h}", sys.executable, "-m",
+                                 "node_runtime.runtime.remote", "--connect", f"tcp/10.77.{h}.1:{port}", "--sim", SIM,
+                                 "--group", group, "--timeout", "600"],
+                                stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, cwd=ROOT)
+               for h, group in enumerate(groups, start=1)]
+    rss = peak_rss([launch, *members], until=launch)
+    wall = time.perf_counter() - t0
+    for member in members:
+        member.wait(60)
+    if launch.returncode != 0:
+        raise RuntimeError(f"launch exited with status {launch.returncode}:\n{log.read_text()}")
+    run = json.loads((work / f"run-{n}" / "summary.json").read_text())["run"]
+    return {"nodes": n, "hosts": len(groups), "processes": run["processes"], "startup_s": run["startup_s"],
+            "ticks_per_s": run["ticks_per_s"], "rss_mb": round(rss), "wall_s": round(wall, 1)}
+
+
+def main() -> None:
+    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    p.add_argument("--nodes", type=int, nargs="+", default=[1000, 10000], help="node counts (default 1000 10000)")
+    p.add_argument("--hosts", type=int, default=4, help="network namespaces standing for hosts (default 4)")
+    p.add_argument("--groups", type=int, default=16, help="node processes (layout groups:K; default 16)")
+    p.add_argument("--ticks", type=int, default=40, help="ticks per run (default 40)")
+    p.add_argument("--json", type=Path, help="also write the rows here")
+    args = p.parse_args()
+    if os.geteuid() != 0:
+        p.error("network namespaces need root (and iproute2)")
+    console = Console()
+    rows = []
+    subprocess.run([NETNS, "down"], check=True, capture_output=True)
+    subprocess.run([NETNS, "up", str(args.hosts)], check=True, capture_output=True)
+    try:
+        with tempfile.TemporaryDirectory(prefix="zenohedge-hosts-") as work:
+            for n in args.nodes:
+                console.print(f"N = {n} on {args.hosts} hosts ...")
+                rows.append(measure(n, min(args.groups, n), args.hosts, args.ticks, Path(work)))
+    finally:
+        subprocess.run([NETNS, "down"], capture_output=True)
+    table = Table(title=f"{args.hosts} hosts (network namespaces), layout groups:{args.groups}, one router per host")
+    for key in rows[0]:
+        table.add_column(key, justify="right")
+    for r in rows:
+        table.add_row(*(f"{v:,}" if isinstance(v, int) else f"{v:,.2f}" for v in r.values()))
+    console.print(table)
+    if args.json:
+        args.json.write_text(json.dumps(rows, indent=1) + "\n")
+
+
+if __name__ == "__main__":
+    main()
