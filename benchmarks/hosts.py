@@ -27,8 +27,7 @@ from typing import Any
 import psutil
 import yaml
 from rich.console import Console
-from rich.table import Table
-from scale import scenario_data  # the sibling script: run this one as python benchmarks/hosts.py
+from scale import report, scenario_data  # the sibling script: run this one as python benchmarks/hosts.py
 
 from node_runtime.runtime.layout import ProcessLayout
 from orchestrator.scenario import load_scenario
@@ -97,8 +96,8 @@ def measure(n: int, procs: int, hosts: int, ticks: int, work: Path) -> dict[str,
     if launch.returncode != 0:
         raise RuntimeError(f"launch exited with status {launch.returncode}:\n{log.read_text()}")
     run = json.loads((work / f"run-{n}" / "summary.json").read_text())["run"]
-    return {"nodes": n, "hosts": len(groups), "processes": run["processes"], "startup_s": run["startup_s"],
-            "ticks_per_s": run["ticks_per_s"], "rss_mb": round(rss), "wall_s": round(wall, 1)}
+    return {"nodes": n, "hosts": len(groups), "processes": run["processes"], "zenoh_startup_s": run["startup_s"],
+            "zenoh_ticks_per_s": run["ticks_per_s"], "rss_mb": round(rss), "wall_s": round(wall, 1)}
 
 
 def main() -> None:
@@ -122,14 +121,8 @@ def main() -> None:
                 rows.append(measure(n, min(args.groups, n), args.hosts, args.ticks, Path(work)))
     finally:
         subprocess.run([NETNS, "down"], capture_output=True)
-    table = Table(title=f"{args.hosts} hosts (network namespaces), layout groups:{args.groups}, one router per host")
-    for key in rows[0]:
-        table.add_column(key, justify="right")
-    for r in rows:
-        table.add_row(*(f"{v:,}" if isinstance(v, int) else f"{v:,.2f}" for v in r.values()))
-    console.print(table)
-    if args.json:
-        args.json.write_text(json.dumps(rows, indent=1) + "\n")
+    report(rows, f"{args.hosts} hosts (network namespaces), layout groups:{args.groups}, one router per host",
+           args.json)
 
 
 if __name__ == "__main__":

@@ -34,7 +34,7 @@ RADIUS = 40.0  # metres
 DEGREE = 12  # mean degree aimed at: the square's side is chosen for it
 HEADERS = {"inproc_setup_s": "set-up s", "inproc_ticks_per_s": "ticks/s", "processes": "procs",
            "zenoh_startup_s": "start s", "zenoh_ticks_per_s": "ticks/s", "barrier_ticks_per_s": "barrier",
-           "rss_mb": "RSS MB"}
+           "rss_mb": "RSS MB", "wall_s": "wall s"}
 
 
 def scenario_data(n: int) -> dict[str, Any]:
@@ -92,6 +92,18 @@ def zenoh(sc: Any, groups: int, ticks: int, rounds: int) -> dict[str, float]:
             "rss_mb": round(memory)}
 
 
+def report(rows: list[dict[str, Any]], title: str, path: Path | None) -> None:
+    """The rows as a table on the console; also as JSON in ``path``."""
+    table = Table(title=title)
+    for key in rows[0]:
+        table.add_column(HEADERS.get(key, key), justify="right")
+    for r in rows:
+        table.add_row(*(f"{v:,}" if isinstance(v, int) else f"{v:,.2f}" for v in r.values()))
+    Console().print(table)
+    if path:
+        path.write_text(json.dumps(rows, indent=1) + "\n")
+
+
 def main() -> None:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--nodes", type=int, nargs="+", default=[100, 300, 1000], help="node counts (default 100 300 1000)")
@@ -107,14 +119,7 @@ def main() -> None:
         sc = scenario(n)
         rows.append({"nodes": n, "links": len(sc.links), **inproc(sc, args.ticks),
                      **zenoh(sc, min(args.groups, n), args.ticks, args.rounds)})
-    table = Table(title=f"random-geometric networks; in-process, then Zenoh with layout groups:{args.groups}")
-    for key in rows[0]:
-        table.add_column(HEADERS.get(key, key), justify="right")
-    for r in rows:
-        table.add_row(*(f"{v:,}" if isinstance(v, int) else f"{v:,.2f}" for v in r.values()))
-    console.print(table)
-    if args.json:
-        args.json.write_text(json.dumps(rows, indent=1) + "\n")
+    report(rows, f"random-geometric networks; in-process, then Zenoh with layout groups:{args.groups}", args.json)
 
 
 if __name__ == "__main__":
