@@ -51,6 +51,10 @@ FAMILIES = (
     Family("wired", "aot3_wired", (0.1, 0.2),
            "The paper's task over the Ether file's wired rates: 500 Mbit/s to the cluster's nuc, "
            "25 Mbit/s up to the server. The nucs saturate first."),
+    Family("urgent", "aot3_urgent", (0.03, 0.04),
+           "Urgent alerts beside tolerant batch work: compute's task (2e8 instructions, 2 MB in, 200 kB out), "
+           "half with deadlines U[10, 20) s, which only the server or a nuc meets, half U[100, 200) s, which an "
+           "idle rpi3 meets too. The nucs and the server run out near lambda = 0.05."),
 )
 METRICS = (("completion_ratio", "completion %", 100.0, "max"), ("response_time_mean", "response [s]", 1.0, None),
            ("dropped", "dropped", 1.0, "min"), ("penalised_response_time", "score [s]", 1.0, "min"))
