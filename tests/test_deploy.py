@@ -123,12 +123,25 @@ def test_a_process_split_between_hosts_is_refused(tmp_path):
     assert load_placement(whole, plan) == {"a": ["group-0"]}  # once, not once per node
 
 
-def intruder(ns: str, endpoint: str, *args: str) -> subprocess.Popen:
-    return subprocess.Popen(["ip", "netns", "exec", ns, sys.executable, "-m", "tests.intruder", endpoint,
-                             "securetest", *args], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+@pytest.fixture
+def intruder():
+    """Start ``python -m tests.intruder`` in a namespace; whatever a failing test leaves running is killed."""
+    started: list[subprocess.Popen] = []
+
+    def start(ns: str, endpoint: str, *args: str) -> subprocess.Popen:
+        started.append(subprocess.Popen(["ip", "netns", "exec", ns, sys.executable, "-m", "tests.intruder", endpoint,
+                                         "securetest", *args], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                                        text=True))
+        return started[-1]
+
+    yield start
+    for proc in started:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait(10)
 
 
-def test_secure_two_hosts_refuse_outsiders(tmp_path, hosts):
+def test_secure_two_hosts_refuse_outsiders(tmp_path, hosts, intruder):
     """The deploy/README.md default: TLS with client certificates, logins and access control. Outsiders
     without a certificate or the right password cannot connect; a host with a valid identity cannot
     publish on keys that are not its own; the run is the same emulation as a clean one."""
