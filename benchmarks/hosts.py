@@ -24,13 +24,11 @@ import time
 from pathlib import Path
 from typing import Any
 
-import psutil
 import yaml
 from rich.console import Console
-from scale import report, scenario_data  # the sibling script: run this one as python benchmarks/hosts.py
+from scale import report, rss_mb, scenario  # the sibling script: run this one as python benchmarks/hosts.py
 
 from node_runtime.runtime.layout import ProcessLayout
-from orchestrator.scenario import load_scenario
 from orchestrator.session import free_port
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -38,38 +36,27 @@ NETNS = ROOT / "deploy" / "netns.sh"
 SIM = "bench"
 
 
-def placement(data: dict[str, Any], procs: int, hosts: int) -> dict[str, list[str]]:
+def placement(sc: Any, procs: int, hosts: int) -> dict[str, list[str]]:
     """host<h> -> the nodes of its share of the groups:K processes, whole processes only."""
-    plan = ProcessLayout(load_scenario(data, name_hint=data["name"]), f"groups:{procs}")
+    plan = ProcessLayout(sc, f"groups:{procs}")
     share = -(-procs // hosts)
     return {f"host{h + 1}": [n for p in plan.procs[h * share:(h + 1) * share] for n in plan.node_of_proc(p)]
             for h in range(hosts) if plan.procs[h * share:(h + 1) * share]}
 
 
-def peak_rss(roots: list[subprocess.Popen], until: subprocess.Popen) -> float:
-    """Poll the summed RSS of ``roots`` and their descendants until ``until`` exits; the peak, in MB."""
-    peak = 0
+def peak_rss(pids: list[int], until: subprocess.Popen) -> float:
+    """The peak of ``rss_mb(*pids)``, polled until ``until`` exits."""
+    peak = 0.0
     while until.poll() is None:
-        total = 0
-        for root in roots:
-            try:
-                family = [psutil.Process(root.pid), *psutil.Process(root.pid).children(recursive=True)]
-            except psutil.NoSuchProcess:
-                continue
-            for proc in family:
-                try:
-                    total += proc.memory_info().rss
-                except psutil.NoSuchProcess:
-                    continue
-        peak = max(peak, total)
+        peak = max(peak, rss_mb(*pids))
         time.sleep(0.5)
-    return peak / 2**20
+    return peak
 
 
 def measure(n: int, procs: int, hosts: int, ticks: int, work: Path) -> dict[str, Any]:
-    data = scenario_data(n)
+    data, sc = scenario(n)
     (work / "scenario.yaml").write_text(yaml.safe_dump(data))
-    groups = placement(data, procs, hosts)
+    groups = placement(sc, procs, hosts)
     (work / "placement.yaml").write_text(yaml.safe_dump({"groups": groups}))
     port = free_port("0.0.0.0")
     log = work / f"launch-{n}.log"
@@ -89,7 +76,7 @@ def measure(n: int, procs: int, hosts: int, ticks: int, work: Path) -> dict[str,
                                  "--group", group, "--timeout", "600"],
                                 stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, cwd=ROOT)
                for h, group in enumerate(groups, start=1)]
-    rss = peak_rss([launch, *members], until=launch)
+    rss = peak_rss([launch.pid, *(m.pid for m in members)], until=launch)
     wall = time.perf_counter() - t0
     for member in members:
         member.wait(60)

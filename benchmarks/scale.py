@@ -37,9 +37,9 @@ HEADERS = {"inproc_setup_s": "set-up s", "inproc_ticks_per_s": "ticks/s", "proce
            "rss_mb": "RSS MB", "wall_s": "wall s"}
 
 
-def scenario_data(n: int) -> dict[str, Any]:
-    """A connected random-geometric scenario of ``n`` nodes, as a scenario file holds it (the first
-    placement seed that connects it)."""
+def scenario(n: int) -> tuple[dict[str, Any], Any]:
+    """A connected random-geometric scenario of ``n`` nodes (the first placement seed that connects it):
+    as a scenario file holds it, and loaded."""
     size = round(math.sqrt(n * math.pi * RADIUS**2 / DEGREE))
     for seed in range(100):
         data = {"name": f"rg{n}", "simulation": {"steps": 10**6, "seed": 7, "policy": "least_queue"},
@@ -47,23 +47,24 @@ def scenario_data(n: int) -> dict[str, Any]:
                 "topology": {"generator": {"kind": "random_geometric", "n": n, "radius": RADIUS, "size": size,
                                            "seed": seed, "profile": "tier0"}}}
         try:
-            load_scenario(data, name_hint=f"rg{n}")
-            return data
+            return data, load_scenario(data, name_hint=f"rg{n}")
         except ScenarioError:  # disconnected: try the next placement
             continue
     raise RuntimeError(f"no connected placement of {n} nodes in 100 seeds")
 
 
-def scenario(n: int) -> Any:
-    return load_scenario(scenario_data(n), name_hint=f"rg{n}")
-
-
-def rss_mb() -> float:
-    me = psutil.Process()
-    total = me.memory_info().rss
-    for child in me.children(recursive=True):
-        with contextlib.suppress(psutil.NoSuchProcess):  # gone while we looked
-            total += child.memory_info().rss
+def rss_mb(*pids: int) -> float:
+    """Resident memory of these processes (default: this one) and all their descendants, summed."""
+    total = 0
+    for pid in pids or (None,):
+        try:
+            root = psutil.Process(pid)
+            family = [root, *root.children(recursive=True)]
+        except psutil.NoSuchProcess:  # ended meanwhile
+            continue
+        for proc in family:
+            with contextlib.suppress(psutil.NoSuchProcess):  # gone while we looked
+                total += proc.memory_info().rss
     return total / 2**20
 
 
@@ -116,7 +117,7 @@ def main() -> None:
     rows = []
     for n in args.nodes:
         console.print(f"N = {n} ...")
-        sc = scenario(n)
+        _, sc = scenario(n)
         rows.append({"nodes": n, "links": len(sc.links), **inproc(sc, args.ticks),
                      **zenoh(sc, min(args.groups, n), args.ticks, args.rounds)})
     report(rows, f"random-geometric networks; in-process, then Zenoh with layout groups:{args.groups}", args.json)

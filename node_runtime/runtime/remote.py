@@ -24,6 +24,7 @@ import sys
 import tempfile
 import threading
 from collections.abc import Callable
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -33,7 +34,7 @@ from node_runtime.runtime.access import LOCAL_LINK, access_control
 from node_runtime.runtime.cli_options import add_security_options, add_sim_options, security_options
 from node_runtime.runtime.forkserver import ForkServer
 from node_runtime.runtime.keys import Keys
-from node_runtime.runtime.layout import ProcessLayout
+from node_runtime.runtime.layout import Layout, ProcessLayout
 from node_runtime.runtime.process import ORCHESTRATOR, ProcSpec
 from node_runtime.runtime.security import Security, SecurityError
 from node_runtime.runtime.zenoh_bus import ZenohTransport
@@ -47,6 +48,20 @@ FAIL_FAST = {"connect/timeout_ms": 0, "connect/exit_on_failure": True}
 
 class GroupError(Exception):
     """This host cannot take part: the message, one line, says why."""
+
+
+@dataclass(frozen=True)
+class GroupInfo:
+    """What the orchestrator's ``…/session`` answer tells this host."""
+
+    scenario: Scenario
+    layout: Layout
+    placement: dict[str, list[str]]  # every group -> its processes
+    group: str  # this host's
+
+    @property
+    def procs(self) -> list[str]:
+        return self.placement[self.group]
 
 
 def run_group(endpoint: str, keys: Keys, group: str, timeout: float = 30.0, security: Security | None = None,
@@ -67,8 +82,8 @@ def run_group(endpoint: str, keys: Keys, group: str, timeout: float = 30.0, secu
             local = f"{LOCAL_LINK}/{folder}/router.sock"
             rules = {}
             if security is not None:  # the orchestrator's rules, for what this host's processes send each other
-                plan = ProcessLayout(info["scenario"], info["layout"])
-                rules = {"access_control": access_control(keys, plan, info["placement"], on_host=True)}
+                plan = ProcessLayout(info.scenario, info.layout)
+                rules = {"access_control": access_control(keys, plan, info.placement, on_host=True)}
             router = connect(lambda: ZenohTransport.router(local, [endpoint], host_login(security, Path(folder)),
                                                            {**FAIL_FAST, **rules, **(settings or {})}), endpoint)
             return run_processes(router, info, local, keys, security, settings)
@@ -85,8 +100,8 @@ def connect(open_session: Callable[[], ZenohTransport], endpoint: str) -> ZenohT
                          "certificate or login") from None
 
 
-def group_info(transport: ZenohTransport, endpoint: str, keys: Keys, group: str, timeout: float) -> dict[str, Any]:
-    """What the orchestrator says of the simulation, with ``scenario`` parsed and ``procs``, this group's."""
+def group_info(transport: ZenohTransport, endpoint: str, keys: Keys, group: str, timeout: float) -> GroupInfo:
+    """Ask the orchestrator for the simulation; raises GroupError when it has no group ``group``."""
     try:
         info = transport.request(keys.session(), {"type": "session?"}, timeout=timeout)
     except Exception as exc:  # no answer; or a refusal, e.g. from another ZenohEdge version
@@ -95,7 +110,7 @@ def group_info(transport: ZenohTransport, endpoint: str, keys: Keys, group: str,
     if group not in placement:
         raise GroupError(f"simulation {keys.sim_id} has no group {group!r}; groups: "
                          f"{', '.join(sorted(placement)) or '(none: launch it with --placement)'}")
-    return {**info, "scenario": Scenario.from_dict(info["scenario"]), "group": group, "procs": placement[group]}
+    return GroupInfo(Scenario.from_dict(info["scenario"]), info["layout"], placement, group)
 
 
 def host_login(security: Security | None, folder: Path) -> Security | None:
@@ -108,19 +123,19 @@ def host_login(security: Security | None, folder: Path) -> Security | None:
     return dataclasses.replace(security, users=str(users))
 
 
-def run_processes(transport: ZenohTransport, info: dict[str, Any], endpoint: str, keys: Keys,
+def run_processes(transport: ZenohTransport, info: GroupInfo, endpoint: str, keys: Keys,
                   security: Security | None, settings: dict[str, Any] | None) -> int:
     """Start the group's processes, connected to ``endpoint``, and stay until they end; closes ``transport``."""
     forks: ForkServer | None = None
     pids: list[int] = []
-    procs = info["procs"]
+    procs = info.procs
     try:
         forks = ForkServer.shared()
         for proc in procs:
-            spec = ProcSpec(proc, info["scenario"], info["layout"], endpoint, keys, security=security,
+            spec = ProcSpec(proc, info.scenario, info.layout, endpoint, keys, security=security,
                             settings=settings)
             pids.append(forks.start(proc, node_process.main, spec))
-        print(f"zenohedge-node: group {info['group']}: started {len(procs)} processes of simulation {keys.sim_id} "
+        print(f"zenohedge-node: group {info.group}: started {len(procs)} processes of simulation {keys.sim_id} "
               f"({', '.join(procs[:6])}{' ...' if len(procs) > 6 else ''}), connected to {endpoint}",
               file=sys.stderr, flush=True)
 
