@@ -32,7 +32,7 @@ from node_runtime.model.policies import POLICIES
 from node_runtime.runtime import access, cli_options
 from node_runtime.runtime.keys import new_sim_id
 from node_runtime.runtime.layout import LAYOUT_HELP, ProcessLayout
-from node_runtime.runtime.security import SecurityError, protocol
+from node_runtime.runtime.security import SecurityError
 from orchestrator import local_sims
 from orchestrator.arguments import COUNT, NON_NEGATIVE, POSITIVE, integer, layout_name
 from orchestrator.clock import ClockError, ProcessFailed
@@ -95,9 +95,9 @@ def cmd_launch(args: argparse.Namespace) -> int:
                   f"transport {args.transport} ({layout}); seed {seed}; "
                   f"{policy_text(node_policies(scenario, args.policy))}")
 
-    def waiting(groups: dict[str, list[str]]) -> None:
-        proto = protocol(security)
-        where = f"{proto}/<this host's address>:{port}" if host in ("0.0.0.0", "::") else f"{proto}/{host}:{port}"
+    def waiting(groups: dict[str, list[str]], endpoint: str) -> None:
+        proto, address = endpoint.split("/", 1)
+        where = f"{proto}/<this host's address>:{address.rsplit(':', 1)[1]}" if host in ("0.0.0.0", "::") else endpoint
         console.print(f"waiting for {sum(map(len, groups.values()))} processes on other hosts; run there:")
         for group in groups:
             login = f" --security <dir of {group}>" if security is not None else ""

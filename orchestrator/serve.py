@@ -44,13 +44,17 @@ class Server:
     ``health`` runs while ``wait`` is idle (the supervisor's check of local processes)."""
 
     def __init__(self, transport: Transport, keys: Keys, plan: ProcessLayout, clock: Clock,
-                 health: Callable[[], None] | None = None, placement: dict[str, list[str]] | None = None) -> None:
+                 health: Callable[[], None] | None = None, placement: dict[str, list[str]] | None = None,
+                 timing: dict[str, float] | None = None) -> None:
+        """``timing``: what the processes of other hosts must be told, so that they wait and are kept as long as
+        the local ones: ``ready_timeout`` and ``lease_s`` (node_runtime/runtime/process.py's ProcSpec)."""
         self.transport = transport
         self.keys = keys
         self.plan = plan
         self.clock = clock
         self.health = health
         self.placement = placement or {}
+        self.timing = timing or {}
         self.driver: str | None = None
         self.secret: str | None = None  # the attached driver's token
         self.refused = 0  # releases with a wrong or missing token
@@ -64,7 +68,7 @@ class Server:
         with self._lock:
             return {"type": "session", "sim": self.keys.sim_id, "scenario": self.plan.scenario.to_dict(),
                     "layout": self.plan.layout, "episode": self.clock.latest, "driver": self.driver,
-                    "procs": list(self.plan.procs), "placement": self.placement}
+                    "procs": list(self.plan.procs), "placement": self.placement, **self.timing}
 
     def _control(self, msg: dict[str, Any]) -> dict[str, Any]:
         with self._lock:

@@ -97,11 +97,12 @@ class Simulation:
                  sim_id: str | None = None, prefix: str = DEFAULT_PREFIX, timeout: float = 30.0,
                  listen_host: str = "127.0.0.1", port: int | None = None,
                  placement: dict[str, list[str]] | None = None, join_timeout: float = 600.0,
-                 on_waiting: Callable[[dict[str, list[str]]], None] | None = None,
+                 on_waiting: Callable[[dict[str, list[str]], str], None] | None = None,
                  join: list[str] | None = None, security: Security | None = None,
                  zenoh_settings: dict[str, Any] | None = None) -> None:
         """``placement`` (group -> processes) leaves those processes to ``zenohedge-node`` on other hosts;
-        their start is awaited up to ``join_timeout`` seconds, after calling ``on_waiting(placement)``.
+        their start is awaited up to ``join_timeout`` seconds, after calling ``on_waiting(placement, endpoint)``
+        (the router's endpoint, where they connect).
         ``security``: TLS, logins and access control on the router (node_runtime/runtime/access.py), and the
         identity of the local processes; ``zenoh_settings``: merged last into the router's configuration."""
         if transport not in ("zenoh", "inproc"):
@@ -133,17 +134,20 @@ class Simulation:
                 self.clock = Clock(router, self.keys, self.plan, timeout, health=self.supervisor.check,
                                    why_silent=self.supervisor.hung)
                 self.live = router.monitored(self.keys.metrics())
-                self.server = Server(router, self.keys, self.plan, self.clock, self.supervisor.check, placement)
                 remote = {p for procs in (placement or {}).values() for p in procs}
                 local = tuple(p for p in self.plan.procs if p not in remote)
+                # readiness may take longer than a tick on a big scenario, never less than --timeout, and waits
+                # for hosts that join later; the lease outlives the clock's timeout, so a paused process is
+                # reported hung, not died. Processes on other hosts are told the same (the session answer).
+                timing = {"ready_timeout": join_timeout if remote else max(READY_TIMEOUT, timeout),
+                          "lease_s": timeout + LEASE_MARGIN_S}
+                self.server = Server(router, self.keys, self.plan, self.clock, self.supervisor.check, placement,
+                                     timing)
                 if remote and on_waiting is not None:
-                    on_waiting(placement)
-                # readiness may take longer than a tick on a big scenario, never less than --timeout;
-                # the lease outlives the clock's timeout, so a paused process is reported hung, not died
-                self.startup_s = self.supervisor.start(
-                    scenario, self.layout, local_endpoint(self.endpoint), local,
-                    timeout=join_timeout if remote else max(READY_TIMEOUT, timeout), security=security,
-                    lease_s=timeout + LEASE_MARGIN_S)
+                    on_waiting(placement, self.endpoint)
+                self.startup_s = self.supervisor.start(scenario, self.layout, local_endpoint(self.endpoint), local,
+                                                       timeout=timing["ready_timeout"], security=security,
+                                                       lease_s=timing["lease_s"])
             except BaseException:
                 self.close()
                 raise

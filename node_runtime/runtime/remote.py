@@ -58,6 +58,8 @@ class GroupInfo:
     layout: Layout
     placement: dict[str, list[str]]  # every group -> its processes
     group: str  # this host's
+    ready_timeout: float  # seconds a process waits for its peers' subscriptions (hosts may join late)
+    lease_s: float  # how long a router keeps a silent process's session: beyond the clock's --timeout
 
     @property
     def procs(self) -> list[str]:
@@ -110,7 +112,11 @@ def group_info(transport: ZenohTransport, endpoint: str, keys: Keys, group: str,
     if group not in placement:
         raise GroupError(f"simulation {keys.sim_id} has no group {group!r}; groups: "
                          f"{', '.join(sorted(placement)) or '(none: launch it with --placement)'}")
-    return GroupInfo(Scenario.from_dict(info["scenario"]), info["layout"], placement, group)
+    timing = [info.get(key) for key in ("ready_timeout", "lease_s")]
+    if not all(isinstance(x, int | float) and not isinstance(x, bool) and x > 0 for x in timing):
+        raise GroupError(f"simulation {keys.sim_id} at {endpoint} did not say how long its processes wait "
+                         "(ready_timeout, lease_s): is it another ZenohEdge version?")
+    return GroupInfo(Scenario.from_dict(info["scenario"]), info["layout"], placement, group, *map(float, timing))
 
 
 def host_login(security: Security | None, folder: Path) -> Security | None:
@@ -133,7 +139,7 @@ def run_processes(transport: ZenohTransport, info: GroupInfo, endpoint: str, key
         forks = ForkServer.shared()
         for proc in procs:
             spec = ProcSpec(proc, info.scenario, info.layout, endpoint, keys, security=security,
-                            settings=settings)
+                            settings=settings, lease_s=info.lease_s, ready_timeout=info.ready_timeout)
             pids.append(forks.start(proc, node_process.main, spec))
         print(f"zenohedge-node: group {info.group}: started {len(procs)} processes of simulation {keys.sim_id} "
               f"({', '.join(procs[:6])}{' ...' if len(procs) > 6 else ''}), connected to {endpoint}",
