@@ -65,6 +65,21 @@ class Launch:
                 self.proc.kill()
 
 
+def paused_run(run: Launch, victim: psutil.Process, timeout: float) -> tuple[int, float, str]:
+    """SIGSTOP ``victim`` and wait for ``run`` to end: (exit status, seconds from the pause, first error line).
+    The victim is resumed afterwards, whatever happened, so that nothing stays stopped."""
+    paused_at = time.monotonic()
+    victim.suspend()
+    try:
+        code = run.finish(timeout)
+    finally:
+        if victim.is_running():
+            victim.resume()
+    errors = [line for line in run.err if line.startswith("error:")]
+    assert errors, f"no error line; stderr ends:\n{''.join(run.err[-5:])}"
+    return code, time.monotonic() - paused_at, errors[0]
+
+
 def assert_all_gone(procs: list[psutil.Process], timeout: float = 10.0) -> None:
     _, alive = psutil.wait_procs(procs, timeout=timeout)
     assert not alive, f"left behind: {[(p.pid, p.name()) for p in alive]}"

@@ -10,7 +10,6 @@ from __future__ import annotations
 
 import json
 import sys
-import time
 
 import psutil
 import pytest
@@ -20,7 +19,7 @@ from node_runtime.runtime.remote import group_info
 from node_runtime.runtime.zenoh_bus import ZenohTransport
 from orchestrator.scenario import load_scenario
 from tests.conftest import ROOT, model_part, run_summary
-from tests.launcher import Launch, Output, assert_all_gone
+from tests.launcher import Launch, Output, assert_all_gone, paused_run
 
 pytestmark = pytest.mark.zenoh
 
@@ -72,18 +71,9 @@ def test_a_paused_process_on_another_host_is_reported_hung_after_the_timeout(tmp
     hosts = [join(commands[g]) for g in GROUPS]
     run.wait_for("processes ready")
     children = [p for host in hosts for p in psutil.Process(host.proc.pid).children(recursive=True)]
-    victim = next(p for p in children if p.name() == "zn-rpi3_1")
-    paused_at = time.monotonic()
-    victim.suspend()
-    try:
-        code = run.finish(60)
-    finally:
-        if victim.is_running():
-            victim.resume()
-    elapsed = time.monotonic() - paused_at
+    code, elapsed, error = paused_run(run, next(p for p in children if p.name() == "zn-rpi3_1"), 60)
     assert code == 1
-    message = [ln for ln in run.err if ln.startswith("error:")]
-    assert message and "hung: no report within 15 s" in message[0] and "node-rpi3_1" in message[0], run.err[-5:]
+    assert "hung: no report within 15 s" in error and "node-rpi3_1" in error, error
     assert elapsed >= 15, f"took {elapsed:.1f} s"  # Zenoh's default lease would have said "died" after about 10
     for host in hosts:  # they end with the run: the orchestrator's token vanished
         host.finish(timeout=60)
