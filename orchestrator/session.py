@@ -23,7 +23,7 @@ import time
 from collections.abc import Callable
 from typing import Any, Literal
 
-from node_runtime.model.controller import Action
+from node_runtime.model.controller import Action, observation_at
 from node_runtime.model.spec import Scenario
 from node_runtime.model.view import Observation
 from node_runtime.runtime.access import access_control
@@ -170,6 +170,7 @@ class Simulation:
         self.seed = scenario.seed
         self.policy: str | None = None
         self.last: list[Done] = []
+        self.seen: dict[str, Observation] = {}  # driven controller -> its latest observation, any tick
         self._closed = False
         self._run_started = 0.0
         self._ticks_run = 0
@@ -224,12 +225,15 @@ class Simulation:
         self.policy = policy
         self.metrics.reset()
         self.last = self.clock.reset(self.seed, external, policy)
+        self.seen = {}
+        self._remember()
         self._run_started = time.perf_counter()
         self._ticks_run = 1
         return self._publish(self.metrics.add(0, self.last))
 
     def step(self, actions: dict[str, Action] | None = None) -> TickReport:
         self.last = self.clock.step(actions)
+        self._remember()
         self._ticks_run += 1
         return self._publish(self.metrics.add(self.clock.tick, self.last))
 
@@ -244,9 +248,21 @@ class Simulation:
         return self.clock.tick
 
     def observations(self) -> dict[str, Observation]:
-        """Observations the externally driven controllers produced in the last tick, by role."""
+        """What each externally driven controller observes at the current tick, by role: the observations
+        of the last tick, and for a controller that slept through it, its latest one re-timed
+        (``observation_at``: it heard nothing since and has nothing to place). A controller whose node
+        has scheduled failures never sleeps, so it has one only while its node is up."""
+        t, sc = self.clock.tick, self.scenario
+        if t % sc.decision_interval:  # controllers observe at decision epochs only
+            return {role: obs for role, obs in self.seen.items() if obs.tick == t}
+        return {role: obs if obs.tick == t else observation_at(obs, t, sc)
+                for role, obs in self.seen.items() if obs.tick == t or not sc.failure_windows.get(obs.node)}
+
+    def _remember(self) -> None:
         roles = self.plan.roles
-        return {roles[i]: obs for d in self.last for i, obs in d.obs.items()}
+        for d in self.last:
+            for i, obs in d.obs.items():
+                self.seen[roles[i]] = obs
 
     def run(self, ticks: int | None = None, seed: int | None = None, policy: str | None = None,
             on_tick: Any = None) -> dict[str, Any]:

@@ -8,7 +8,10 @@ import sys
 import numpy as np
 import pytest
 
+from env import ZenohEdgeEnv
+from node_runtime.model.controller import Controller
 from node_runtime.model.role import Role
+from node_runtime.model.spec import Scenario
 from node_runtime.model.worker import Worker
 from node_runtime.model.workload import TaskSource
 from orchestrator.scenario import load_scenario
@@ -126,3 +129,45 @@ def test_the_battery_example_agrees_across_layouts(tmp_path):
         assert model_part(run_summary(scenario, ticks=300, seed=2, layout="per-role")) == ref
     finally:
         sys.path.remove(str(ROOT / "examples"))
+
+
+def driven_scenarios(tmp_path):
+    from tests.test_reference_semantics import everything
+
+    def quieter(sc: Scenario) -> Scenario:  # idle spells, so that controllers sleep between arrivals
+        data = sc.to_dict()
+        data["workload"]["arrival"]["rate"] = 0.1
+        return Scenario.from_dict(data)
+
+    return {"aot2": load_scenario("aot2"), "tricky": tricky(tmp_path), "failures": quieter(everything(tmp_path, 2)),
+            "co-located": quieter(everything(tmp_path, 0))}
+
+
+@pytest.mark.parametrize("name", ["aot2", "tricky", "failures", "co-located"])
+def test_a_driven_controller_that_sleeps_observes_exactly_what_it_would_have(tmp_path, name):
+    """An agent's controller with nothing heard and nothing to place sleeps; the environment re-times its last
+    observation instead (``observation_at``). At every step, every agent's observation equals what its
+    controller object would observe at that tick: epochs of 3 ticks, broadcasts every 4, batches, failures of
+    neighbours and of the node itself, co-located control."""
+    scenario = driven_scenarios(tmp_path)[name]
+    env = ZenohEdgeEnv(scenario, transport="inproc", layout="per-role", max_steps=120)
+    obs, _ = env.reset(seed=3)
+    controllers = {r.id: r for d in env.sim.drivers for r in d.host.roles if isinstance(r, Controller)}
+    rng = np.random.default_rng(0)
+    retimed = slept = 0
+    while env.agents:
+        obs, *_ = env.step({a: rng.choice(np.flatnonzero(obs[a]["action_mask"])) if env.layouts[a].batch is None
+                            else [rng.choice(np.flatnonzero(m)) for m in obs[a]["action_mask"]] for a in env.agents})
+        t = env.sim.tick
+        opened = len(env.sim.clock.opened)
+        slept += opened < len(env.sim.plan.procs)
+        for agent, role in env._role.items():
+            ctrl = controllers[role]
+            raw = env._raw[agent]
+            if ctrl.down(t):
+                assert raw is None
+                continue
+            assert raw == ctrl.observe(t), (agent, t)
+            retimed += raw is not ctrl.last
+    assert retimed > 0 and slept > 0  # the rule was exercised
+    env.close()

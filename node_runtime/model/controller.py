@@ -20,7 +20,8 @@ undecided tasks, oldest first.
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
+from collections.abc import Iterable, Sequence
+from dataclasses import replace
 from typing import TYPE_CHECKING
 
 from node_runtime.model.messages import Decision, Envelope, Kind, NodeState, Pending
@@ -80,13 +81,13 @@ class Controller(Role):
         self.asked: list[int] = []  # task ids of the last observation, which the next action places
         self.pending: list[int] | None = None  # the node-side policy's answer to it
         self.last: Observation | None = None
+        self.stale = False  # driven: ran since its last observation, so the next epoch must observe again
         me = self.node.id
         # static facts of every node in view: (buffer, capacity, tier, rate from here, can take tasks)
         self._static = {n: (sc.node[n].buffer, sc.node[n].capacity, sc.node[n].tier,
                             0.0 if n == me else sc.link[(me, n)].rate_bps, sc.node[n].has("worker"))
                         for n in self.states}
-        # with no failures in view and a broadcast every tick, every state is exactly one tick old
-        self._always_fresh = sc.state_interval == 1 and not any(sc.failure_windows.get(n) for n in self.states)
+        self._always_fresh = always_fresh(sc, self.states)
 
     # ----- the tick -----
 
@@ -119,6 +120,9 @@ class Controller(Role):
             self.asked = [task.id for task in obs.tasks]
             if not self.external and self.asked:
                 self.pending = self.policy.decide(obs)
+            self.stale = False
+        else:
+            self.stale = self.external
 
     def heard(self, pending: list[Pending]) -> None:
         """The worker's tasks to place, as reported (or read, co-located)."""
@@ -135,11 +139,13 @@ class Controller(Role):
         self.asked, self.pending = [], None
 
     def wake(self, t: int) -> float:
-        """Next tick while an agent drives it or an answer is to be placed; at the next decision
-        epoch while undecided tasks wait; otherwise only mail (a report, a state) wakes it."""
-        if self.external or self.asked or self.outages:
+        """Next tick while an answer is to be placed; at the next decision epoch while undecided tasks
+        wait, or when an agent drives it and it ran since it last observed; otherwise only mail (a report,
+        a state) wakes it. A driven controller that sleeps through an epoch would observe exactly its last
+        observation re-timed (``observation_at``): the environment does that instead of waking it."""
+        if self.asked or self.outages:
             return t + 1
-        if self.has_candidates():
+        if self.has_candidates() or self.stale:
             interval = self.scenario.decision_interval
             return t + interval - t % interval
         return math.inf
@@ -166,24 +172,11 @@ class Controller(Role):
 
     # ----- the view -----
 
-    def heard_at(self, node: str, t: int) -> int:
-        """The tick whose end-state of ``node`` this controller knows at the end of tick ``t``.
-
-        Broadcasts leave at ticks that are multiples of the state interval while the node is up,
-        and arrive one tick later; unchanged states are not re-sent but still count as heard.
-        """
-        interval = self.scenario.state_interval
-        s = t - 1
-        s -= s % interval
-        while s >= 0 and self.scenario.is_failed(node, s):
-            s -= interval
-        return s
-
     def view(self, node: str, t: int, backlog: float = 0.0) -> NodeView:
         """What it knows of ``node``; ``backlog``: seconds queued on the link to it."""
         buffer, capacity, tier, rate, worker = self._static[node]
         state = self.states[node]
-        age = 1 if self._always_fresh else t - self.heard_at(node, t)
+        age = 1 if self._always_fresh else t - heard_at(self.scenario, node, t)
         return NodeView(node, state.queue, state.occupancy, buffer, capacity, tier, rate, age, worker, backlog)
 
     def own_view(self, t: int) -> NodeView:
@@ -196,7 +189,6 @@ class Controller(Role):
         dt = self.scenario.dt
         own_worker = self.own_worker
         busy_until = self.busy_until if own_worker is None else own_worker.radio.busy_until()
-        end = t + 1
         tasks = []
         for p in self.undecided:
             if p.id in self.decided:
@@ -212,10 +204,53 @@ class Controller(Role):
             own=self.view(self.node.id, t) if own_worker is None else self.own_view(t),
             undecided=len(self.undecided),
             tasks=tasks,
-            # a link busy until tick b still has (b - (t + 1)) * dt seconds queued at the end of tick t
-            neighbours=[self.view(j, t, (busy - end) * dt if busy > end else 0.0)
+            neighbours=[self.view(j, t, backlog(busy, t, dt))
                         for j, busy in zip(self.neighbours, busy_until, strict=False)],
+            busy_until=list(busy_until),
         )
+
+
+def heard_at(scenario: Scenario, node: str, t: int) -> int:
+    """The tick whose end-state of ``node`` a controller knows at the end of tick ``t``.
+
+    Broadcasts leave at ticks that are multiples of the state interval while the node is up,
+    and arrive one tick later; unchanged states are not re-sent but still count as heard.
+    """
+    interval = scenario.state_interval
+    s = t - 1
+    s -= s % interval
+    while s >= 0 and scenario.is_failed(node, s):
+        s -= interval
+    return s
+
+
+def always_fresh(scenario: Scenario, nodes: Iterable[str]) -> bool:
+    """With no failures in view and a broadcast every tick, every state heard is exactly one tick old."""
+    return scenario.state_interval == 1 and not any(scenario.failure_windows.get(n) for n in nodes)
+
+
+def backlog(busy: float, t: int, dt: float) -> float:
+    """Seconds still queued at the end of tick ``t`` on a link busy until tick ``busy``."""
+    end = t + 1
+    return (busy - end) * dt if busy > end else 0.0
+
+
+def observation_at(obs: Observation, t: int, scenario: Scenario) -> Observation:
+    """What the driven controller that made ``obs`` observes at tick ``t`` if it has neither run since
+    nor anything to place: the same, re-timed (its states' ages, its links' backlogs). The environment
+    calls this for a controller that slept through the epoch, rather than wake its process for it."""
+    if obs.tasks:
+        raise ValueError(f"controller:{obs.node}: an observation with tasks to place is never re-timed")
+    fresh = always_fresh(scenario, [obs.node, *(n.node for n in obs.neighbours)])
+
+    def age(view: NodeView) -> int:
+        return 1 if fresh else t - heard_at(scenario, view.node, t)
+
+    own = obs.own if scenario.colocated_control else replace(obs.own, age=age(obs.own))
+    return Observation(t, obs.node, own, obs.undecided, [],
+                       [replace(n, age=age(n), backlog_s=backlog(busy, t, scenario.dt))
+                        for n, busy in zip(obs.neighbours, obs.busy_until, strict=False)],
+                       obs.busy_until)
 
 
 def heard_states(node: NodeSpec, scenario: Scenario) -> tuple[str, ...]:

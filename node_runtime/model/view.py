@@ -6,7 +6,7 @@ policies read it directly; the RL environment turns it into fixed-shape arrays.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, fields
+from dataclasses import dataclass, field, fields
 from operator import attrgetter
 from typing import Any
 
@@ -52,6 +52,7 @@ class Observation:
     undecided: int  # undecided tasks at the own worker, as last reported
     tasks: list[TaskView]  # the tasks this decision places (binary: at most one)
     neighbours: list[NodeView]  # canonical neighbour order: action i -> neighbours[i - 1]
+    busy_until: list[float] = field(default_factory=list)  # per neighbour link: the tick its queue empties at
 
     def valid_actions(self) -> list[bool]:
         """Action 0 keeps a task locally; action i sends it to neighbour i - 1 if that one is a worker."""
@@ -60,11 +61,11 @@ class Observation:
     def to_wire(self) -> list[Any]:
         """Compact arrays (field order of the dataclasses), documented in docs/bus.md."""
         return [self.tick, self.node, _node_fields(self.own), self.undecided, [_task_fields(t) for t in self.tasks],
-                [_node_fields(n) for n in self.neighbours]]
+                [_node_fields(n) for n in self.neighbours], self.busy_until]
 
     @classmethod
     def from_wire(cls, a: list[Any]) -> Observation:
-        return cls(a[0], a[1], NodeView(*a[2]), a[3], [TaskView(*t) for t in a[4]], [NodeView(*n) for n in a[5]])
+        return cls(a[0], a[1], NodeView(*a[2]), a[3], [TaskView(*t) for t in a[4]], [NodeView(*n) for n in a[5]], a[6])
 
 
 _node_fields = attrgetter(*(f.name for f in fields(NodeView)))

@@ -48,7 +48,7 @@ STATE = (str, NUM, NUM)
 ENVELOPE = (int, str, str, int, int, int, object)
 NODE_VIEW = (str, NUM, NUM, NUM, NUM, NUM, NUM, NUM, bool, NUM)
 TASK_VIEW = (int, NUM, NUM, NUM, NUM, NUM, NUM, NUM, str)
-OBSERVATION = (int, str, list, int, list, list)
+OBSERVATION = (int, str, list, int, list, list, list)
 N_STATS = len(STAT_FIELDS)
 
 
@@ -95,7 +95,7 @@ def _flights(m: Any) -> bool:
 def _observations(m: Any) -> bool:
     return type(m) is dict and (not m or (all(map(_is_int, m)) and all(
         _fits(o, OBSERVATION) and _fits(o[2], NODE_VIEW) and all(_fits(t, TASK_VIEW) for t in o[4])
-        and all(_fits(n, NODE_VIEW) for n in o[5]) for o in m.values())))
+        and all(_fits(n, NODE_VIEW) for n in o[5]) and _number_rows([o[6]]) for o in m.values())))
 
 
 def _actions(m: Any) -> bool:

@@ -23,7 +23,7 @@ from typing import Any, Literal
 from node_runtime.model.messages import Envelope
 from node_runtime.model.view import Observation
 
-SCHEMA_VERSION = 3
+SCHEMA_VERSION = 4
 Command = Literal["run", "reset", "stop"]
 
 
