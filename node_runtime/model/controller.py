@@ -21,7 +21,6 @@ from __future__ import annotations
 
 import math
 from collections.abc import Iterable, Sequence
-from dataclasses import replace
 from typing import TYPE_CHECKING
 
 from node_runtime.model.messages import Decision, Envelope, Kind, NodeState, Pending
@@ -242,14 +241,18 @@ def observation_at(obs: Observation, t: int, scenario: Scenario) -> Observation:
     if obs.tasks:
         raise ValueError(f"controller:{obs.node}: an observation with tasks to place is never re-timed")
     fresh = always_fresh(scenario, [obs.node, *(n.node for n in obs.neighbours)])
+    dt = scenario.dt
 
-    def age(view: NodeView) -> int:
-        return 1 if fresh else t - heard_at(scenario, view.node, t)
+    def at(view: NodeView, queued: float) -> NodeView:  # the same view when nothing changed: most of them
+        age = 1 if fresh else t - heard_at(scenario, view.node, t)
+        if age == view.age and queued == view.backlog_s:
+            return view
+        return NodeView(view.node, view.queue, view.occupancy, view.buffer, view.capacity, view.tier,
+                        view.rate_bps, age, view.worker, queued)
 
-    own = obs.own if scenario.colocated_control else replace(obs.own, age=age(obs.own))
+    own = obs.own if scenario.colocated_control else at(obs.own, obs.own.backlog_s)
     return Observation(t, obs.node, own, obs.undecided, [],
-                       [replace(n, age=age(n), backlog_s=backlog(busy, t, scenario.dt))
-                        for n, busy in zip(obs.neighbours, obs.busy_until, strict=False)],
+                       [at(n, backlog(busy, t, dt)) for n, busy in zip(obs.neighbours, obs.busy_until, strict=False)],
                        obs.busy_until)
 
 
