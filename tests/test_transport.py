@@ -12,6 +12,7 @@ from collections.abc import Callable, Iterator
 import pytest
 
 from node_runtime.runtime.inproc import InprocBus
+from node_runtime.runtime.protocol import SCHEMA_VERSION
 from node_runtime.runtime.transport import Transport, TransportError
 from node_runtime.runtime.zenoh_bus import ZenohTransport, free_port
 from tests.launcher import TIMEOUT
@@ -49,9 +50,10 @@ def test_requests_are_answered_by_whoever_serves_the_key(connect):
         return {"type": "answer", "n": message["n"] + 1}
 
     hub.serve("t/a/session", answer)
-    assert client.request("t/a/session", {"type": "question", "n": 1}, TIMEOUT) == {"type": "answer", "n": 2, "v": 3}
+    v = SCHEMA_VERSION  # every message carries it
+    assert client.request("t/a/session", {"type": "question", "n": 1}, TIMEOUT) == {"type": "answer", "n": 2, "v": v}
     assert client.request("t/*/session", {"type": "question", "n": 5}, TIMEOUT)["n"] == 6  # a wildcard asks all
-    assert asked == [{"type": "question", "n": 1, "v": 3}, {"type": "question", "n": 5, "v": 3}]
+    assert asked == [{"type": "question", "n": 1, "v": v}, {"type": "question", "n": 5, "v": v}]
     with pytest.raises(TransportError, match="t/b/session"):
         client.request("t/b/session", {"type": "question", "n": 1}, 1.0)
 
