@@ -28,7 +28,7 @@ from node_runtime.model.spec import Scenario
 from node_runtime.model.view import Observation
 from node_runtime.runtime.access import access_control
 from node_runtime.runtime.driver import HostDriver
-from node_runtime.runtime.host import Host
+from node_runtime.runtime.host import Host, role_class
 from node_runtime.runtime.inproc import InprocBus
 from node_runtime.runtime.keys import DEFAULT_PREFIX, Keys, new_sim_id
 from node_runtime.runtime.layout import Layout, ProcessLayout
@@ -171,6 +171,9 @@ class Simulation:
         self.policy: str | None = None
         self.last: list[Done] = []
         self.seen: dict[str, Observation] = {}  # driven controller -> its latest observation, any tick
+        # controllers whose stale observations observation_at re-times: not a user's class that observes otherwise
+        self.retimed = {r for r in self.plan.roles
+                        if self.plan.kind_of(r).agent and getattr(role_class(r, self.plan), "retimed", False)}
         self._closed = False
         self._run_started = 0.0
         self._ticks_run = 0
@@ -255,8 +258,8 @@ class Simulation:
         t, sc = self.clock.tick, self.scenario
         if t % sc.decision_interval:  # controllers observe at decision epochs only
             return {role: obs for role, obs in self.seen.items() if obs.tick == t}
-        return {role: obs if obs.tick == t else observation_at(obs, t, sc)
-                for role, obs in self.seen.items() if obs.tick == t or not sc.failure_windows.get(obs.node)}
+        return {role: obs if obs.tick == t else observation_at(obs, t, sc) for role, obs in self.seen.items()
+                if obs.tick == t or (role in self.retimed and not sc.failure_windows.get(obs.node))}
 
     def _remember(self) -> None:
         roles = self.plan.roles

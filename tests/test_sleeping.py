@@ -171,3 +171,31 @@ def test_a_driven_controller_that_sleeps_observes_exactly_what_it_would_have(tmp
             retimed += raw is not ctrl.last
     assert retimed > 0 and slept > 0  # the rule was exercised
     env.close()
+
+
+class Urgency(Controller):
+    """A user's controller that observes otherwise: the deadline pressure of its oldest undecided task,
+    which grows every tick. Its observations cannot be re-timed by the built-in rule."""
+
+    def observe(self, t: int):
+        obs = super().observe(t)
+        obs.undecided = len(self.undecided) * 1000 + t
+        return obs
+
+
+def test_a_users_controller_that_observes_otherwise_runs_every_tick_while_driven(tmp_path):
+    scenario = load_scenario(write_scenario(tmp_path, {
+        "name": "urgency", "roles": {"controller": f"{__name__}:Urgency"},
+        "topology": {"nodes": [{"id": "a", "client": True, "controller": True}, {"id": "b", "controller": True}],
+                     "links": [["a", "b"]]},
+        "workload": {"arrival": {"rate": 0.05}}}))
+    assert not Urgency.retimed and Controller.retimed
+    env = ZenohEdgeEnv(scenario, transport="inproc", layout="per-role", max_steps=60)
+    env.reset(seed=1)
+    controllers = {r.id: r for d in env.sim.drivers for r in d.host.roles if isinstance(r, Controller)}
+    assert controllers and all(type(c) is Urgency for c in controllers.values())
+    while env.agents:
+        env.step({a: 0 for a in env.agents})
+        for agent, role in env._role.items():
+            assert env._raw[agent] == controllers[role].observe(env.sim.tick)
+    env.close()

@@ -21,7 +21,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Iterable, Sequence
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, ClassVar
 
 from node_runtime.model.messages import Decision, Envelope, Kind, NodeState, Pending
 from node_runtime.model.policies import Policy, make_policy
@@ -43,6 +43,13 @@ class InvalidAction(ValueError):
 
 class Controller(Role):
     kind = "controller"
+    # ``observation_at`` re-times what this class observes. A subclass that observes otherwise (``observe``,
+    # ``view``, ``own_view`` or ``tick`` redefined) runs every tick while an agent drives it, as all did before.
+    retimed: ClassVar[bool] = True
+
+    def __init_subclass__(cls, **kwargs: object) -> None:
+        super().__init_subclass__(**kwargs)
+        cls.retimed = cls.retimed and not any(name in cls.__dict__ for name in ("observe", "view", "own_view", "tick"))
 
     def __init__(self, node: NodeSpec, scenario: Scenario) -> None:
         super().__init__(node, scenario)
@@ -142,7 +149,7 @@ class Controller(Role):
         wait, or when an agent drives it and it ran since it last observed; otherwise only mail (a report,
         a state) wakes it. A driven controller that sleeps through an epoch would observe exactly its last
         observation re-timed (``observation_at``): the environment does that instead of waking it."""
-        if self.asked or self.outages:
+        if self.asked or self.outages or (self.external and not self.retimed):
             return t + 1
         if self.has_candidates() or self.stale:
             interval = self.scenario.decision_interval

@@ -33,13 +33,15 @@ class Outgoing:
     events: list[tuple[str, str, dict]]  # (kind, node, fields), collected only while a monitor listens
 
 
-def make_role(role: str, plan: ProcessLayout) -> Role:
-    """The role: of its kind's class, or of the scenario's subclass of it (``roles:`` key)."""
-    node = plan.scenario.node[role_node(role)]
+def role_class(role: str, plan: ProcessLayout) -> type[Role]:
+    """Its kind's class, or the scenario's subclass of it (``roles:`` key)."""
     kind = plan.kind_of(role)
-    impl = node.impl(kind.name)
-    cls = load(impl, kind.base) if impl else kind.base
-    return cls(node, plan.scenario)
+    impl = plan.scenario.node[role_node(role)].impl(kind.name)
+    return load(impl, kind.base) if impl else kind.base
+
+
+def make_role(role: str, plan: ProcessLayout) -> Role:
+    return role_class(role, plan)(plan.scenario.node[role_node(role)], plan.scenario)
 
 
 class Host:
