@@ -16,8 +16,9 @@ from node_runtime.model.worker import Worker
 from node_runtime.model.workload import TaskSource
 from orchestrator.scenario import load_scenario
 from orchestrator.session import Simulation
-from tests.conftest import ROOT, model_part, run_summary, write_scenario
+from tests.conftest import ROOT, model_part, run_summary, same, write_scenario
 from tests.test_determinism import outputs
+from tests.test_env import run_episode
 
 HEADER = "time,client,instructions,input_bytes,output_bytes,cpi,deadline\n"
 
@@ -199,3 +200,18 @@ def test_a_users_controller_that_observes_otherwise_runs_every_tick_while_driven
         for agent, role in env._role.items():
             assert env._raw[agent] == controllers[role].observe(env.sim.tick)
     env.close()
+
+
+@pytest.mark.zenoh
+@pytest.mark.parametrize("name", ["failures", "co-located"])
+def test_zenoh_agrees_on_re_timed_observations(tmp_path, name):
+    """The re-timing over Zenoh (each link's busy-until tick on the wire) gives the in-process episode: the same
+    observations, rewards and infos at every step, with sleeping controllers in a scenario of every timing rule."""
+    scenario = driven_scenarios(tmp_path)[name]
+    traces = []
+    for transport, layout in (("inproc", "single"), ("zenoh", "per-role")):
+        env = ZenohEdgeEnv(scenario, transport=transport, layout=layout, max_steps=90)
+        traces.append(run_episode(env, seed=2, actions_rng_seed=4, steps=90))
+        env.close()
+    for i, (a, b) in enumerate(zip(*traces, strict=True)):
+        assert same(a, b), f"step {i} differs"
