@@ -14,6 +14,7 @@ from __future__ import annotations
 import argparse
 import json
 import time
+from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
@@ -27,23 +28,30 @@ from orchestrator.viewers.progress import progress_steps
 CONFIGS = ("inproc:single", "zenoh:per-role", "zenoh:per-node", "zenoh:groups:2")
 
 
+def random_steps(env: ZenohEdgeEnv, seed: int = 0) -> Callable[[int], float]:
+    """Reset ``env``; then ``rate(n)`` makes n ``env.step()`` calls with random actions from each agent's
+    mask and returns steps per second of ``step()`` time alone."""
+    obs, _ = env.reset(seed=seed)
+    rng = np.random.default_rng(seed)
+
+    def rate(n: int) -> float:
+        nonlocal obs
+        spent = 0.0
+        for _ in range(n):
+            actions = {a: int(rng.choice(np.flatnonzero(obs[a]["action_mask"]))) for a in env.agents}
+            t0 = time.perf_counter()
+            obs, *_ = env.step(actions)
+            spent += time.perf_counter() - t0
+        return n / spent
+
+    return rate
+
+
 def measure(scenario: str, transport: str, layout: str, steps: int, rounds: int) -> dict:
     env = ZenohEdgeEnv(scenario, transport=transport, layout=layout, max_steps=10**9)
     barrier = None
     try:
-        obs, _ = env.reset(seed=0)
-        rng = np.random.default_rng(0)
-
-        def run(n: int) -> float:
-            nonlocal obs
-            spent = 0.0
-            for _ in range(n):
-                actions = {a: int(rng.choice(np.flatnonzero(obs[a]["action_mask"]))) for a in env.agents}
-                t0 = time.perf_counter()
-                obs, *_ = env.step(actions)
-                spent += time.perf_counter() - t0
-            return n / spent
-
+        run = random_steps(env)
         run(50)  # warm-up
         processes = len(env.sim.plan.procs) if transport == "zenoh" else 1
         barrier = BareBarrier(processes) if transport == "zenoh" else None
