@@ -171,9 +171,7 @@ class Simulation:
         self.policy: str | None = None
         self.last: list[Done] = []
         self.seen: dict[str, Observation] = {}  # driven controller -> its latest observation, any tick
-        # controllers whose stale observations observation_at re-times: not a user's class that observes otherwise
-        self.retimed = {r for r in self.plan.roles
-                        if self.plan.kind_of(r).agent and getattr(role_class(r, self.plan), "retimed", False)}
+        self.retimed: set[str] = set()  # driven controllers whose class observation_at can re-time
         self._closed = False
         self._run_started = 0.0
         self._ticks_run = 0
@@ -229,6 +227,7 @@ class Simulation:
         self.metrics.reset()
         self.last = self.clock.reset(self.seed, external, policy)
         self.seen = {}
+        self.retimed = {r for r in external or () if getattr(role_class(r, self.plan), "retimed", False)}
         self._remember()
         self._run_started = time.perf_counter()
         self._ticks_run = 1

@@ -19,6 +19,7 @@ from orchestrator.session import Simulation
 from tests.conftest import ROOT, model_part, run_summary, same, write_scenario
 from tests.test_determinism import outputs
 from tests.test_env import run_episode
+from tests.test_reference_semantics import everything
 
 HEADER = "time,client,instructions,input_bytes,output_bytes,cpi,deadline\n"
 
@@ -133,8 +134,6 @@ def test_the_battery_example_agrees_across_layouts(tmp_path):
 
 
 def driven_scenarios(tmp_path):
-    from tests.test_reference_semantics import everything
-
     def quieter(sc: Scenario) -> Scenario:  # idle spells, so that controllers sleep between arrivals
         data = sc.to_dict()
         data["workload"]["arrival"]["rate"] = 0.1

@@ -41,6 +41,7 @@ def role_class(role: str, plan: ProcessLayout) -> type[Role]:
 
 
 def make_role(role: str, plan: ProcessLayout) -> Role:
+    """The role, of ``role_class``."""
     return role_class(role, plan)(plan.scenario.node[role_node(role)], plan.scenario)
 
 
