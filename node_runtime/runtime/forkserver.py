@@ -179,16 +179,26 @@ class ForkServer:
         fd = self.server.stdout.fileno()
         while (msg := _read(fd)) is not None:
             with self._cond:
-                if msg[0] == "started":
-                    self._started.setdefault(msg[1], []).append(msg[2])
-                elif msg[0] == "failed":
-                    self._failed[msg[1]] = msg[2]
-                else:
-                    self.exits[msg[2]] = msg[3]
-                    self.accounts[msg[2]] = msg[4]
+                self._note(msg)
                 self._cond.notify_all()
         with self._cond:
             self._cond.notify_all()
+
+    def _note(self, msg: tuple) -> None:
+        """Record one of the server's replies or notices (the caller holds ``_cond``)."""
+        if msg[0] == "started":
+            name, pid = msg[1], msg[2]
+            # Linux reuses pids once the counter wraps (32768 by default; every thread takes one too), and
+            # the server reaps a child before it can fork another with its pid: an exit recorded for
+            # this pid was a former child's, and must not read as this one's.
+            self.exits.pop(pid, None)
+            self.accounts.pop(pid, None)
+            self._started.setdefault(name, []).append(pid)
+        elif msg[0] == "failed":
+            self._failed[msg[1]] = msg[2]
+        else:
+            self.exits[msg[2]] = msg[3]
+            self.accounts[msg[2]] = msg[4]
 
     def start(self, name: str, target: Callable[..., None], *args: Any, timeout: float = 30.0) -> int:
         """Fork a child running ``target(*args)``; returns its pid."""
