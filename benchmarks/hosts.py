@@ -10,6 +10,10 @@ The orchestrator is the real CLI (`orchestrator launch --listen 0.0.0.0:PORT --p
 real `zenohedge-node` inside its namespace; the figures are the run's own (summary.json: start-up until
 every process is ready, ticks/s) and the peak resident memory summed over every process. All hosts
 share this machine's cores, so this measures the protocol and the routers at N, not H machines' speed.
+
+Right after each run, a bare Zenoh barrier (`orchestrator bench`'s) with the same processes on the same
+hosts: the orchestrator's router on the root namespace, and in each namespace a router joined to it with
+that host's share of the participants behind it on a unix socket, as `zenohedge-node` lays a host out.
 """
 
 from __future__ import annotations
@@ -17,6 +21,7 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import statistics
 import subprocess
 import sys
 import tempfile
@@ -30,18 +35,51 @@ from scale import report, rss_mb, scenario  # the sibling script: run this one a
 
 from node_runtime.runtime.layout import ProcessLayout
 from orchestrator.session import free_port
+from orchestrator.viewers.bench import BareBarrier, barrier_host
 
 ROOT = Path(__file__).resolve().parent.parent
 NETNS = ROOT / "deploy" / "netns.sh"
 SIM = "bench"
 
 
-def placement(sc: Any, procs: int, hosts: int) -> dict[str, list[str]]:
-    """host<h> -> the nodes of its share of the groups:K processes, whole processes only."""
-    plan = ProcessLayout(sc, f"groups:{procs}")
+def shares(procs: int, hosts: int) -> list[range]:
+    """The process indices each host runs: whole processes, in order, the last hosts possibly with fewer."""
     share = -(-procs // hosts)
-    return {f"host{h + 1}": [n for p in plan.procs[h * share:(h + 1) * share] for n in plan.node_of_proc(p)]
-            for h in range(hosts) if plan.procs[h * share:(h + 1) * share]}
+    return [range(h * share, min(procs, (h + 1) * share)) for h in range(hosts) if h * share < procs]
+
+
+def placement(sc: Any, procs: int, hosts: int) -> dict[str, list[str]]:
+    """host<h> -> the nodes of its share of the groups:K processes."""
+    plan = ProcessLayout(sc, f"groups:{procs}")
+    return {f"host{h}": [n for i in indices for n in plan.node_of_proc(plan.procs[i])]
+            for h, indices in enumerate(shares(procs, hosts), start=1)}
+
+
+def barrier(procs: int, hosts: int, ticks: int, rounds: int = 5) -> float:
+    """Ticks/s of a bare barrier of ``procs`` participants spread over the namespaces like the run's
+    processes (median of ``rounds`` chunks of ``ticks``)."""
+    members: list[subprocess.Popen] = []
+
+    def spawn(endpoint: str, root: str) -> None:
+        port = endpoint.rsplit(":", 1)[1]
+        for h, indices in enumerate(shares(procs, hosts), start=1):
+            members.append(subprocess.Popen(["ip", "netns", "exec", f"zedge-host{h}", sys.executable, __file__,
+                                             "--barrier-host", f"tcp/10.77.{h}.1:{port}", root,
+                                             str(indices.start), str(len(indices))], cwd=ROOT))
+
+    try:
+        bench = BareBarrier(procs, host="0.0.0.0", spawn=spawn)
+        try:
+            return statistics.median(bench.rate(ticks) for _ in range(rounds))
+        finally:
+            bench.close()
+    finally:
+        for member in members:
+            try:
+                member.wait(30)
+            except subprocess.TimeoutExpired:
+                member.kill()
+                member.wait()
 
 
 def peak_rss(pids: list[int], until: subprocess.Popen) -> float:
@@ -83,8 +121,10 @@ def measure(n: int, procs: int, hosts: int, ticks: int, work: Path) -> dict[str,
     if launch.returncode != 0:
         raise RuntimeError(f"launch exited with status {launch.returncode}:\n{log.read_text()}")
     run = json.loads((work / f"run-{n}" / "summary.json").read_text())["run"]
+    base = barrier(run["processes"], hosts, ticks=200)
     return {"nodes": n, "hosts": len(groups), "processes": run["processes"], "zenoh_startup_s": run["startup_s"],
-            "zenoh_ticks_per_s": run["ticks_per_s"], "rss_mb": round(rss), "wall_s": round(wall, 1)}
+            "zenoh_ticks_per_s": run["ticks_per_s"], "barrier_ticks_per_s": round(base, 1), "rss_mb": round(rss),
+            "wall_s": round(wall, 1)}
 
 
 def main() -> None:
@@ -94,7 +134,12 @@ def main() -> None:
     p.add_argument("--groups", type=int, default=16, help="node processes (layout groups:K; default 16)")
     p.add_argument("--ticks", type=int, default=40, help="ticks per run (default 40)")
     p.add_argument("--json", type=Path, help="also write the rows here")
+    p.add_argument("--barrier-host", nargs=4, metavar=("UPSTREAM", "ROOT", "FIRST", "COUNT"), help=argparse.SUPPRESS)
     args = p.parse_args()
+    if args.barrier_host:  # this script, run inside one namespace by ``barrier``
+        upstream, root, first, count = args.barrier_host
+        barrier_host(upstream, root, range(int(first), int(first) + int(count)))
+        return
     if os.geteuid() != 0:
         p.error("network namespaces need root (and iproute2)")
     console = Console()

@@ -13,15 +13,17 @@ import json
 import os
 import queue
 import statistics
+import tempfile
 import time
 from collections.abc import Callable
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
+from node_runtime.runtime.access import LOCAL_LINK
 from node_runtime.runtime.forkserver import ForkServer
 from node_runtime.runtime.keys import Keys, new_sim_id
 from node_runtime.runtime.process import PR_SET_NAME, _prctl
-from node_runtime.runtime.zenoh_bus import close_session, use_lean_runtime, zenoh_config
+from node_runtime.runtime.zenoh_bus import ZenohTransport, close_session, use_lean_runtime, zenoh_config
 from orchestrator.scenario import load_scenario
 from orchestrator.session import Simulation, open_router
 
@@ -59,12 +61,33 @@ def barrier_peer(endpoint: str, root: str, index: int) -> None:
     os._exit(0)
 
 
-class BareBarrier:
-    """N idle participants around a router of its own; ``rate(ticks)`` drives that many barrier rounds."""
+def barrier_host(upstream: str, root: str, indices: range) -> None:
+    """One host's share of a bare barrier, laid out as ``zenohedge-node`` lays out a host: a router joined
+    to ``upstream``, and the participants ``indices`` connected to it over a unix socket. Returns when they
+    have all ended (the barrier's ``close``)."""
+    with tempfile.TemporaryDirectory(prefix="zenohedge-barrier-") as folder:
+        local = f"{LOCAL_LINK}/{folder}/router.sock"
+        router = ZenohTransport.router(local, [upstream])
+        forks = ForkServer.shared()
+        try:
+            pids = [forks.start(f"barrier-{i}", barrier_peer, local, root, i) for i in indices]
+            while forks.wait(pids, 1.0):
+                pass
+        finally:
+            router.close()
 
-    def __init__(self, processes: int) -> None:
+
+class BareBarrier:
+    """N idle participants around a router of its own; ``rate(ticks)`` drives that many barrier rounds.
+
+    By default the participants are forked here and connect to that router on loopback. ``spawn(endpoint,
+    root)`` starts them elsewhere instead, e.g. behind other hosts' routers (``barrier_host``); the router
+    then listens on ``host`` and the barrier waits for participants 0 … N-1 to announce themselves."""
+
+    def __init__(self, processes: int, host: str = "127.0.0.1", spawn: Callable[[str, str], None] | None = None,
+                 timeout: float = 60.0) -> None:
         self.n = processes
-        self.router, endpoint = open_router()
+        self.router, endpoint = open_router(host)
         self.root = Keys(new_sim_id(), "zbench").root
         self.forks = ForkServer.shared()
         self.pids: list[int] = []
@@ -74,9 +97,12 @@ class BareBarrier:
             self.router.watch_tokens(f"{self.root}/alive/*", lambda key, alive: alive and ready.add(key))
             # raw bytes straight from the session: no codec on the hot path
             self.sub = self.router.session.declare_subscriber(f"{self.root}/done/*", lambda s: self.replies.put(1))
-            for i in range(processes):
-                self.pids.append(self.forks.start(f"barrier-{i}", barrier_peer, endpoint, self.root, i))
-            self.router.dispatch(until=lambda: len(ready) == processes, timeout=60)
+            if spawn is not None:
+                spawn(endpoint, self.root)
+            else:
+                for i in range(processes):
+                    self.pids.append(self.forks.start(f"barrier-{i}", barrier_peer, endpoint, self.root, i))
+            self.router.dispatch(until=lambda: len(ready) == processes, timeout=timeout)
             self.pub = self.router.put_publisher(f"{self.root}/tick")
             self.rate(50)  # warm-up
         except BaseException:
