@@ -7,7 +7,7 @@ import math
 import pytest
 
 from node_runtime.model.energy import compute_energy, idle_energy, transmit_energy
-from node_runtime.model.messages import Task
+from node_runtime.model.messages import LONGEST_DEADLINE_TICKS, Task
 from node_runtime.model.radio import LinkTransmitter, dbm_to_watts, log_distance_gain_db, shannon_rate
 
 
@@ -20,6 +20,15 @@ def test_shannon_rate_hand_computed():
 def test_zero_db_snr_gives_bandwidth():
     # SNR 0 dB = 1 -> log2(2) = 1 -> r = B
     assert shannon_rate(1e6, 10.0, -50.0, -40.0) == pytest.approx(1e6)
+
+
+def test_shannon_rate_past_the_floats_range_of_snr():
+    # P + G - w0 = 2000 + 2000 - (-100) = 4100 dB: 10^410 overflows a float, but log2(1 + 10^410) is
+    # 410 * log2(10) = 1361.98... to double precision, so r = 1e6 * 1361.98... bit/s
+    assert shannon_rate(1e6, 2000.0, 2000.0, -100.0) == pytest.approx(1e6 * 410 * math.log2(10), rel=1e-12)
+    # at the switch both forms agree: 3000 dB by the formula, and just past it by the asymptote
+    assert shannon_rate(1.0, 3000.0, 0.0, 0.0) == pytest.approx(300 * math.log2(10), rel=1e-12)
+    assert shannon_rate(1.0, 3000.0, 1e-9, 0.0) == pytest.approx(300 * math.log2(10), rel=1e-12)
 
 
 def test_log_distance_path_loss():
@@ -89,6 +98,20 @@ def test_expiry_tick_agrees_with_expired():
             task = Task(1, "a", created=7, instructions=1, input_bytes=1, output_bytes=1, cpi=1, deadline=deadline)
             t = task.expires_at(dt)
             assert task.expired(t, dt) and not task.expired(t - 1, dt), (dt, deadline)
+
+
+def test_expiry_tick_is_exact_up_to_the_longest_deadline_and_never_past_it():
+    # 2^50 ticks of 0.1 s: still exact, the first tick past the deadline
+    longest = Task(1, "a", created=3, instructions=1, input_bytes=1, output_bytes=1, cpi=1,
+                   deadline=LONGEST_DEADLINE_TICKS * 0.1)
+    t = longest.expires_at(0.1)
+    assert longest.expired(t, 0.1) and not longest.expired(t - 1, 0.1)
+    # past it (1e300 s, or nan from a user's task source) consecutive ticks times dt round to the same
+    # number, and the search used to loop for ever: now the task never expires within any run
+    for deadline in (1e300, 2.0**60, math.nan):
+        task = Task(1, "a", created=3, instructions=1, input_bytes=1, output_bytes=1, cpi=1, deadline=deadline)
+        assert task.expires_at(1.0) == 3 + LONGEST_DEADLINE_TICKS
+        assert not task.expired(10**6, 1.0)
 
 
 def test_noise_follows_the_bandwidth(tmp_path):

@@ -121,6 +121,39 @@ CASES = [
      "network.path_loss: give either ref_loss_db or frequency_hz"),
     ("ether_device_of_unknown_type", {"topology": {"ether": "e.json"}}, {"e.json": ETHER_GPU},
      "node 'gpu_0'.profile: unknown profile 'gpu'"),
+    # inf and nan are refused everywhere: as YAML writes them (.nan, .inf), and as strings
+    ("nan_tx_power", "network: {tx_power_dbm: .nan}\ntopology: {nodes: [{id: a, client: true}, {id: b}], "
+                     "links: [[a, b]]}\n", {}, "network.tx_power_dbm: expected a finite number (got nan)"),
+    ("infinite_dt", good(simulation={"dt": "inf"}), {}, "simulation.dt: expected a finite number"),
+    ("infinite_instructions", good(workload={"tasks": [{"instructions": float("inf")}]}), {},
+     "workload.tasks[0].instructions: expected a finite number (got inf)"),
+    ("nan_position", with_nodes({"id": "a", "client": True, "position": [0, float("nan")]}, {"id": "b"}), {},
+     "topology.nodes[0].position[1]: expected a finite number"),
+    # a level in dB whose power form is no float
+    ("huge_tx_power", with_nodes({"id": "a", "client": True, "tx_power_dbm": 1e20}, {"id": "b"}), {},
+     "topology.nodes[0].tx_power_dbm: expected a number <= 3000"),
+    ("huge_link_gain", with_nodes(*NODES, links=[{"between": ["a", "b"], "gain_db": -1e9}]), {},
+     "topology.links[0].gain_db: expected a number >= -3000"),
+    # more tasks a tick than any run could hold: a clear line, not numpy's "lam value too large"
+    ("arrivals_beyond_a_million_a_tick", good(simulation={"dt": 1e7}), {},
+     "workload.arrival.rate: 0.17 tasks/s with dt = 1e+07 s is 1.7e+06 tasks a tick per source; expected at most"),
+    # Python's json reads NaN; a negative capacity was taken as a negative clock rate
+    ("ether_nan_coordinates", {"topology": {"ether": "e.json"}},
+     {"e.json": ETHER_GPU.replace('"coordinates": [10, 0]', '"coordinates": [NaN, 0]')},
+     "node 'gpu_0' lacks coordinates, or capacity.cpu_milis and memory as positive numbers"),
+    ("ether_negative_capacity", {"topology": {"ether": "e.json"}},
+     {"e.json": ETHER_GPU.replace('"cpu_milis": 9000', '"cpu_milis": -9000')},
+     "node 'gpu_0' lacks coordinates, or capacity.cpu_milis and memory as positive numbers"),
+    # a deadline whose expiry tick floats cannot compute (the search for it looped for ever)
+    ("deadline_past_two_to_the_fifty_ticks", good(workload={"tasks": [{"deadline": {"low": 1, "high": 1e300}}]}),
+     {}, "workload.tasks[0].deadline: a deadline of 1e+300 s is 1e+300 ticks of dt = 1 s; expected at most 2^50"),
+    ("trace_with_nan", good(workload={"trace": "t.csv"}), {"t.csv": HEADER + "0,a,1e6,1e3,1e3,1,nan\n"},
+     "t.csv:2: expected finite numbers in every column but 'client'"),
+    ("trace_with_endless_deadline", good(workload={"trace": "t.csv"}),
+     {"t.csv": HEADER + "0,a,1e6,1e3,1e3,1,1e300\n"},
+     "t.csv:2: a deadline of 1e+300 s is 1e+300 ticks"),
+    ("client_rate_beyond_a_million_a_tick", good(workload={"rates": {"a": 1e12}}), {},
+     "workload.rates.a: 1e+12 tasks/s with dt = 1 s is 1e+12 tasks a tick"),
 ]
 
 

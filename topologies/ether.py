@@ -33,6 +33,14 @@ DEVICE_TYPES: dict[str, dict[str, Any]] = {
 }
 
 
+def _finite(value: Any, positive: bool = False) -> float:
+    """A number of the file (Python's json reads NaN and Infinity, which no quantity here may be)."""
+    number = float(value)
+    if not math.isfinite(number) or (positive and number <= 0):
+        raise ValueError(f"{value!r} is not a {'positive ' if positive else ''}finite number")
+    return number
+
+
 def profile_of(name: str) -> str:
     return name.rsplit("_", 1)[0] if "_" in name else name
 
@@ -56,27 +64,33 @@ def load_ether(path: Path, task_bytes: float, wired_rates: bool = False, buffer_
     for name, node in raw_nodes.items():
         try:
             cap = node["capacity"]
-            x, y = node["coordinates"]
-            memory = float(cap["memory"])
+            x, y = map(_finite, node["coordinates"])
+            memory = _finite(cap["memory"], positive=True)
             by_id[str(node["id"])] = name
             nodes.append(DraftNode(
                 id=name,
                 profile=profile_of(name),
-                position=(float(x), float(y)),
-                hints={"cores": 1, "frequency": float(cap["cpu_milis"]) * 1000.0,
+                position=(x, y),
+                hints={"cores": 1, "frequency": _finite(cap["cpu_milis"], positive=True) * 1000.0,
                        "buffer": max(1, round(memory / buffer_bytes) if buffer_bytes else
                                      math.floor(memory / task_bytes))},
                 device=DEVICE_TYPES.get((node.get("labels") or {}).get(TYPE_LABEL), {}),
             ))
         except (KeyError, TypeError, ValueError, AttributeError):
-            raise EtherError(f"{path}: node {name!r} lacks capacity.cpu_milis/memory or coordinates") from None
+            raise EtherError(f"{path}: node {name!r} lacks coordinates, or capacity.cpu_milis and memory as "
+                             "positive numbers") from None
     bandwidth: dict[frozenset[str], float] = {}
     if wired_rates:
-        for info in data["links"].get("path_info", []):
-            a, b = by_id.get(str(info["source"])), by_id.get(str(info["target"]))
-            if a and b:  # Mbit/s; the slower direction bounds a symmetric link
-                key = frozenset((a, b))
-                bandwidth[key] = min(bandwidth.get(key, math.inf), float(info["min_bandwidth"]) * 1e6)
+        for i, info in enumerate(data["links"].get("path_info", [])):
+            try:
+                a, b = by_id.get(str(info["source"])), by_id.get(str(info["target"]))
+                if a and b:  # Mbit/s; the slower direction bounds a symmetric link
+                    key = frozenset((a, b))
+                    rate = _finite(info["min_bandwidth"], positive=True) * 1e6
+                    bandwidth[key] = min(bandwidth.get(key, math.inf), rate)
+            except (KeyError, TypeError, ValueError):
+                raise EtherError(f"{path}: links.path_info[{i}] lacks source, target or a positive min_bandwidth") \
+                    from None
     links: dict[frozenset[str], DraftLink] = {}
     for src, dsts in neighbours.items():
         a = by_id.get(str(src))

@@ -5,6 +5,11 @@ from __future__ import annotations
 from dataclasses import dataclass
 from enum import IntEnum
 
+# The longest deadline, in ticks, whose expiry tick is computed exactly: up to it, (tick - created) * dt
+# tells consecutive ticks apart whatever dt. Scenarios are held to it; past it (a user's task source)
+# a task is taken never to expire, which no run of fewer ticks can tell from the truth.
+LONGEST_DEADLINE_TICKS = 2**50
+
 
 @dataclass(slots=True)
 class Task:
@@ -36,7 +41,10 @@ class Task:
     def expires_at(self, dt: float) -> int:
         """The first tick at which ``expired`` holds (computed with ``expired`` itself, so that both
         always agree whatever the float rounding)."""
-        t = self.created + int(self.deadline // dt)
+        ticks = self.deadline // dt
+        if not ticks <= LONGEST_DEADLINE_TICKS:  # nan too; the loops below would never end
+            return self.created + LONGEST_DEADLINE_TICKS
+        t = self.created + int(ticks)
         while not self.expired(t, dt):
             t += 1
         while t > self.created and self.expired(t - 1, dt):

@@ -8,6 +8,8 @@ import numpy as np
 
 from node_runtime.model.spec import Scenario
 
+HIGH_SNR_DB = 3000.0  # beyond it 1 + 10^(snr/10) is 10^(snr/10) in double precision, and soon overflows
+
 
 def dbm_to_watts(dbm: float) -> float:
     return 10.0 ** ((dbm - 30.0) / 10.0)
@@ -15,8 +17,10 @@ def dbm_to_watts(dbm: float) -> float:
 
 def shannon_rate(bandwidth_hz: float, tx_power_dbm: float, gain_db: float, noise_dbm: float) -> float:
     """r = B * log2(1 + 10^((P + G - w0) / 10)) in bit/s (the paper's Eq. 4)."""
-    snr = 10.0 ** ((tx_power_dbm + gain_db - noise_dbm) / 10.0)
-    return bandwidth_hz * math.log2(1.0 + snr)
+    snr_db = tx_power_dbm + gain_db - noise_dbm
+    if snr_db > HIGH_SNR_DB:  # so log2(1 + snr) is snr_db / 10 * log2(10)
+        return bandwidth_hz * snr_db / 10.0 * math.log2(10.0)
+    return bandwidth_hz * math.log2(1.0 + 10.0 ** (snr_db / 10.0))
 
 
 SPEED_OF_LIGHT = 299_792_458.0  # m/s

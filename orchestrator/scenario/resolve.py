@@ -16,8 +16,9 @@ from pathlib import Path
 from typing import Any
 
 import networkx as nx
-from pydantic import ValidationError, validate_call
+from pydantic import ConfigDict, ValidationError, validate_call
 
+from node_runtime.model.messages import LONGEST_DEADLINE_TICKS
 from node_runtime.model.plugins import PluginError, is_import_path, load
 from node_runtime.model.radio import free_space_loss_db, log_distance_gain_db, shannon_rate
 from node_runtime.model.registry import ROLE_KINDS
@@ -31,12 +32,18 @@ from orchestrator.scenario.schema import (
     DeadlineCfg,
     ScenarioFile,
     TaskCfg,
+    WorkloadCfg,
     file_format,
 )
 from topologies import bundled_file
 from topologies.draft import Draft, DraftLink, DraftNode
 from topologies.ether import DEVICE_TYPES, EtherError, load_ether
 from topologies.generators import GENERATORS, GeneratorError
+
+# Tasks are objects of their own: a mean of a million per tick and source is far past what runs (and
+# past it, numpy's Poisson draw fails outright near 1e19)
+MAX_TASKS_PER_TICK = 1e6
+FINITE = ConfigDict(allow_inf_nan=False)  # a generator's numbers, as the file's own (schema.Strict)
 
 
 def resolve(data: dict[str, Any], base: Path, default_name: str, label: str) -> Scenario:
@@ -218,7 +225,7 @@ class _Resolver:
         elif topo.generator is not None:
             params = dict(topo.generator.model_extra or {})
             try:
-                draft = validate_call(GENERATORS[topo.generator.kind])(**params)
+                draft = validate_call(GENERATORS[topo.generator.kind], config=FINITE)(**params)
             except ValidationError as exc:
                 for e in exc.errors():
                     arg = e["loc"][-1] if e["loc"] else ""
@@ -369,7 +376,7 @@ class _Resolver:
                         log_distance_gain_db(math.dist(a.position, b.position), ref_loss, pl.ref_distance_m,
                                              pl.exponent)
                     r = shannon_rate(net.bandwidth_hz, a.tx_power_dbm, gain, noise)
-                if r <= 0:
+                if not r > 0:  # nan too: e.g. an Ether file's NaN coordinates (Python's json reads them)
                     self.error(f"{where}", f"link {src}->{dst} has no capacity (rate {r:g} bit/s)")
                 out.append(LinkSpec(src, dst, r, loss))
         return out
@@ -419,6 +426,8 @@ class _Resolver:
             if (n.has("client") and not n.has("worker") and n.id not in wl.targets
                     and not any(by_id[j].has("worker") for j in nbrs[n.id])):
                 self.error(f"node {n.id!r}", "a task source without a worker needs a worker neighbour")
+        self.check_arrivals(wl)
+        self.check_deadlines(wl)
         trace = None
         if wl.trace is not None:
             trace = self.trace(self.file(wl.trace), by_id)
@@ -431,6 +440,32 @@ class _Resolver:
             trace=trace,
             source=wl.source or "",
         )
+
+    def check_arrivals(self, wl: WorkloadCfg) -> None:
+        """Every rate a source may draw with, times dt, within MAX_TASKS_PER_TICK."""
+        a, dt = wl.arrival, self.cfg.simulation.dt
+        highest = {"constant": ("rate",), "linear": ("start", "end")}.get(a.kind, ("high",))
+        peaks = {f"workload.arrival.{key}": getattr(a, key) for key in highest}
+        peaks.update({f"workload.rates.{c}": rate for c, rate in wl.rates.items()})
+        for where, rate in peaks.items():
+            if rate * dt > MAX_TASKS_PER_TICK:
+                self.error(where, f"{rate:g} tasks/s with dt = {dt:g} s is {rate * dt:g} tasks a tick per source; "
+                                  f"expected at most {MAX_TASKS_PER_TICK:g}")
+
+    def check_deadlines(self, wl: WorkloadCfg) -> None:
+        """Every deadline within LONGEST_DEADLINE_TICKS ticks (a trace's rows are checked as they are read)."""
+        for i, t in enumerate(wl.tasks):
+            d = t.deadline
+            if why := self.too_long(d.high + d.grace if isinstance(d, DeadlineCfg) else d):
+                self.error(f"workload.tasks[{i}].deadline", why)
+
+    def too_long(self, deadline: float) -> str | None:
+        """Why ``deadline`` (seconds) is past LONGEST_DEADLINE_TICKS ticks, or None."""
+        dt = self.cfg.simulation.dt
+        if deadline / dt <= LONGEST_DEADLINE_TICKS:
+            return None
+        return (f"a deadline of {deadline:g} s is {deadline / dt:g} ticks of dt = {dt:g} s; expected at most "
+                f"2^50 ({LONGEST_DEADLINE_TICKS:.2g}) ticks")
 
     def trace(self, path: Path, by_id: dict[str, NodeSpec]) -> tuple[TraceRow, ...] | None:
         columns = ["time", "client", "instructions", "input_bytes", "output_bytes", "cpi", "deadline"]
@@ -450,6 +485,9 @@ class _Resolver:
                     except (TypeError, ValueError, AttributeError):
                         self.error(where, f"{path}:{line}: expected numbers in every column but 'client'")
                         continue
+                    if not all(math.isfinite(getattr(row, c)) for c in ["time", *columns[2:]]):
+                        self.error(where, f"{path}:{line}: expected finite numbers in every column but 'client'")
+                        continue
                     if row.client not in by_id or not by_id[row.client].has("client"):
                         self.error(where, f"{path}:{line}: {row.client!r} is not a task source node")
                     bad = [c for c in columns[2:] if getattr(row, c) <= 0]
@@ -457,6 +495,8 @@ class _Resolver:
                         self.error(where, f"{path}:{line}: expected positive {', '.join(bad)}")
                     if row.time < 0:
                         self.error(where, f"{path}:{line}: expected time >= 0")
+                    if why := self.too_long(row.deadline):
+                        self.error(where, f"{path}:{line}: {why}")
                     rows.append(row)
         except FileNotFoundError:
             self.error(where, f"file not found: {path}")

@@ -23,10 +23,14 @@ Pos = Annotated[float, Field(gt=0)]
 NonNeg = Annotated[float, Field(ge=0)]
 Prob = Annotated[float, Field(ge=0, le=1)]
 Count = Annotated[int, Field(ge=1)]
+# Levels in dB or dBm: their power form 10^(x/10) must be a float (below 1.8e308)
+DB_LIMIT = 3000.0
+Decibels = Annotated[float, Field(ge=-DB_LIMIT, le=DB_LIMIT)]
 
 
 class Strict(BaseModel):
-    model_config = ConfigDict(extra="forbid", frozen=True)
+    # inf and nan are no quantity of the model: refused rather than left to turn results into nan
+    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
 
 
 # ----- the file format -----
@@ -53,7 +57,7 @@ class SimulationCfg(Strict):
 
 
 class PathLossCfg(Strict):
-    ref_loss_db: float = 40.0
+    ref_loss_db: Decibels = 40.0
     ref_distance_m: Pos = 1.0
     exponent: Pos = 3.0
     frequency_hz: Pos | None = None  # instead of ref_loss_db: free-space loss at ref_distance_m
@@ -67,8 +71,8 @@ class PathLossCfg(Strict):
 
 class NetworkCfg(Strict):
     bandwidth_hz: Pos = 2.0e6
-    tx_power_dbm: float = 20.0
-    noise_dbm: float | None = None  # default: thermal noise over the bandwidth, -174 + 10 log10(B) dBm
+    tx_power_dbm: Decibels = 20.0
+    noise_dbm: Decibels | None = None  # default: thermal noise over the bandwidth, -174 + 10 log10(B) dBm
     path_loss: PathLossCfg = PathLossCfg()
     loss: Prob = 0.0
 
@@ -165,7 +169,7 @@ class ProfileCfg(Strict):
     buffer: Count | None = None
     tier: Annotated[int, Field(ge=0)] | None = None
     policy: str | None = None
-    tx_power_dbm: float | None = None
+    tx_power_dbm: Decibels | None = None
     idle_power_w: NonNeg | None = None
     kappa: NonNeg | None = None
 
@@ -196,7 +200,7 @@ class NodeCfg(ProfileCfg):
 class LinkCfg(Strict):
     between: tuple[str, str]
     rate_bps: Pos | None = None
-    gain_db: float | None = None
+    gain_db: Decibels | None = None
     loss: Prob | None = None
 
     @model_validator(mode="before")
