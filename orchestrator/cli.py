@@ -309,7 +309,7 @@ def build_parser() -> argparse.ArgumentParser:
                                    "summary and write summary.json, ticks.csv and nodes.csv.")
     p.add_argument("scenario", help="scenario YAML file, or a bundled name such as aot2")
     p.add_argument("--steps", type=COUNT, help="decision steps to run (default: the scenario's simulation.steps)")
-    p.add_argument("--seed", type=int, help="random seed (default: the scenario's simulation.seed)")
+    p.add_argument("--seed", type=integer(0), help="random seed, >= 0 (default: the scenario's simulation.seed)")
     p.add_argument("--transport", choices=("zenoh", "inproc"), default="zenoh",
                    help="zenoh: one OS process per role over a Zenoh router (default); inproc: all roles in this "
                         "process over an in-memory bus (fast, same results)")

@@ -28,6 +28,7 @@ from node_runtime.model.spec import Scenario
 from node_runtime.model.view import Observation
 from node_runtime.runtime.access import access_control
 from node_runtime.runtime.driver import HostDriver
+from node_runtime.runtime.forkserver import account
 from node_runtime.runtime.host import Host, role_class
 from node_runtime.runtime.inproc import InprocBus
 from node_runtime.runtime.keys import DEFAULT_PREFIX, Keys, new_sim_id
@@ -37,7 +38,7 @@ from node_runtime.runtime.protocol import Done
 from node_runtime.runtime.security import Security, protocol
 from node_runtime.runtime.transport import Transport, TransportError
 from node_runtime.runtime.zenoh_bus import ZenohTransport, free_port
-from orchestrator.clock import Clock
+from orchestrator.clock import Clock, ProcessFailed
 from orchestrator.local_sims import local_endpoint
 from orchestrator.metrics import Metrics, TickReport, bus_record
 from orchestrator.serve import Server, claim, release
@@ -113,7 +114,7 @@ class Simulation:
             bus = InprocBus()
             for proc in self.plan.procs:
                 host = bus.endpoint()
-                self.drivers.append(HostDriver(Host(proc, self.plan), host, self.keys))
+                self.drivers.append(HostDriver(self._host(proc), host, self.keys))
                 host.declare_token(self.keys.alive(proc))  # ready, as a node process says once it is
             self.transport: Transport = bus.endpoint()
             self.transport.declare_token(self.keys.alive(ORCHESTRATOR))
@@ -151,6 +152,16 @@ class Simulation:
             except BaseException:
                 self.close()
                 raise
+
+    def _host(self, proc: str) -> Host:
+        """An in-process host; a role that fails as it is built (a user's class) fails it as it would fail
+        a node process: named, with the role's own account."""
+        try:
+            return Host(proc, self.plan)
+        except Exception as exc:
+            why = account(exc)
+            raise ProcessFailed(proc, self.plan.node_of_proc(proc), f"failed to start: {why.splitlines()[0]}",
+                                why) from None
 
     def _common(self, scenario: Scenario, transport: TransportName, layout: Layout, keys: Keys) -> None:
         """What every simulation has, however it was opened."""

@@ -17,6 +17,7 @@ CASES = [
     (["launch", "aot1", "--timeout", "0"], "argument --timeout: expected a number > 0 (got '0')"),
     (["launch", "aot1", "--timeout", "inf"], "argument --timeout: expected a number > 0 (got 'inf')"),
     (["launch", "aot1", "--episodes", "-1"], "argument --episodes: expected an integer >= 0 (got '-1')"),
+    (["launch", "aot1", "--seed", "-3"], "argument --seed: expected an integer >= 0 (got '-3')"),
     (["bench", "--ticks", "0"], "argument --ticks: expected an integer >= 1 (got '0')"),
     (["trace", "alibaba", "x.csv", "--scenario", "aot2", "--out", "t.csv", "--frequency", "-1"],
      "argument --frequency: expected a number > 0 (got '-1')"),

@@ -193,3 +193,33 @@ def test_a_role_that_loses_tasks_silently_stops_the_run(tmp_path, monkeypatch):
     sc = load_scenario(write_scenario(tmp_path, small(tmp_path, roles={"worker": "mylab_leaky:LeakyWorker"})))
     with pytest.raises(ConservationError, match=r"tick \d+: generated=\d+ but .* account for \d+"):
         run_summary(sc)
+
+
+BROKEN_WORKER = '''
+from node_runtime.model.worker import Worker
+
+class PickyWorker(Worker):
+    """Reads a number its node's params must hold."""
+    def reset(self, seed):
+        super().reset(seed)
+        self.limit = float(self.node.param("limit"))
+'''
+
+
+@pytest.mark.parametrize("transport", ["inproc", pytest.param("zenoh", marks=pytest.mark.zenoh)])
+def test_a_user_role_that_fails_as_it_is_built_is_named_not_a_traceback(tmp_path, monkeypatch, capsys, transport):
+    """In one process as over Zenoh: the process, its nodes and the role's own exception; exit status 1."""
+    (tmp_path / "picky_roles.py").write_text(textwrap.dedent(BROKEN_WORKER))
+    monkeypatch.syspath_prepend(str(tmp_path))
+    data = small(tmp_path)
+    data["topology"]["nodes"][2]["roles"] = {"worker": "picky_roles:PickyWorker"}
+    data["topology"]["nodes"][2]["params"] = {"limit": "high"}
+    path = write_scenario(tmp_path, data)
+    assert main(["launch", str(path), "--transport", transport, "--layout", "per-node", "--steps", "5", "-q",
+                 "--out", str(tmp_path / "out")]) == 1
+    err = capsys.readouterr().err
+    first = next(line for line in err.splitlines() if line.startswith("error:"))
+    assert "process node-c (node c)" in first
+    assert first.endswith("ValueError: could not convert string to float: 'high'")
+    assert "picky_roles.py" in err  # the role's own traceback, where the mistake is
+    assert not err.lstrip().startswith("Traceback")

@@ -121,6 +121,7 @@ CASES = [
      "network.path_loss: give either ref_loss_db or frequency_hz"),
     ("ether_device_of_unknown_type", {"topology": {"ether": "e.json"}}, {"e.json": ETHER_GPU},
      "node 'gpu_0'.profile: unknown profile 'gpu'"),
+    ("negative_seed", good(simulation={"seed": -5}), {}, "simulation.seed: expected a number >= 0 (got -5)"),
     # inf and nan are refused everywhere: as YAML writes them (.nan, .inf), and as strings
     ("nan_tx_power", "network: {tx_power_dbm: .nan}\ntopology: {nodes: [{id: a, client: true}, {id: b}], "
                      "links: [[a, b]]}\n", {}, "network.tx_power_dbm: expected a finite number (got nan)"),
@@ -144,6 +145,15 @@ CASES = [
     ("ether_negative_capacity", {"topology": {"ether": "e.json"}},
      {"e.json": ETHER_GPU.replace('"cpu_milis": 9000', '"cpu_milis": -9000')},
      "node 'gpu_0' lacks coordinates, or capacity.cpu_milis and memory as positive numbers"),
+    ("ether_buffer_bytes_too_small", {"topology": {"ether": "ether/network_2_clusters.json", "buffer_bytes": 1e-300}},
+     {}, "of memory hold inf tasks of 1e-300 bytes (topology.buffer_bytes, or the task size)"),
+    # a generator asked for more than any machine builds: said at once, not after exhausting memory
+    ("generator_too_many_nodes", {"topology": {"generator": {"kind": "grid", "rows": 100000, "cols": 100000,
+                                                             "profile": "tier0"}}}, {},
+     "topology.generator: grid: 10,000,000,000 nodes; expected at most 1,000,000"),
+    ("generator_too_many_links", {"topology": {"generator": {"kind": "fully_connected", "n": 100000,
+                                                             "profile": "tier0"}}}, {},
+     "topology.generator: fully_connected: 4,999,950,000 links; expected at most 10,000,000"),
     # a deadline whose expiry tick floats cannot compute (the search for it looped for ever)
     ("deadline_past_two_to_the_fifty_ticks", good(workload={"tasks": [{"deadline": {"low": 1, "high": 1e300}}]}),
      {}, "workload.tasks[0].deadline: a deadline of 1e+300 s is 1e+300 ticks of dt = 1 s; expected at most 2^50"),

@@ -21,6 +21,19 @@ class GeneratorError(ValueError):
     pass
 
 
+# Far past any run on one machine (10,000 nodes take 6.5 GB over Zenoh); beyond them, building the graph
+# alone would exhaust memory or overflow before a line of the model runs
+MAX_NODES = 1_000_000
+MAX_LINKS = 10_000_000
+
+
+def _check_size(kind: str, nodes: int, links: int = 0) -> None:
+    if nodes > MAX_NODES:
+        raise GeneratorError(f"{kind}: {nodes:,} nodes; expected at most {MAX_NODES:,}")
+    if links > MAX_LINKS:
+        raise GeneratorError(f"{kind}: {links:,} links; expected at most {MAX_LINKS:,}")
+
+
 def _draft(g: nx.Graph, pos: dict[Any, tuple[float, float]], profile: dict[Any, str] | str, prefix: str) -> Draft:
     order = list(g.nodes)
     name = {v: f"{prefix}{i}" for i, v in enumerate(order)}
@@ -39,18 +52,21 @@ def _circle(n: int, spacing: float) -> dict[int, tuple[float, float]]:
 def ring(n: int, profile: str, spacing: float = 20.0, prefix: str = "n") -> Draft:
     if n < 3:
         raise GeneratorError("ring: n must be at least 3")
+    _check_size("ring", n)
     return _draft(nx.cycle_graph(n), _circle(n, spacing), profile, prefix)
 
 
 def fully_connected(n: int, profile: str, spacing: float = 20.0, prefix: str = "n") -> Draft:
     if n < 2:
         raise GeneratorError("fully_connected: n must be at least 2")
+    _check_size("fully_connected", n, n * (n - 1) // 2)
     return _draft(nx.complete_graph(n), _circle(n, spacing), profile, prefix)
 
 
 def grid(rows: int, cols: int, profile: str, spacing: float = 20.0, prefix: str = "n") -> Draft:
     if rows < 1 or cols < 1 or rows * cols < 2:
         raise GeneratorError("grid: rows and cols must be >= 1 and make at least 2 nodes")
+    _check_size("grid", rows * cols)
     g = nx.grid_2d_graph(rows, cols)
     return _draft(g, {v: (v[1] * spacing, v[0] * spacing) for v in g.nodes}, profile, prefix)
 
@@ -60,6 +76,7 @@ def random_geometric(n: int, radius: float, profile: str, size: float = 100.0, s
     """n nodes uniform in a size x size square, linked when closer than ``radius`` metres."""
     if n < 2:
         raise GeneratorError("random_geometric: n must be at least 2")
+    _check_size("random_geometric", n)
     g = nx.random_geometric_graph(n, radius / size, seed=seed)
     pos = {v: (p[0] * size, p[1] * size) for v, p in nx.get_node_attributes(g, "pos").items()}
     return _draft(g, pos, profile, prefix)
@@ -70,6 +87,7 @@ def bridged_clusters(clusters: int, size: int, profile: str, spacing: float = 20
     """Fully connected clusters in a row; each cluster's first node links to the next cluster's first."""
     if clusters < 1 or size < 1 or clusters * size < 2:
         raise GeneratorError("bridged_clusters: need at least 2 nodes in all")
+    _check_size("bridged_clusters", clusters * size, clusters * size * (size - 1) // 2)
     g = nx.Graph()
     pos = {}
     heads = []
@@ -94,6 +112,7 @@ def n_tier(tiers: list[int], profiles: list[str], spacing: float = 20.0, tier_di
         raise GeneratorError("n_tier: tiers must be a non-empty list of positive counts")
     if len(profiles) != len(tiers):
         raise GeneratorError(f"n_tier: {len(tiers)} tiers need {len(tiers)} profiles, got {len(profiles)}")
+    _check_size("n_tier", sum(tiers) + (cloud is not None))
     g = nx.Graph()
     pos = {}
     prof = {}
@@ -103,10 +122,8 @@ def n_tier(tiers: list[int], profiles: list[str], spacing: float = 20.0, tier_di
             g.add_node((k, j))
             pos[(k, j)] = (j * spacing - width / 2, k * tier_distance)
             prof[(k, j)] = profiles[k]
-            if k > 0:
-                for child in range(tiers[k - 1]):
-                    if child % n == j:
-                        g.add_edge((k - 1, child), (k, j))
+        if k > 0:  # each parent's children in increasing order, as every node's neighbours are listed
+            g.add_edges_from(((k - 1, child), (k, child % n)) for child in range(tiers[k - 1]))
     if cloud is not None:
         top = len(tiers) - 1
         g.add_node("cloud")

@@ -38,7 +38,7 @@ class Strict(BaseModel):
 class SimulationCfg(Strict):
     dt: Pos = 1.0
     steps: Count = 1000
-    seed: int = 0
+    seed: Annotated[int, Field(ge=0)] = 0
     mode: Literal["binary", "batch"] = "binary"
     decision_interval: Count = 1
     max_hops: Annotated[int, Field(ge=0)] = 1
