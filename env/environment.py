@@ -34,7 +34,8 @@ from node_runtime.model.plugins import load
 from node_runtime.model.role import role_id
 from node_runtime.model.spec import Scenario
 from node_runtime.model.view import Observation
-from node_runtime.runtime.layout import Layout
+from node_runtime.runtime.layout import Layout, check_layout
+from node_runtime.runtime.protocol import MAX_SEED
 from orchestrator.catalogue import Out
 from orchestrator.metrics import output_values, penalty_s
 from orchestrator.scenario import load_scenario
@@ -46,6 +47,12 @@ FLAT = "flat"  # observation="flat": FlatObservation and numbers-only infos
 
 def agent_name(node: str) -> str:
     return f"{AGENT_PREFIX}{node}"
+
+
+def check_seed(seed: Any, where: str) -> None:
+    """A seed travels in the reset tick as a msgpack integer: 0 to MAX_SEED."""
+    if isinstance(seed, bool) or not isinstance(seed, Integral) or not 0 <= seed <= MAX_SEED:
+        raise ValueError(f"{where}{seed!r}): expected an integer from 0 to {MAX_SEED} (2^62 - 1), or None")
 
 
 class ZenohEdgeEnv(ParallelEnv):
@@ -115,6 +122,10 @@ class ZenohEdgeEnv(ParallelEnv):
         if max_steps is not None and (isinstance(max_steps, bool) or not isinstance(max_steps, Integral)
                                       or max_steps < 1):
             raise ValueError(f"max_steps must be an integer >= 1, not {max_steps!r}")
+        if transport not in ("zenoh", "inproc"):
+            raise ValueError(f"transport must be 'zenoh' or 'inproc', not {transport!r}")
+        if layout is not None:
+            layout = check_layout(layout)
         if render_mode is not None and render_mode not in self.metadata["render_modes"]:
             raise ValueError(f"render_mode must be one of {self.metadata['render_modes']} or None")
         self.scenario = sc
@@ -164,6 +175,8 @@ class ZenohEdgeEnv(ParallelEnv):
         self.action_rules = ActionRules(self.layouts, targets, invalid_action)
 
         self.sim: Simulation | None = None
+        if seed is not None:
+            check_seed(seed, "ZenohEdgeEnv(seed=")
         self._seeds = np.random.default_rng(seed)
         self._next_seed = seed
         self._raw: dict[str, Observation | None] = {}
@@ -187,6 +200,7 @@ class ZenohEdgeEnv(ParallelEnv):
         """Start an episode; the node processes stay up. ``options``: {"policy": name} for the
         controllers the agents do not drive."""
         if seed is not None:
+            check_seed(seed, "reset(seed=")
             self._seeds = np.random.default_rng(seed)
             episode_seed = int(seed)
         elif self._next_seed is not None:

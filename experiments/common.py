@@ -17,6 +17,7 @@ import torch
 from agents import LEARNERS, LearnerConfig
 from env import ScenarioOverrides, ZenohEdgeEnv
 from env.reward import REWARDS
+from node_runtime.runtime.protocol import MAX_SEED
 from orchestrator.scenario.errors import ScenarioError
 
 
@@ -47,8 +48,8 @@ def positive_int(text: str) -> int:
     return _number(text, int, lambda v: v >= 1, "an integer >= 1")
 
 
-def natural(text: str) -> int:
-    return _number(text, int, lambda v: v >= 0, "an integer >= 0")
+def seed_int(text: str) -> int:
+    return _number(text, int, lambda v: 0 <= v <= MAX_SEED, f"an integer from 0 to {MAX_SEED}")
 
 
 def positive_number(text: str) -> float:
@@ -83,10 +84,10 @@ def add_learner_arguments(parser: argparse.ArgumentParser, seeds: bool = False) 
     """The learners' options; with ``seeds``, ``--seed`` takes several training seeds (``args.seeds``)."""
     g = parser.add_argument_group("learning")
     if seeds:
-        g.add_argument("--seed", dest="seeds", type=natural, nargs="+", default=[0], metavar="SEED",
+        g.add_argument("--seed", dest="seeds", type=seed_int, nargs="+", default=[0], metavar="SEED",
                        help="training seeds: every point of the sweep is run once per seed (default 0)")
     else:
-        g.add_argument("--seed", type=natural, default=0,
+        g.add_argument("--seed", type=seed_int, default=0,
                        help="training seed: network initialisation and episodes (default 0)")
     g.add_argument("--hidden", type=positive_int, nargs="+", default=None,
                    help="hidden layer sizes (default 128 128)")

@@ -18,7 +18,7 @@ from typing import Any
 from agents import BASELINES, Learner, Policy, evaluate, load_learner
 from agents.training import EVAL_SEED, progress_bar, write_csv
 from experiments import marl_eval
-from experiments.common import Parser, add_env_arguments, check_scenario, make_env, natural, positive_int, set_threads
+from experiments.common import Parser, add_env_arguments, check_scenario, make_env, positive_int, seed_int, set_threads
 from experiments.distributed import add_ray_arguments, ray_problem, run_on_ray, wants_ray
 from experiments.plot import mean_ci
 
@@ -63,7 +63,7 @@ def main(argv: Sequence[str] | None = None) -> None:
     p = Parser(prog="python -m experiments.evaluate", description=__doc__.splitlines()[0])
     p.add_argument("policy", help=f"a baseline ({', '.join(BASELINES)}) or a checkpoint file (.pt)")
     p.add_argument("--episodes", type=positive_int, default=10, help="evaluation episodes (default 10)")
-    p.add_argument("--seed", type=natural, default=0, help="seed of the baselines' random choices (default 0)")
+    p.add_argument("--seed", type=seed_int, default=0, help="seed of the baselines' random choices (default 0)")
     p.add_argument("--csv", type=Path, default=None, help="write one row per episode here")
     p.add_argument("--marl-eval", type=Path, default=None, metavar="JSON",
                    help="add the episodes to this marl-eval JSON file (created if missing; docs/agents.md)")

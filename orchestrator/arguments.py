@@ -13,15 +13,17 @@ from collections.abc import Callable
 from node_runtime.runtime.layout import check_layout
 
 
-def integer(minimum: int) -> Callable[[str], int]:
-    """An integer >= ``minimum``."""
+def integer(minimum: int, maximum: int | None = None) -> Callable[[str], int]:
+    """An integer >= ``minimum`` (and <= ``maximum``)."""
+    expected = f"an integer >= {minimum}" if maximum is None else f"an integer from {minimum} to {maximum}"
+
     def parse(text: str) -> int:
         try:
             value = int(text)
         except ValueError:
-            raise argparse.ArgumentTypeError(f"expected an integer >= {minimum} (got {text!r})") from None
-        if value < minimum:
-            raise argparse.ArgumentTypeError(f"expected an integer >= {minimum} (got {text!r})")
+            raise argparse.ArgumentTypeError(f"expected {expected} (got {text!r})") from None
+        if value < minimum or (maximum is not None and value > maximum):
+            raise argparse.ArgumentTypeError(f"expected {expected} (got {text!r})")
         return value
     return parse
 

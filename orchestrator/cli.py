@@ -32,6 +32,7 @@ from node_runtime.model.policies import POLICIES
 from node_runtime.runtime import access, cli_options
 from node_runtime.runtime.keys import new_sim_id
 from node_runtime.runtime.layout import LAYOUT_HELP, ProcessLayout
+from node_runtime.runtime.protocol import MAX_SEED
 from node_runtime.runtime.security import SecurityError
 from orchestrator import local_sims
 from orchestrator.arguments import COUNT, NON_NEGATIVE, POSITIVE, integer, layout_name
@@ -309,7 +310,8 @@ def build_parser() -> argparse.ArgumentParser:
                                    "summary and write summary.json, ticks.csv and nodes.csv.")
     p.add_argument("scenario", help="scenario YAML file, or a bundled name such as aot2")
     p.add_argument("--steps", type=COUNT, help="decision steps to run (default: the scenario's simulation.steps)")
-    p.add_argument("--seed", type=integer(0), help="random seed, >= 0 (default: the scenario's simulation.seed)")
+    p.add_argument("--seed", type=integer(0, MAX_SEED),
+                   help="random seed, from 0 to 2^62 - 1 (default: the scenario's simulation.seed)")
     p.add_argument("--transport", choices=("zenoh", "inproc"), default="zenoh",
                    help="zenoh: one OS process per role over a Zenoh router (default); inproc: all roles in this "
                         "process over an in-memory bus (fast, same results)")

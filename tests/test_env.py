@@ -6,6 +6,7 @@ The rules for actions have their own tests (test_env_actions.py), and so do the 
 from __future__ import annotations
 
 import os
+import re
 
 import numpy as np
 import psutil
@@ -236,6 +237,23 @@ def test_bad_environment_arguments_say_what_was_expected():
         ZenohEdgeEnv("aot1", transport="inproc", max_steps=0)
     with pytest.raises(ValueError, match=r"^invalid_action must be 'local' .* or 'raise', not 'penalty'$"):
         ZenohEdgeEnv("aot1", transport="inproc", invalid_action="penalty")
+    # at construction, not at the first reset
+    with pytest.raises(ValueError, match=r"^transport must be 'zenoh' or 'inproc', not 'tcp'$"):
+        ZenohEdgeEnv("aot1", transport="tcp")
+    with pytest.raises(ValueError, match=r"^unknown layout 'per-x': expected per-role, per-node, single or groups:K"):
+        ZenohEdgeEnv("aot1", transport="inproc", layout="per-x")
+
+
+@pytest.mark.parametrize("seed", [-1, 1.5, True, "3", 2**62])
+def test_a_seed_that_is_no_non_negative_62_bit_integer_is_refused_by_reset(seed):
+    """A seed travels in the reset tick as a msgpack integer: 2^70 crashed the clock over Zenoh."""
+    env = ZenohEdgeEnv("aot1", transport="inproc")
+    with pytest.raises(ValueError, match=rf"^reset\(seed={re.escape(repr(seed))}\): expected an integer from 0 to "):
+        env.reset(seed=seed)
+    env.reset(seed=2**62 - 1)  # the largest
+    env.close()
+    with pytest.raises(ValueError, match=rf"^ZenohEdgeEnv\(seed={re.escape(repr(seed))}\): expected an integer"):
+        ZenohEdgeEnv("aot1", transport="inproc", seed=seed)
 
 
 def test_truncation_and_episode_summary():

@@ -133,7 +133,7 @@ def test_evaluate_adds_its_runs_to_a_marl_eval_file(tmp_path):
     (train, ["a2c", "--episodes", "0"], "argument --episodes: expected an integer >= 1, not '0'"),
     (rq1, ["--eval-episodes", "-2"], "argument --eval-episodes: expected an integer >= 1, not '-2'"),
     (rq1, ["--max-steps", "1.5"], "argument --max-steps: expected an integer >= 1, not '1.5'"),
-    (rq1, ["--seed", "0", "-1"], "argument --seed: expected an integer >= 0, not '-1'"),
+    (rq1, ["--seed", "0", "-1"], "argument --seed: expected an integer from 0 to 4611686018427387903, not '-1'"),
     (rq1, ["--cpus-per-run", "0"], "argument --cpus-per-run: expected a number > 0, not '0'"),
     (rq1, ["--seed", "1", "2", "1"], "--seed 1 2 1: a seed is given more than once"),
     (rq1, ["--ray-cpus", "2"], "--ray-cpus sizes the local Ray of --ray"),

@@ -122,6 +122,9 @@ CASES = [
     ("ether_device_of_unknown_type", {"topology": {"ether": "e.json"}}, {"e.json": ETHER_GPU},
      "node 'gpu_0'.profile: unknown profile 'gpu'"),
     ("negative_seed", good(simulation={"seed": -5}), {}, "simulation.seed: expected a number >= 0 (got -5)"),
+    # a seed travels in every reset tick as a msgpack integer: 2^70 ended the run in an OverflowError
+    ("seed_past_62_bits", good(simulation={"seed": 2**70}), {},
+     "simulation.seed: expected a number <= 4611686018427387903 (got 1180591620717411303424)"),
     # inf and nan are refused everywhere: as YAML writes them (.nan, .inf), and as strings
     ("nan_tx_power", "network: {tx_power_dbm: .nan}\ntopology: {nodes: [{id: a, client: true}, {id: b}], "
                      "links: [[a, b]]}\n", {}, "network.tx_power_dbm: expected a finite number (got nan)"),

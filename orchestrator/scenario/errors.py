@@ -68,7 +68,7 @@ def describe(err: dict[str, Any], model: type[BaseModel]) -> str:
     if kind in ("greater_than", "greater_than_equal", "less_than_equal", "less_than"):
         op = {"greater_than": ">", "greater_than_equal": ">=", "less_than_equal": "<=", "less_than": "<"}[kind]
         bound = next(iter(ctx.values()))
-        return f"expected a number {op} {bound:g} (got {got!r})"
+        return f"expected a number {op} {bound if isinstance(bound, int) else format(bound, 'g')} (got {got!r})"
     if kind == "literal_error":
         return f"expected {ctx.get('expected')} (got {got!r})"
     if kind == "too_short":

@@ -16,6 +16,7 @@ from pydantic import BaseModel, ConfigDict, Discriminator, Field, Tag, create_mo
 from node_runtime.model.plugins import is_import_path
 from node_runtime.model.policies import POLICIES
 from node_runtime.runtime.keys import CHUNK
+from node_runtime.runtime.protocol import MAX_SEED
 from topologies.generators import GENERATORS
 
 MIB = 1024 * 1024
@@ -38,7 +39,7 @@ class Strict(BaseModel):
 class SimulationCfg(Strict):
     dt: Pos = 1.0
     steps: Count = 1000
-    seed: Annotated[int, Field(ge=0)] = 0
+    seed: Annotated[int, Field(ge=0, le=MAX_SEED)] = 0
     mode: Literal["binary", "batch"] = "binary"
     decision_interval: Count = 1
     max_hops: Annotated[int, Field(ge=0)] = 1
