@@ -150,6 +150,9 @@ CASES = [
      "node 'gpu_0' lacks coordinates, or capacity.cpu_milis and memory as positive numbers"),
     ("ether_buffer_bytes_too_small", {"topology": {"ether": "ether/network_2_clusters.json", "buffer_bytes": 1e-300}},
      {}, "of memory hold inf tasks of 1e-300 bytes (topology.buffer_bytes, or the task size)"),
+    ("ether_is_a_directory", {"topology": {"ether": "."}}, {}, ": cannot read it: Is a directory"),
+    ("trace_is_a_directory", good(workload={"trace": "."}), {}, ": cannot read it: Is a directory"),
+    ("yaml_nested_too_deeply", "topology: " + "[" * 5000 + "]" * 5000 + "\n", {}, "invalid YAML: nested too deeply"),
     # a generator asked for more than any machine builds: said at once, not after exhausting memory
     ("generator_too_many_nodes", {"topology": {"generator": {"kind": "grid", "rows": 100000, "cols": 100000,
                                                              "profile": "tier0"}}}, {},

@@ -54,6 +54,10 @@ def load_ether(path: Path, task_bytes: float, wired_rates: bool = False, buffer_
         raise EtherError(f"file not found: {path}") from None
     except json.JSONDecodeError as exc:
         raise EtherError(f"{path}: invalid JSON: {exc}") from None
+    except UnicodeDecodeError:
+        raise EtherError(f"{path}: not a text file (expected Ether JSON)") from None
+    except OSError as exc:  # a directory, no permission
+        raise EtherError(f"{path}: cannot read it: {exc.strerror}") from None
     try:
         raw_nodes = data["nodes"]
         neighbours = data["links"]["neighbours"]

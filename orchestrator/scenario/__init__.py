@@ -42,6 +42,8 @@ def load_scenario(source: str | Path | dict[str, Any], *, name_hint: str = "") -
         where = f":{mark.line + 1}:{mark.column + 1}" if mark else ""
         problem = getattr(exc, "problem", None) or str(exc).splitlines()[0]
         raise ScenarioError([f"{label}{where}: invalid YAML: {problem}"]) from None
+    except RecursionError:  # PyYAML composes nested collections recursively
+        raise ScenarioError([f"{label}: invalid YAML: nested too deeply"]) from None
     if data is None:
         raise ScenarioError([f"{label}: the file is empty; expected a scenario mapping with at least 'topology'"])
     if not isinstance(data, dict):

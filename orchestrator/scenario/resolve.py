@@ -501,5 +501,14 @@ class _Resolver:
         except FileNotFoundError:
             self.error(where, f"file not found: {path}")
             return None
+        except UnicodeDecodeError:
+            self.error(where, f"{path}: not a text file (expected a CSV of tasks)")
+            return None
+        except csv.Error as exc:  # e.g. a NUL byte
+            self.error(where, f"{path}: not a CSV file: {exc}")
+            return None
+        except OSError as exc:  # a directory, no permission
+            self.error(where, f"{path}: cannot read it: {exc.strerror}")
+            return None
         return tuple(sorted(rows, key=lambda r: (r.time, r.client)))
 
