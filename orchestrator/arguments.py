@@ -7,40 +7,9 @@ argparse turns the ``ArgumentTypeError`` into ``error: argument --steps: expecte
 from __future__ import annotations
 
 import argparse
-import math
-from collections.abc import Callable
 
+from node_runtime.runtime.cli_options import integer, number
 from node_runtime.runtime.layout import check_layout
-
-
-def integer(minimum: int, maximum: int | None = None) -> Callable[[str], int]:
-    """An integer >= ``minimum`` (and <= ``maximum``)."""
-    expected = f"an integer >= {minimum}" if maximum is None else f"an integer from {minimum} to {maximum}"
-
-    def parse(text: str) -> int:
-        try:
-            value = int(text)
-        except ValueError:
-            raise argparse.ArgumentTypeError(f"expected {expected} (got {text!r})") from None
-        if value < minimum or (maximum is not None and value > maximum):
-            raise argparse.ArgumentTypeError(f"expected {expected} (got {text!r})")
-        return value
-    return parse
-
-
-def number(minimum: float, *, strict: bool) -> Callable[[str], float]:
-    """A finite number > ``minimum`` (``strict``) or >= ``minimum``."""
-    op = ">" if strict else ">="
-
-    def parse(text: str) -> float:
-        try:
-            value = float(text)
-        except ValueError:
-            value = math.nan
-        if not math.isfinite(value) or value < minimum or (strict and value == minimum):
-            raise argparse.ArgumentTypeError(f"expected a number {op} {minimum:g} (got {text!r})")
-        return value
-    return parse
 
 
 def layout_name(text: str) -> str:

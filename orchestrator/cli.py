@@ -77,6 +77,13 @@ def cmd_launch(args: argparse.Namespace) -> int:
     out = Path(args.out) if args.out else Path("runs") / f"{scenario.name}-{dt.datetime.now():%Y%m%d-%H%M%S}"
     if args.serve and args.transport != "zenoh":
         raise UsageError("--serve needs --transport zenoh: other processes reach the simulation over Zenoh")
+    if args.episodes == 0 and not args.serve:
+        raise UsageError("--episodes 0 runs no episode: it is for --serve, which then only serves")
+    if args.episodes:  # before any process starts, rather than after the first tick
+        try:
+            out.mkdir(parents=True, exist_ok=True)
+        except OSError as exc:
+            raise UsageError(f"--out {out}: cannot make the output directory there: {exc.strerror}") from None
     layout = args.layout or ("single" if args.transport == "inproc" else "per-role")
     host, port = parse_listen(args.listen) if args.listen else ("127.0.0.1", None)
     placement = None
@@ -320,8 +327,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--policy", choices=sorted(POLICIES),
                    help="node-side decision policy for every controller (default: the scenario's)")
     p.add_argument("--out", metavar="DIR", help="output directory (default: runs/<scenario>-<time>)")
-    p.add_argument("--timeout", type=POSITIVE, default=30.0, metavar="S",
-                   help="seconds to wait for a tick before declaring a process hung (default 30)")
+    p.add_argument("--timeout", type=cli_options.TIMEOUT, default=30.0, metavar="S",
+                   help="seconds to wait for a tick before declaring a process hung (default 30, at most 1e6)")
     p.add_argument("--json", action="store_true", help="print the summary as JSON instead of a table")
     p.add_argument("-q", "--quiet", action="store_true", help="no progress bar or status lines")
     p.add_argument("--episodes", type=integer(0), default=1, metavar="N",

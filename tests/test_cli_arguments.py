@@ -14,8 +14,10 @@ CASES = [
     (["launch", "aot1", "--steps", "0"], "argument --steps: expected an integer >= 1 (got '0')"),
     (["launch", "aot1", "--steps", "2.5"], "argument --steps: expected an integer >= 1 (got '2.5')"),
     (["launch", "aot1", "--tick-rate", "-5"], "argument --tick-rate: expected a number > 0 (got '-5')"),
-    (["launch", "aot1", "--timeout", "0"], "argument --timeout: expected a number > 0 (got '0')"),
-    (["launch", "aot1", "--timeout", "inf"], "argument --timeout: expected a number > 0 (got 'inf')"),
+    (["launch", "aot1", "--timeout", "0"], "argument --timeout: expected a number > 0 and <= 1e+06 (got '0')"),
+    (["launch", "aot1", "--timeout", "inf"], "argument --timeout: expected a number > 0 and <= 1e+06 (got 'inf')"),
+    # past a million seconds Zenoh's lease in milliseconds overflowed in every node process
+    (["launch", "aot1", "--timeout", "1e308"], "argument --timeout: expected a number > 0 and <= 1e+06 (got '1e308')"),
     (["launch", "aot1", "--episodes", "-1"], "argument --episodes: expected an integer >= 0 (got '-1')"),
     (["launch", "aot1", "--seed", "-3"],
      "argument --seed: expected an integer from 0 to 4611686018427387903 (got '-3')"),
@@ -45,12 +47,17 @@ def test_good_numbers_run(tmp_path, capsys):
     assert (tmp_path / "summary.json").exists()
 
 
-def test_zenohedge_node_checks_the_same_options_the_same_way(capsys):
+@pytest.mark.parametrize(("option", "expected"), [
+    (["--sim", "a/b"], "argument --sim: expected letters, digits, '_', '.' or '-' (got 'a/b')"),
+    (["--timeout", "-1"], "argument --timeout: expected a number > 0 and <= 1e+06 (got '-1')"),
+])
+def test_zenohedge_node_checks_the_same_options_the_same_way(capsys, option, expected):
+    args = {"--connect": "tcp/10.0.0.1:7447", "--sim": "lab", "--group": "g"}
+    args.update(dict([option]))
     with pytest.raises(SystemExit) as exc:
-        remote.main(["--connect", "tcp/10.0.0.1:7447", "--sim", "a/b", "--group", "g"])
+        remote.main([part for pair in args.items() for part in pair])
     assert exc.value.code == 2
-    assert capsys.readouterr().err.strip().splitlines()[-1] == (
-        "zenohedge-node: error: argument --sim: expected letters, digits, '_', '.' or '-' (got 'a/b')")
+    assert capsys.readouterr().err.strip().splitlines()[-1] == f"zenohedge-node: error: {expected}"
 
 
 def test_several_episodes_each_get_their_folder(tmp_path):
@@ -76,3 +83,18 @@ def test_groups_split_the_nodes_in_contiguous_blocks():
     sizes = [len({r.partition(":")[2] for r in plan.roles_of[p]}) for p in plan.procs]
     assert sizes == [3, 2, 3, 2, 2] and sum(sizes) == 12
     assert len(ProcessLayout(load_scenario("aot1"), "groups:50").procs) == 12  # never more groups than nodes
+
+
+def test_an_output_directory_that_cannot_be_made_is_one_line_before_any_process_starts(tmp_path, capsys):
+    """It used to be a FileExistsError traceback after the node processes had started."""
+    taken = tmp_path / "a-file"
+    taken.write_text("")
+    assert main(["launch", "aot1", "--steps", "3", "-q", "--out", str(taken)]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err == f"orchestrator: --out {taken}: cannot make the output directory there: File exists"
+
+
+def test_no_episodes_without_serve_is_refused(capsys):
+    assert main(["launch", "aot1", "--transport", "inproc", "--episodes", "0", "-q"]) == 2
+    assert capsys.readouterr().err.strip() == (
+        "orchestrator: --episodes 0 runs no episode: it is for --serve, which then only serves")

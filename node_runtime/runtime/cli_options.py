@@ -1,17 +1,56 @@
-"""Command-line options that name a simulation on the bus, defined once for ``orchestrator`` and
-``zenohedge-node``, so that every command reads and checks them the same way: a bad value is one
-``error: argument --sim: expected … (got '…')`` line and exit status 2."""
+"""Command-line options that name a simulation on the bus, and the number types, defined once for
+``orchestrator`` and ``zenohedge-node``, so that every command reads and checks them the same way: a bad
+value is one ``error: argument --sim: expected … (got '…')`` line and exit status 2."""
 
 from __future__ import annotations
 
 import argparse
+import math
 import re
+from collections.abc import Callable
 from typing import Any
 
 from node_runtime.runtime.keys import CHUNK, DEFAULT_PREFIX
 from node_runtime.runtime.security import Security, file_overrides
 
 ENDPOINT = re.compile(r"^[a-z0-9]+/\S+$")  # Zenoh's <protocol>/<address>
+# Seconds a command waits at most: past it, Zenoh's lease (milliseconds) and Python's waits overflow
+MAX_TIMEOUT_S = 1e6
+
+
+def integer(minimum: int, maximum: int | None = None) -> Callable[[str], int]:
+    """An integer >= ``minimum`` (and <= ``maximum``)."""
+    expected = f"an integer >= {minimum}" if maximum is None else f"an integer from {minimum} to {maximum}"
+
+    def parse(text: str) -> int:
+        try:
+            value = int(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"expected {expected} (got {text!r})") from None
+        if value < minimum or (maximum is not None and value > maximum):
+            raise argparse.ArgumentTypeError(f"expected {expected} (got {text!r})")
+        return value
+    return parse
+
+
+def number(minimum: float, *, strict: bool, maximum: float = math.inf) -> Callable[[str], float]:
+    """A finite number > ``minimum`` (``strict``) or >= ``minimum``, and <= ``maximum``."""
+    expected = f"a number {'>' if strict else '>='} {minimum:g}"
+    if maximum < math.inf:
+        expected += f" and <= {maximum:g}"
+
+    def parse(text: str) -> float:
+        try:
+            value = float(text)
+        except ValueError:
+            value = math.nan
+        if not math.isfinite(value) or value < minimum or (strict and value == minimum) or value > maximum:
+            raise argparse.ArgumentTypeError(f"expected {expected} (got {text!r})")
+        return value
+    return parse
+
+
+TIMEOUT = number(0, strict=True, maximum=MAX_TIMEOUT_S)
 
 
 def endpoint(text: str) -> str:

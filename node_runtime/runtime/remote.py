@@ -31,7 +31,7 @@ from typing import Any
 from node_runtime.model.spec import Scenario
 from node_runtime.runtime import process as node_process
 from node_runtime.runtime.access import LOCAL_LINK, access_control
-from node_runtime.runtime.cli_options import add_security_options, add_sim_options, security_options
+from node_runtime.runtime.cli_options import TIMEOUT, add_security_options, add_sim_options, security_options
 from node_runtime.runtime.forkserver import ForkServer
 from node_runtime.runtime.keys import Keys
 from node_runtime.runtime.layout import Layout, ProcessLayout
@@ -176,7 +176,7 @@ def main(argv: list[str] | None = None) -> None:
     add_sim_options(parser, required=True, connect_help="the orchestrator's router, e.g. tcp/10.0.0.1:7447",
                     sim_help="the simulation id (launch --sim-id fixes it)")
     parser.add_argument("--group", required=True, help="the group of the placement file this host runs")
-    parser.add_argument("--timeout", type=float, default=30.0, help="seconds to wait for the orchestrator")
+    parser.add_argument("--timeout", type=TIMEOUT, default=30.0, help="seconds to wait for the orchestrator")
     parser.add_argument("--direct", action="store_true",
                         help="connect every process to the orchestrator's router (one session per process across "
                              "the network) instead of through a router this command runs on this host")
