@@ -285,7 +285,11 @@ def cmd_trace(args: argparse.Namespace) -> int:
     except TraceError as exc:
         fail(f"orchestrator trace: {exc}")
         return EXIT_USAGE
-    write(rows, Path(args.out))
+    try:
+        write(rows, Path(args.out))
+    except OSError as exc:
+        fail(f"orchestrator trace: cannot write {args.out}: {exc.strerror}")
+        return EXIT_USAGE
     span = rows[-1]["time"] if rows else 0
     print(f"{len(rows)} tasks over {span:g} s for {len(scenario.clients)} task sources -> {args.out} "
           f"(use it with `workload: {{trace: {Path(args.out).name}}}`)")

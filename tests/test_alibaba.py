@@ -63,6 +63,26 @@ def test_bad_input(tmp_path, capsys):
     assert "none.csv: file not found" in capsys.readouterr().err
 
 
+@pytest.mark.parametrize(("content", "expected"), [
+    (b"\x7fELF\x02\x01\x01\x00\xd0\xff", r"binary\.csv: not a CSV text file \(UnicodeDecodeError\)"),
+    (b"t,1,j1,1,Terminated,0,nan,50,1\n", r"binary\.csv:1: start_time, end_time, plan_cpu and plan_mem must be finite"),
+    (b"t,1,j1,1,Terminated,0,10,inf,1\n", r"binary\.csv:1: start_time, end_time, plan_cpu and plan_mem must be finite"),
+])
+def test_a_binary_file_or_non_finite_numbers_are_refused(tmp_path, content, expected):
+    """They used to end in a UnicodeDecodeError traceback, or to pass nan into the trace."""
+    src = tmp_path / "binary.csv"
+    src.write_bytes(content)
+    with pytest.raises(TraceError, match=expected):
+        convert(src, ["a"])
+
+
+def test_an_output_that_cannot_be_written_is_one_line(tmp_path, capsys):
+    assert main(["trace", "alibaba", str(ROOT / "topologies" / "traces" / "alibaba_batch_task_sample.csv"),
+                 "--scenario", "aot1", "--out", str(tmp_path / "missing" / "o.csv")]) == 2
+    assert capsys.readouterr().err.strip() == (
+        f"orchestrator trace: cannot write {tmp_path / 'missing' / 'o.csv'}: No such file or directory")
+
+
 def test_the_shipped_sample_converts_and_runs(tmp_path):
     out = tmp_path / "trace.csv"
     sample = ROOT / "topologies" / "traces" / "alibaba_batch_task_sample.csv"

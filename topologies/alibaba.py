@@ -18,8 +18,10 @@ one task:
 from __future__ import annotations
 
 import csv
+import math
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 COLUMNS = ("task_name", "instance_num", "job_name", "task_type", "status", "start_time", "end_time", "plan_cpu",
            "plan_mem")
@@ -53,30 +55,41 @@ def read_jobs(path: Path) -> dict[str, _Job]:
     jobs: dict[str, _Job] = {}
     if not Path(path).is_file():
         raise TraceError(f"{path}: file not found")
-    with Path(path).open(newline="") as fh:
-        for line, row in enumerate(csv.reader(fh), start=1):
-            if not row or len(row) != len(COLUMNS):
-                raise TraceError(f"{path}:{line}: expected {len(COLUMNS)} columns ({', '.join(COLUMNS)}), "
-                                 f"got {len(row)}")
-            rec = dict(zip(COLUMNS, row, strict=True))
-            try:
-                start, end = float(rec["start_time"]), float(rec["end_time"])
-                cpu = float(rec["plan_cpu"] or 0) / 100.0
-                mem = float(rec["plan_mem"] or 0) / 100.0
-            except ValueError:
-                raise TraceError(f"{path}:{line}: start_time, end_time, plan_cpu and plan_mem must be numbers") \
-                    from None
-            if end <= start or cpu <= 0:
-                continue  # unfinished or empty tasks carry no work
-            job = jobs.get(rec["job_name"])
-            if job is None:
-                jobs[rec["job_name"]] = _Job(start, end, cpu, mem)
-            else:
-                job.start, job.end = min(job.start, start), max(job.end, end)
-                job.cpu, job.mem = max(job.cpu, cpu), max(job.mem, mem)
+    try:
+        with Path(path).open(newline="") as fh:
+            _read_rows(path, fh, jobs)
+    except (UnicodeDecodeError, csv.Error) as exc:
+        raise TraceError(f"{path}: not a CSV text file ({type(exc).__name__})") from None
     if not jobs:
         raise TraceError(f"{path}: no finished task with a CPU request")
     return jobs
+
+
+def _read_rows(path: Path, fh: Any, jobs: dict[str, _Job]) -> None:
+    """The trace's rows into ``jobs``: each job's span and its largest CPU and memory requests."""
+    for line, row in enumerate(csv.reader(fh), start=1):
+        if not row or len(row) != len(COLUMNS):
+            raise TraceError(f"{path}:{line}: expected {len(COLUMNS)} columns ({', '.join(COLUMNS)}), "
+                             f"got {len(row)}")
+        rec = dict(zip(COLUMNS, row, strict=True))
+        try:
+            start, end = float(rec["start_time"]), float(rec["end_time"])
+            cpu = float(rec["plan_cpu"] or 0) / 100.0
+            mem = float(rec["plan_mem"] or 0) / 100.0
+            finite = all(map(math.isfinite, (start, end, cpu, mem)))
+        except ValueError:
+            finite = False
+        if not finite:
+            raise TraceError(f"{path}:{line}: start_time, end_time, plan_cpu and plan_mem must be finite "
+                             "numbers")
+        if end <= start or cpu <= 0:
+            continue  # unfinished or empty tasks carry no work
+        job = jobs.get(rec["job_name"])
+        if job is None:
+            jobs[rec["job_name"]] = _Job(start, end, cpu, mem)
+        else:
+            job.start, job.end = min(job.start, start), max(job.end, end)
+            job.cpu, job.mem = max(job.cpu, cpu), max(job.mem, mem)
 
 
 def convert(path: Path, clients: list[str], conversion: Conversion = Conversion()) -> list[dict[str, float | str]]:
