@@ -128,7 +128,7 @@ def session_of(transport: Transport, keys: Keys, timeout: float, where: str = "t
 def describe(endpoint: str, sim_id: str, prefix: str = DEFAULT_PREFIX, timeout: float = 10.0,
              security: Security | None = None) -> dict[str, Any]:
     """The session description of a simulation served at a Zenoh endpoint."""
-    transport = ZenohTransport.client(endpoint, security)
+    transport = ZenohTransport.reach(endpoint, security)
     try:
         return session_of(transport, Keys(sim_id, prefix), timeout, endpoint)
     finally:

@@ -199,7 +199,7 @@ class Simulation:
         """
         self = cls.__new__(cls)
         keys = Keys(sim_id, prefix)
-        transport = ZenohTransport.client(endpoint, security) if isinstance(endpoint, str) else endpoint
+        transport = ZenohTransport.reach(endpoint, security) if isinstance(endpoint, str) else endpoint
         try:
             info, driver, secret = claim(transport, keys, timeout)
         except BaseException:

@@ -12,6 +12,8 @@ import numpy as np
 import pytest
 
 from env import ZenohEdgeEnv
+from node_runtime.runtime.transport import TransportError
+from node_runtime.runtime.zenoh_bus import free_port
 from orchestrator.serve import Busy, claim, session_of
 from orchestrator.session import Simulation
 from tests.conftest import model_part, run_summary
@@ -111,3 +113,15 @@ def test_serving_over_the_in_process_bus(aot1):
 def test_connect_requires_the_sim_id():
     with pytest.raises(ValueError, match="sim_id"):
         ZenohEdgeEnv(connect="tcp/127.0.0.1:1")
+
+
+@pytest.mark.zenoh
+def test_an_endpoint_where_no_router_answers_or_no_endpoint_at_all_is_named():
+    """They were Zenoh's own errors, with a path into its Rust sources."""
+    port = free_port()  # nothing listens on it
+    with pytest.raises(TransportError, match=rf"^cannot reach tcp/127\.0\.0\.1:{port}: no Zenoh router answers there$"):
+        ZenohEdgeEnv(connect=f"tcp/127.0.0.1:{port}", sim_id="abc", timeout=2)
+    with pytest.raises(TransportError, match=rf"^cannot reach tcp/127\.0\.0\.1:{port}: no Zenoh router answers there$"):
+        Simulation.attach(f"tcp/127.0.0.1:{port}", "abc")
+    with pytest.raises(TransportError, match=r"^'localhost:7447' is no Zenoh endpoint: expected <protocol>/<address>"):
+        ZenohEdgeEnv(connect="localhost:7447", sim_id="abc", timeout=2)

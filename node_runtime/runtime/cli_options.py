@@ -6,14 +6,13 @@ from __future__ import annotations
 
 import argparse
 import math
-import re
 from collections.abc import Callable
 from typing import Any
 
 from node_runtime.runtime.keys import CHUNK, DEFAULT_PREFIX
 from node_runtime.runtime.security import Security, file_overrides
+from node_runtime.runtime.zenoh_bus import ENDPOINT
 
-ENDPOINT = re.compile(r"^[a-z0-9]+/\S+$")  # Zenoh's <protocol>/<address>
 # Seconds a command waits at most: past it, Zenoh's lease (milliseconds) and Python's waits overflow
 MAX_TIMEOUT_S = 1e6
 

@@ -12,6 +12,7 @@ import contextlib
 import json
 import os
 import queue
+import re
 import socket
 import threading
 import time
@@ -26,6 +27,7 @@ from node_runtime.runtime.security import Security
 from node_runtime.runtime.transport import Handler, Monitored, RequestHandler, TokenHandler, Transport, TransportError
 
 Mode = Literal["router", "client", "peer"]
+ENDPOINT = re.compile(r"^[a-z0-9]+/\S+$")  # Zenoh's <protocol>/<address>
 IDLE_SLICE = 0.1  # seconds between idle checks while dispatching
 
 # Zenoh's thread pools for a node process: receive, network and transmit work handed over to a
@@ -99,6 +101,20 @@ class ZenohTransport(Transport):
     def client(cls, endpoint: str, security: Security | None = None,
                settings: dict[str, Any] | None = None) -> ZenohTransport:
         return cls(zenoh_config("client", connect=[endpoint], security=security, settings=settings))
+
+    @classmethod
+    def reach(cls, endpoint: str, security: Security | None = None,
+              settings: dict[str, Any] | None = None) -> ZenohTransport:
+        """``client``, for an endpoint a user gave: a TransportError that names it, rather than Zenoh's own
+        error, when it is no endpoint or no router answers there."""
+        if not ENDPOINT.match(endpoint):
+            raise TransportError(f"{endpoint!r} is no Zenoh endpoint: expected <protocol>/<address>, such as "
+                                 "tcp/10.0.0.1:7447")
+        try:
+            return cls.client(endpoint, security, settings)
+        except zenoh.ZError:
+            refused = " or it refused this certificate or login" if security is not None else ""
+            raise TransportError(f"cannot reach {endpoint}: no Zenoh router answers there{refused}") from None
 
     def publish(self, key: str, message: Any) -> None:
         self.put(key, codec.encode(message))

@@ -98,10 +98,9 @@ class BusMonitor:
                 settings: dict[str, Any] | None = None) -> BusMonitor:
         """A Zenoh client session to the router at ``endpoint``."""
         try:
-            return cls(ZenohTransport.client(endpoint, security, settings), endpoint, prefix)
-        except Exception:  # zenoh.ZError: nothing listens there, or it refused our certificate or login
-            refused = " or it refused this certificate or login" if security is not None else ""
-            raise MonitorError(f"cannot reach {endpoint}: no Zenoh router answers there{refused}") from None
+            return cls(ZenohTransport.reach(endpoint, security, settings), endpoint, prefix)
+        except TransportError as exc:
+            raise MonitorError(str(exc)) from None
 
     def discover(self, timeout: float = DISCOVERY_TIMEOUT) -> list[SimInfo]:
         """Running simulations: the holders of ``{prefix}/<id>/alive/orchestrator`` tokens, by id."""
