@@ -79,11 +79,6 @@ def cmd_launch(args: argparse.Namespace) -> int:
         raise UsageError("--serve needs --transport zenoh: other processes reach the simulation over Zenoh")
     if args.episodes == 0 and not args.serve:
         raise UsageError("--episodes 0 runs no episode: it is for --serve, which then only serves")
-    if args.episodes:  # before any process starts, rather than after the first tick
-        try:
-            out.mkdir(parents=True, exist_ok=True)
-        except OSError as exc:
-            raise UsageError(f"--out {out}: cannot make the output directory there: {exc.strerror}") from None
     layout = args.layout or ("single" if args.transport == "inproc" else "per-role")
     host, port = parse_listen(args.listen) if args.listen else ("127.0.0.1", None)
     placement = None
@@ -112,9 +107,10 @@ def cmd_launch(args: argparse.Namespace) -> int:
             console.print(f"  zenohedge-node --connect {where} --sim {sim_id} --group {group}{login}", markup=False)
 
     t0 = time.perf_counter()
-    with Simulation(scenario, transport=args.transport, layout=layout, timeout=args.timeout, listen_host=host,
-                    port=port, sim_id=sim_id, placement=placement, on_waiting=waiting, join=args.connect,
-                    security=security, zenoh_settings=zenoh_settings) as sim, \
+    with output_dir(out, needed=args.episodes > 0), \
+            Simulation(scenario, transport=args.transport, layout=layout, timeout=args.timeout, listen_host=host,
+                       port=port, sim_id=sim_id, placement=placement, on_waiting=waiting, join=args.connect,
+                       security=security, zenoh_settings=zenoh_settings) as sim, \
             listed(sim, console):
         if args.transport == "zenoh":
             console.print(f"router {sim.endpoint}, simulation id [bold]{sim.keys.sim_id}[/], "
@@ -144,6 +140,27 @@ def cmd_launch(args: argparse.Namespace) -> int:
         if args.serve:
             sim.server.wait(ready=lambda: console.print("serving until Ctrl-C"))
     return EXIT_OK
+
+
+@contextlib.contextmanager
+def output_dir(out: Path, needed: bool) -> Iterator[None]:
+    """Make ``out`` before any process starts, so that a path that cannot be one is a line, not a traceback
+    after the start; and remove it again if the run fails before writing anything there."""
+    if not needed:
+        yield
+        return
+    existed = out.exists()
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise UsageError(f"--out {out}: cannot make the output directory there: {exc.strerror}") from None
+    try:
+        yield
+    except BaseException:
+        if not existed:
+            with contextlib.suppress(OSError):  # only if empty: partial results stay
+                out.rmdir()
+        raise
 
 
 INTERRUPTIONS = {KeyboardInterrupt: "interrupted (Ctrl-C)", Terminated: "terminated (SIGTERM)"}
