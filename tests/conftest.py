@@ -32,6 +32,18 @@ def own_runtime_dir(tmp_path_factory: pytest.TempPathFactory) -> Any:
     patch.undo()
 
 
+@pytest.fixture(autouse=True)
+def no_launch_outlives_its_test() -> Any:
+    """A test whose assertion fails skips its own clean-up: a served launch would then run on for ever,
+    with its node processes. What the test itself left running is stopped after it, as SIGTERM would;
+    launches of fixtures that outlive one test (a module's served run) are theirs to stop."""
+    from tests.launcher import Launch, end_all  # the launcher imports this module
+
+    before = list(Launch.running)
+    yield
+    end_all(keep=before)
+
+
 def write_scenario(tmp_path: Path, data: dict[str, Any], name: str = "scenario.yaml") -> Path:
     path = tmp_path / name
     path.write_text(yaml.safe_dump(data, sort_keys=False))

@@ -9,7 +9,7 @@ import subprocess
 import sys
 import threading
 import time
-from typing import Any
+from typing import Any, ClassVar
 
 import psutil
 
@@ -21,10 +21,13 @@ TIMEOUT = 120.0  # seconds any single wait may take on a loaded machine before t
 class Launch:
     """``orchestrator launch`` in a subprocess, with its stderr read line by line in the background."""
 
+    running: ClassVar[list[Launch]] = []  # every launch not yet stopped by ``end_all``
+
     def __init__(self, *args: str) -> None:
         self.proc = subprocess.Popen([sys.executable, "-m", "orchestrator.cli", "launch", *args],
                                      stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
                                      env={**os.environ, "COLUMNS": "200"})
+        Launch.running.append(self)
         self.lines: queue.SimpleQueue[str] = queue.SimpleQueue()
         self.err: list[str] = []
         threading.Thread(target=self._read, daemon=True).start()
@@ -63,6 +66,20 @@ class Launch:
         finally:
             if self.proc.poll() is None:
                 self.proc.kill()
+
+
+def end_all(keep: list[Launch], grace: float = 30.0) -> None:
+    """SIGTERM every launch still running but those in ``keep`` (the orchestrator then stops its node
+    processes), SIGKILL one that does not end within ``grace`` seconds."""
+    for run in [r for r in Launch.running if r not in keep]:
+        if run.proc.poll() is None:
+            run.proc.terminate()
+            try:
+                run.proc.wait(grace)
+            except subprocess.TimeoutExpired:
+                run.proc.kill()
+                run.proc.wait()
+    Launch.running[:] = keep
 
 
 def paused_run(run: Launch, victim: psutil.Process, timeout: float) -> tuple[int, float, str]:
