@@ -49,10 +49,10 @@ def agent_name(node: str) -> str:
     return f"{AGENT_PREFIX}{node}"
 
 
-def check_seed(seed: Any, where: str) -> None:
-    """A seed travels in the reset tick as a msgpack integer: 0 to MAX_SEED."""
-    if isinstance(seed, bool) or not isinstance(seed, Integral) or not 0 <= seed <= MAX_SEED:
-        raise ValueError(f"{where}{seed!r}): expected an integer from 0 to {MAX_SEED} (2^62 - 1), or None")
+def check_seed(seed: Any, call: str) -> None:
+    """None, or what a reset tick can carry as a msgpack integer: 0 to MAX_SEED."""
+    if seed is not None and (isinstance(seed, bool) or not isinstance(seed, Integral) or not 0 <= seed <= MAX_SEED):
+        raise ValueError(f"{call}(seed={seed!r}): expected an integer from 0 to {MAX_SEED} (2^62 - 1), or None")
 
 
 class ZenohEdgeEnv(ParallelEnv):
@@ -175,8 +175,7 @@ class ZenohEdgeEnv(ParallelEnv):
         self.action_rules = ActionRules(self.layouts, targets, invalid_action)
 
         self.sim: Simulation | None = None
-        if seed is not None:
-            check_seed(seed, "ZenohEdgeEnv(seed=")
+        check_seed(seed, "ZenohEdgeEnv")
         self._seeds = np.random.default_rng(seed)
         self._next_seed = seed
         self._raw: dict[str, Observation | None] = {}
@@ -199,8 +198,8 @@ class ZenohEdgeEnv(ParallelEnv):
     def reset(self, seed: int | None = None, options: dict | None = None):
         """Start an episode; the node processes stay up. ``options``: {"policy": name} for the
         controllers the agents do not drive."""
+        check_seed(seed, "reset")
         if seed is not None:
-            check_seed(seed, "reset(seed=")
             self._seeds = np.random.default_rng(seed)
             episode_seed = int(seed)
         elif self._next_seed is not None:

@@ -52,12 +52,11 @@ class _Job:
 
 
 def read_jobs(path: Path) -> dict[str, _Job]:
-    jobs: dict[str, _Job] = {}
     if not Path(path).is_file():
         raise TraceError(f"{path}: file not found")
     try:
         with Path(path).open(newline="") as fh:
-            _read_rows(path, fh, jobs)
+            jobs = _jobs(path, fh)
     except (UnicodeDecodeError, csv.Error) as exc:
         raise TraceError(f"{path}: not a CSV text file ({type(exc).__name__})") from None
     if not jobs:
@@ -65,8 +64,9 @@ def read_jobs(path: Path) -> dict[str, _Job]:
     return jobs
 
 
-def _read_rows(path: Path, fh: Any, jobs: dict[str, _Job]) -> None:
-    """The trace's rows into ``jobs``: each job's span and its largest CPU and memory requests."""
+def _jobs(path: Path, fh: Any) -> dict[str, _Job]:
+    """The trace's jobs: each one's span and its largest CPU and memory requests."""
+    jobs: dict[str, _Job] = {}
     for line, row in enumerate(csv.reader(fh), start=1):
         if not row or len(row) != len(COLUMNS):
             raise TraceError(f"{path}:{line}: expected {len(COLUMNS)} columns ({', '.join(COLUMNS)}), "
@@ -90,6 +90,7 @@ def _read_rows(path: Path, fh: Any, jobs: dict[str, _Job]) -> None:
         else:
             job.start, job.end = min(job.start, start), max(job.end, end)
             job.cpu, job.mem = max(job.cpu, cpu), max(job.mem, mem)
+    return jobs
 
 
 def convert(path: Path, clients: list[str], conversion: Conversion = Conversion()) -> list[dict[str, float | str]]:

@@ -70,24 +70,20 @@ def load_ether(path: Path, task_bytes: float, wired_rates: bool = False, buffer_
             cap = node["capacity"]
             x, y = map(_finite, node["coordinates"])
             memory = _finite(cap["memory"], positive=True)
-            tasks = memory / buffer_bytes if buffer_bytes else memory / task_bytes
-            if not math.isfinite(tasks):
-                raise EtherError(f"{path}: node {name!r}: {memory:g} bytes of memory hold {tasks:g} tasks of "
-                                 f"{buffer_bytes or task_bytes:g} bytes (topology.buffer_bytes, or the task size)")
-            by_id[str(node["id"])] = name
-            nodes.append(DraftNode(
-                id=name,
-                profile=profile_of(name),
-                position=(x, y),
-                hints={"cores": 1, "frequency": _finite(cap["cpu_milis"], positive=True) * 1000.0,
-                       "buffer": max(1, round(tasks) if buffer_bytes else math.floor(tasks))},
-                device=DEVICE_TYPES.get((node.get("labels") or {}).get(TYPE_LABEL), {}),
-            ))
-        except EtherError:
-            raise
+            frequency = _finite(cap["cpu_milis"], positive=True) * 1000.0
+            node_id = str(node["id"])
+            device = DEVICE_TYPES.get((node.get("labels") or {}).get(TYPE_LABEL), {})
         except (KeyError, TypeError, ValueError, AttributeError):
             raise EtherError(f"{path}: node {name!r} lacks coordinates, or capacity.cpu_milis and memory as "
                              "positive numbers") from None
+        tasks = memory / buffer_bytes if buffer_bytes else memory / task_bytes
+        if not math.isfinite(tasks):
+            raise EtherError(f"{path}: node {name!r}: {memory:g} bytes of memory hold {tasks:g} tasks of "
+                             f"{buffer_bytes or task_bytes:g} bytes (topology.buffer_bytes, or the task size)")
+        by_id[node_id] = name
+        nodes.append(DraftNode(id=name, profile=profile_of(name), position=(x, y), device=device,
+                               hints={"cores": 1, "frequency": frequency,
+                                      "buffer": max(1, round(tasks) if buffer_bytes else math.floor(tasks))}))
     bandwidth: dict[frozenset[str], float] = {}
     if wired_rates:
         for i, info in enumerate(data["links"].get("path_info", [])):

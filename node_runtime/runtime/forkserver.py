@@ -225,8 +225,8 @@ class ForkServer:
         with self._cond:
             return self.accounts.get(pid, "")
 
-    def wait(self, pids: list[int], timeout: float) -> list[int]:
-        """Wait until these processes have exited; returns those still running."""
+    def wait(self, pids: list[int], timeout: float | None) -> list[int]:
+        """Wait until these processes have exited (``timeout`` None: however long); returns those still running."""
         with self._cond:
             self._cond.wait_for(lambda: all(p in self.exits for p in pids), timeout)
             return [p for p in pids if p not in self.exits]

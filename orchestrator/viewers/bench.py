@@ -70,9 +70,7 @@ def barrier_host(upstream: str, root: str, indices: range) -> None:
         router = ZenohTransport.router(local, [upstream])
         forks = ForkServer.shared()
         try:
-            pids = [forks.start(f"barrier-{i}", barrier_peer, local, root, i) for i in indices]
-            while forks.wait(pids, 1.0):
-                pass
+            forks.wait([forks.start(f"barrier-{i}", barrier_peer, local, root, i) for i in indices], None)
         finally:
             router.close()
 
