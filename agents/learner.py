@@ -23,6 +23,7 @@ from typing import Any, ClassVar
 
 import numpy as np
 import torch
+from gymnasium.wrappers.utils import RunningMeanStd
 
 from agents.common import (
     Action,
@@ -45,6 +46,7 @@ class LearnerConfig:
 
     gamma: float = 0.99  # discount per environment step
     reward_scale: float = 1e-3  # the paper reward is in the hundreds to thousands; keep targets near 1
+    normalize_reward: bool = False  # divide (scaled) rewards by the running std of the discounted return
     hidden: tuple[int, ...] = (128, 128)
     lr: float = 5e-4
     shared: bool = False  # one network for all agents (needs uniform spaces), agent id appended
@@ -93,6 +95,7 @@ class Learner(ABC):
         self.group = {a: SHARED if self.config.shared else a for a in self.agents}
         self.pending: dict[str, Pending] = {}
         self.env_steps = 0  # environment steps observed while training
+        self.returns = ReturnScale(self.config.gamma)
         self.total_steps = 1  # the training horizon, for schedules (set by start_training)
         self.rng = np.random.default_rng(self.config.seed)
         self.generator = torch.Generator(device=self.device).manual_seed(self.config.seed)
@@ -172,12 +175,16 @@ class Learner(ABC):
                 terminations: Mapping[str, bool], truncations: Mapping[str, bool]) -> None:
         """Feed back one environment step; closes transitions and learns when the learner's schedule says so."""
         gamma = self.config.gamma
+        scaled = {a: float(r) * self.config.reward_scale for a, r in rewards.items()}
+        if self.config.normalize_reward:
+            scaled = self.returns.normalize(scaled, {a for a in rewards
+                                                     if terminations.get(a, False) or truncations.get(a, False)})
         closed: list[Closed] = []
-        for agent, reward in rewards.items():
+        for agent, reward in scaled.items():
             p = self.pending.get(agent)
             if p is None:
                 continue
-            p.reward += p.discount * float(reward) * self.config.reward_scale
+            p.reward += p.discount * reward
             p.discount *= gamma
             nxt = next_observations.get(agent)
             can_bootstrap = nxt is not None and has_decision(nxt) and not terminations.get(agent, False)
@@ -211,7 +218,8 @@ class Learner(ABC):
     def save(self, path: str | Path) -> None:
         """Write a checkpoint: algorithm, config, agent specs and weights (not the replay buffer)."""
         torch.save({"algo": self.name, "config": asdict(self.config),
-                    "specs": {a: asdict(s) for a, s in self.specs.items()}, "state": self.state_dict()}, path)
+                    "specs": {a: asdict(s) for a, s in self.specs.items()}, "state": self.state_dict(),
+                    "return_stats": self.returns.stats()}, path)
 
     @classmethod
     def load(cls, path: str | Path, device: str = "cpu") -> Learner:
@@ -222,4 +230,36 @@ class Learner(ABC):
         config = cls.Config(**{**ckpt["config"], "hidden": tuple(ckpt["config"]["hidden"])})
         learner = cls({a: AgentSpec(**s) for a, s in ckpt["specs"].items()}, config, device)
         learner.load_state_dict(ckpt["state"])
+        if "return_stats" in ckpt:  # checkpoints from before reward normalisation have none
+            learner.returns.load(ckpt["return_stats"])
         return learner
+
+
+class ReturnScale:
+    """Gymnasium's ``NormalizeReward`` for many agents: each agent's discounted return is accumulated
+    every step, their running variance kept over all agents, and rewards divided by its square root.
+    A reward's scale then no longer depends on the reward function or the scenario (a count of tasks a
+    step, hundreds of seconds), so the learning rate and the value targets need no tuning per reward.
+    Normalised rewards are clipped to +-``clip`` (as Stable-Baselines3's VecNormalize does): while few
+    returns have been seen their variance is near 0, and one reward must not swamp the first updates."""
+
+    def __init__(self, gamma: float, epsilon: float = 1e-8, clip: float = 10.0) -> None:
+        self.gamma, self.epsilon, self.clip = gamma, epsilon, clip
+        self.rms = RunningMeanStd(shape=())
+        self.running: dict[str, float] = {}
+
+    def normalize(self, rewards: Mapping[str, float], ended: set[str]) -> dict[str, float]:
+        for agent, r in rewards.items():
+            self.running[agent] = self.running.get(agent, 0.0) * self.gamma + r
+        if rewards:
+            self.rms.update(np.array([self.running[a] for a in rewards]))
+        for agent in ended:  # a new episode starts a new return
+            self.running.pop(agent, None)
+        std = float(np.sqrt(self.rms.var + self.epsilon))
+        return {a: float(np.clip(r / std, -self.clip, self.clip)) for a, r in rewards.items()}
+
+    def stats(self) -> list[float]:
+        return [float(self.rms.mean), float(self.rms.var), float(self.rms.count)]
+
+    def load(self, stats: list[float]) -> None:
+        self.rms.mean, self.rms.var, self.rms.count = (np.float64(x) for x in stats)

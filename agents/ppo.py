@@ -29,6 +29,7 @@ class PPOConfig(ActorCriticConfig):
     norm_adv: bool = True
     anneal_lr: bool = True
     target_kl: float | None = None  # stop the epochs early when the approximate KL exceeds it
+    normalize_reward: bool = True  # any reward, any scenario: no reward_scale to tune (ReturnScale)
 
 
 class PPO(OnPolicyLearner):

@@ -15,6 +15,7 @@ from agents import BASELINES, DDQN, PPO, A2CConfig, DDQNConfig, PPOConfig, evalu
 from agents.a2c import A2C
 from agents.common import AgentSpec, MaskedCategorical, TargetScorer, flat_dim, flatten_one, masked_argmax
 from agents.ddqn import td_target
+from agents.learner import ReturnScale
 from agents.onpolicy import Record
 from env import ScenarioOverrides, TaskField, ZenohEdgeEnv
 from env.observations import DictObservation, ObservationLayout
@@ -269,6 +270,30 @@ def test_transitions_span_from_one_decision_to_the_next():
     assert buf.reward[2] == pytest.approx(8.0) and buf.discount[2] == 0.0 and not ddqn.pending
 
 
+def test_return_scale_divides_by_the_std_of_every_discounted_return_seen():
+    """Hand-computed: gamma 0.5, two agents; the running variance covers every agent's return so far."""
+    scale = ReturnScale(gamma=0.5)
+    # returns 1 and 3: mean 2, variance 1
+    assert scale.normalize({"a": 1.0, "b": 3.0}, set()) == pytest.approx({"a": 1.0, "b": 3.0}, rel=1e-3)
+    # returns 0.5 * 1 + 2 = 2.5 and 0.5 * 3 + 0 = 1.5; over [1, 3, 2.5, 1.5] the variance is 0.625
+    out = scale.normalize({"a": 2.0, "b": 0.0}, {"a"})  # a's episode ends: its next return starts afresh
+    assert out == pytest.approx({"a": 2.0 / math.sqrt(0.625), "b": 0.0}, rel=1e-3)
+    # a's return restarts at 1 (not 0.5 * 2.5 + 1): over [1, 3, 2.5, 1.5, 1] the variance is 0.66
+    assert scale.normalize({"a": 1.0}, set()) == pytest.approx({"a": 1.0 / math.sqrt(0.66)}, rel=1e-3)
+
+
+def test_return_scale_makes_rewards_independent_of_their_unit():
+    rng = np.random.default_rng(0)
+    small, large = ReturnScale(gamma=0.9), ReturnScale(gamma=0.9)
+    for step in range(200):
+        rewards = {a: float(rng.normal()) for a in "abc"}
+        ended = {"a"} if step % 40 == 39 else set()
+        out = small.normalize(rewards, ended)
+        assert large.normalize({a: 1000.0 * r for a, r in rewards.items()}, ended) == pytest.approx(out, rel=1e-3)
+    # the first rewards, before any variance is known, are clipped rather than blown up
+    assert ReturnScale(gamma=0.9).normalize({"a": 1e6, "b": 1e6}, set()) == {"a": 10.0, "b": 10.0}
+
+
 def test_gae_follows_each_agents_own_decisions():
     a2c = A2C({"a": AgentSpec(1, 2), "b": AgentSpec(1, 2)}, A2CConfig(hidden=(8,), gae_lambda=0.5))
     z = np.zeros(1, np.float32)
@@ -334,6 +359,7 @@ def test_checkpoint_round_trip_gives_the_same_actions(tmp_path, algo, config):
     learner.save(tmp_path / "ckpt.pt")
     loaded = load_learner(tmp_path / "ckpt.pt")
     assert type(loaded) is type(learner) and loaded.config == learner.config and loaded.env_steps == 40
+    assert loaded.returns.stats() == learner.returns.stats()  # reward normalisation goes on where it was
     obs, _ = env.reset(seed=7)
     compared = 0
     while env.agents:
