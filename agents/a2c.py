@@ -27,9 +27,9 @@ class A2C(OnPolicyLearner):
     config: A2CConfig
 
     def update_group(self, group: str, b: dict[str, torch.Tensor]) -> dict[str, float]:
-        logp, entropy, value = self.evaluate_actions(group, b)
+        logp, entropy, value, imitation = self.evaluate_actions(group, b)
         policy_loss = -(b["advantage"] * logp).mean()
         value_loss = 0.5 * (b["return"] - value).pow(2).mean()
-        loss = policy_loss + self.config.vf_coef * value_loss - self.config.ent_coef * entropy.mean()
+        loss = policy_loss + self.config.vf_coef * value_loss - self.config.ent_coef * entropy.mean() + imitation
         self.step_optimizer(group, loss)
         return {"policy_loss": policy_loss.item(), "value_loss": value_loss.item(), "entropy": entropy.mean().item()}

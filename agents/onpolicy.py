@@ -25,6 +25,7 @@ import numpy as np
 import torch
 from torch import nn
 
+from agents.baselines import BASELINES
 from agents.common import (
     AgentSpec,
     MaskedCategorical,
@@ -49,6 +50,9 @@ class ActorCriticConfig(LearnerConfig):
     centralised_critic: bool = False  # the critic sees every agent's observation (MAPPO)
     actor: str = "targets"  # "targets": one MLP scores each target (TargetScorer); "mlp": one logit per slot
     sample_eval: bool = True  # act() samples the learnt policy; False: its most likely action
+    teacher: str = ""  # a baseline the actor imitates at first (kickstarting); "" for none
+    teacher_coef: float = 1.0  # weight of the imitation loss at the start, annealed linearly to 0 ...
+    teacher_fraction: float = 0.25  # ... over this fraction of the training horizon
 
 
 ACTORS = ("targets", "mlp")
@@ -85,6 +89,7 @@ class Record:
     discount: float
     next_value: float
     last: bool
+    teacher: int = -1  # the teacher's action in that state (-1: no teacher)
 
 
 class OnPolicyLearner(Learner):
@@ -101,6 +106,9 @@ class OnPolicyLearner(Learner):
         self.optimizers = {g: torch.optim.Adam(n.parameters(), lr=self.config.lr, eps=1e-5)
                            for g, n in self.nets.items()}
         self.rollout: dict[str, list[Record]] = {g: [] for g in self.groups()}
+        if self.config.teacher and self.config.teacher not in BASELINES:
+            raise ValueError(f"teacher must be one of {', '.join(BASELINES)}, not {self.config.teacher!r}")
+        self.teacher = BASELINES[self.config.teacher](self.config.seed) if self.config.teacher else None
         self.updates = 0
         self.last_stats: dict[str, float] = dict.fromkeys(self.stat_names, float("nan"))
         self._global: tuple[Mapping[str, Observation], np.ndarray] | None = None
@@ -134,8 +142,11 @@ class OnPolicyLearner(Learner):
                 return actions.cpu().numpy(), {}
             critic = np.stack([self.critic_features(a, observations) for a in agents])
             value = net.value(torch.as_tensor(critic, device=self.device))
-        return actions.cpu().numpy(), {"logp": dist.log_prob(actions).cpu().numpy(), "value": value.cpu().numpy(),
-                                       "critic": critic}
+        extras = {"logp": dist.log_prob(actions).cpu().numpy(), "value": value.cpu().numpy(), "critic": critic}
+        if self.teacher is not None and self.teacher_weight() > 0:
+            taught = self.teacher.act({a: observations[a] for a in agents})
+            extras["teacher"] = np.array([taught[a] for a in agents])
+        return actions.cpu().numpy(), extras
 
     # ----- learning -----
 
@@ -155,7 +166,8 @@ class OnPolicyLearner(Learner):
                 p = c.pending
                 self.rollout[group].append(Record(
                     c.agent, p.features, p.extras["critic"], p.mask, p.action, float(p.extras["logp"]),
-                    float(p.extras["value"]), p.reward, c.discount, next_values.get(c.agent, 0.0), c.last))
+                    float(p.extras["value"]), p.reward, c.discount, next_values.get(c.agent, 0.0), c.last,
+                    int(p.extras.get("teacher", -1))))
         if self.env_steps % self.config.rollout_steps == 0:
             if self.config.anneal_lr:  # the rate at the start of the rollout, so the last one still learns
                 started = self.env_steps - self.config.rollout_steps
@@ -186,15 +198,29 @@ class OnPolicyLearner(Learner):
         out = {"obs": np.stack([r.features for r in records]), "critic": np.stack([r.critic for r in records]),
                "mask": np.stack([r.mask for r in records]), "action": np.array([r.action for r in records]),
                "logp": np.array([r.logp for r in records], dtype=np.float32), "value": values,
-               "advantage": adv, "return": adv + values}
+               "advantage": adv, "return": adv + values, "teacher": np.array([r.teacher for r in records])}
         return {k: torch.as_tensor(v, device=self.device) for k, v in out.items()}
 
     def evaluate_actions(self, group: str, b: dict[str, torch.Tensor], idx: torch.Tensor | slice = slice(None)
-                         ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
-        """Log-probabilities of the taken actions, entropies and values under the current networks."""
+                         ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
+        """Log-probabilities of the taken actions, entropies and values under the current networks, and the
+        imitation loss: the weighted cross-entropy of the teacher's actions (0 without a teacher)."""
         net = self.nets[group]
         dist = MaskedCategorical(net.actor(b["obs"][idx]), b["mask"][idx])
-        return dist.log_prob(b["action"][idx]), dist.entropy(), net.value(b["critic"][idx])
+        imitation = torch.zeros((), device=self.device)
+        taught = b["teacher"][idx]
+        if self.teacher_weight() > 0 and bool((taught >= 0).any()):
+            known = taught >= 0
+            imitation = -self.teacher_weight() * dist.log_prob(taught.clamp(min=0))[known].mean()
+        return dist.log_prob(b["action"][idx]), dist.entropy(), net.value(b["critic"][idx]), imitation
+
+    def teacher_weight(self) -> float:
+        """Kickstarting (Schmitt et al. 2018): the imitation loss's weight, from ``teacher_coef`` at the start
+        of training to 0 after ``teacher_fraction`` of its horizon."""
+        if self.teacher is None or self.config.teacher_fraction <= 0:
+            return 0.0
+        done = self.env_steps / (self.config.teacher_fraction * self.total_steps)
+        return self.config.teacher_coef * max(0.0, 1.0 - done)
 
     def step_optimizer(self, group: str, loss: torch.Tensor) -> None:
         opt = self.optimizers[group]

@@ -45,7 +45,7 @@ class PPO(OnPolicyLearner):
         for _ in range(c.update_epochs):
             order = torch.as_tensor(self.rng.permutation(n), device=self.device)
             for idx in torch.tensor_split(order, min(c.num_minibatches, n)):
-                logp, entropy, value = self.evaluate_actions(group, b, idx)
+                logp, entropy, value, imitation = self.evaluate_actions(group, b, idx)
                 log_ratio = logp - b["logp"][idx]
                 ratio = log_ratio.exp()
                 adv = b["advantage"][idx]
@@ -53,7 +53,7 @@ class PPO(OnPolicyLearner):
                     adv = (adv - adv.mean()) / (adv.std() + 1e-8)
                 policy_loss = torch.max(-adv * ratio, -adv * ratio.clamp(1 - c.clip_coef, 1 + c.clip_coef)).mean()
                 value_loss = 0.5 * (b["return"][idx] - value).pow(2).mean()
-                loss = policy_loss + c.vf_coef * value_loss - c.ent_coef * entropy.mean()
+                loss = policy_loss + c.vf_coef * value_loss - c.ent_coef * entropy.mean() + imitation
                 self.step_optimizer(group, loss)
                 with torch.no_grad():  # http://joschu.net/blog/kl-approx.html
                     approx_kl = float(((ratio - 1) - log_ratio).mean())

@@ -346,6 +346,32 @@ def test_learners_beat_random_where_offloading_is_best(slow_fast, algo):
     assert learnt < 0.8 * random, (learnt, random)
 
 
+def test_a_teacher_keeps_the_learner_on_its_choices_where_reward_alone_would_not(slow_fast):
+    """Kickstarting: with the imitation loss weighted up throughout, PPO keeps tasks local as its teacher
+    does, although offloading to the fast node is what the reward teaches without a teacher (the test above)."""
+    torch.set_num_threads(1)
+    config = PPOConfig(hidden=(32,), gamma=0.9, lr=3e-3, rollout_steps=25, seed=0, teacher="local",
+                       teacher_coef=5.0, teacher_fraction=100.0)
+    learner = make_policy("ppo", slow_fast, config)
+    train(slow_fast, learner, 3)
+    rows = evaluate(slow_fast, learner, 3)
+    assert sum(r["offloaded"] for r in rows) <= 0.1 * sum(r["generated"] for r in rows), rows
+
+
+def test_the_teachers_weight_falls_linearly_to_zero():
+    ppo = PPO({"a": AgentSpec(1, 2)}, PPOConfig(hidden=(8,), teacher="greedy", teacher_coef=2.0,
+                                                teacher_fraction=0.5))
+    ppo.start_training(100)
+    weights = []
+    for steps in (0, 25, 50, 80):
+        ppo.env_steps = steps
+        weights.append(ppo.teacher_weight())
+    assert weights == pytest.approx([2.0, 1.0, 0.0, 0.0])
+    assert PPO({"a": AgentSpec(1, 2)}, PPOConfig(hidden=(8,))).teacher_weight() == 0.0
+    with pytest.raises(ValueError, match="teacher must be one of local, random"):
+        PPO({"a": AgentSpec(1, 2)}, PPOConfig(teacher="oracle"))
+
+
 # ----- checkpoints -----
 
 @pytest.mark.parametrize("algo,config", [("ddqn", DDQNConfig(learning_starts=8, batch_size=8)),
