@@ -54,6 +54,12 @@ class ActorCriticConfig(LearnerConfig):
     teacher_coef: float = 1.0  # weight of the imitation loss at the start, annealed linearly to 0 ...
     teacher_fraction: float = 0.25  # ... over this fraction of the training horizon
 
+    def __post_init__(self) -> None:  # named choices are checked here, so a command line fails before any work
+        if self.actor not in ACTORS:
+            raise ValueError(f"actor must be one of {', '.join(ACTORS)}, not {self.actor!r}")
+        if self.teacher and self.teacher not in BASELINES:
+            raise ValueError(f"teacher must be one of {', '.join(BASELINES)}, not {self.teacher!r}")
+
 
 ACTORS = ("targets", "mlp")
 
@@ -64,8 +70,6 @@ class ActorCritic(nn.Module):
 
     def __init__(self, dim: int, critic_dim: int, hidden: tuple[int, ...], spec: AgentSpec, actor: str) -> None:
         super().__init__()
-        if actor not in ACTORS:
-            raise ValueError(f"actor must be one of {', '.join(ACTORS)}, not {actor!r}")
         self.actor = (TargetScorer(spec.slots, hidden) if actor == "targets"
                       else mlp(dim, hidden, spec.n_actions, out_gain=0.01))
         self.critic = mlp(critic_dim, hidden, 1, out_gain=1.0)
@@ -106,8 +110,6 @@ class OnPolicyLearner(Learner):
         self.optimizers = {g: torch.optim.Adam(n.parameters(), lr=self.config.lr, eps=1e-5)
                            for g, n in self.nets.items()}
         self.rollout: dict[str, list[Record]] = {g: [] for g in self.groups()}
-        if self.config.teacher and self.config.teacher not in BASELINES:
-            raise ValueError(f"teacher must be one of {', '.join(BASELINES)}, not {self.config.teacher!r}")
         self.teacher = BASELINES[self.config.teacher](self.config.seed) if self.config.teacher else None
         self.updates = 0
         self.last_stats: dict[str, float] = dict.fromkeys(self.stat_names, float("nan"))

@@ -165,7 +165,10 @@ def learner_config(algo: str, *, seed: int, hidden: Sequence[int] | None = None,
             values[name] = coerce(text, defaults[name])
         except ValueError as e:
             raise ValueError(f"--set {item!r}: {e}") from None
-    return cls(**values)
+    try:
+        return cls(**values)
+    except ValueError as e:  # a value of the right type that the learner refuses (an unknown teacher ...)
+        raise ValueError(f"{algo}: {e}") from None
 
 
 def _fields(algo: str) -> set[str]:

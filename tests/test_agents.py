@@ -207,7 +207,7 @@ def test_target_scorer_follows_its_targets_not_their_slots():
 
 def test_unknown_actor_is_refused():
     with pytest.raises(ValueError, match="actor must be one of"):
-        PPO({"a": AgentSpec(2, 3)}, PPOConfig(actor="cnn"))
+        PPOConfig(actor="cnn")
 
 
 # ----- DDQN -----
@@ -369,7 +369,7 @@ def test_the_teachers_weight_falls_linearly_to_zero():
     assert weights == pytest.approx([2.0, 1.0, 0.0, 0.0])
     assert PPO({"a": AgentSpec(1, 2)}, PPOConfig(hidden=(8,))).teacher_weight() == 0.0
     with pytest.raises(ValueError, match="teacher must be one of local, random"):
-        PPO({"a": AgentSpec(1, 2)}, PPOConfig(teacher="oracle"))
+        PPOConfig(teacher="oracle")
 
 
 # ----- checkpoints -----

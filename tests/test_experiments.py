@@ -121,6 +121,8 @@ def test_evaluate_adds_its_runs_to_a_marl_eval_file(tmp_path):
     (rq1, ["--set", "epsilon=1"], "--set 'epsilon=1': none of a2c, ddqn, ppo has a field 'epsilon'"),
     (rq1, ["--agents", "ddqn", "--set", "clip_coef=0.1"], "ddqn has no field 'clip_coef' (it is a field of ppo)"),
     (rq1, ["--agents", "local", "--set", "lr=1"], "--set 'lr=1': no learner among --agents"),
+    (train, ["ppo", "--set", "teacher=oracle"], "ppo: teacher must be one of local, random, round_robin,"),
+    (rq1, ["--agents", "a2c", "--set", "actor=cnn"], "a2c: actor must be one of targets, mlp, not 'cnn'"),
     (train, ["a2c", "--scenario", "aot9"], "aot9: no such file or bundled scenario (did you mean 'aot4'?); "
                                            "bundled: aot1, aot1_reference, aot2, "),
     (rq2, ["--scenarios", "aot1", "nowhere.yaml"], "nowhere.yaml: no such file or bundled scenario"),
