@@ -133,6 +133,11 @@ class OnPolicyLearner(Learner):
 
     # ----- acting -----
 
+    def reset(self, seed: int | None = None) -> None:
+        super().reset(seed)
+        if self.teacher is not None:  # its own state (round robin's counters, random's draws) follows the episode
+            self.teacher.reset(seed)
+
     def choose(self, group: str, agents: list[str], feats: np.ndarray, masks: np.ndarray,
                observations: Mapping[str, Observation], explore: bool) -> tuple[np.ndarray, dict[str, np.ndarray]]:
         net = self.nets[group]
