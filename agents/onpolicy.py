@@ -215,10 +215,12 @@ class OnPolicyLearner(Learner):
         net = self.nets[group]
         dist = MaskedCategorical(net.actor(b["obs"][idx]), b["mask"][idx])
         imitation = torch.zeros((), device=self.device)
-        taught = b["teacher"][idx]
-        if self.teacher_weight() > 0 and bool((taught >= 0).any()):
+        weight = self.teacher_weight()
+        if weight > 0:  # past the imitation phase (or without a teacher) the minibatch's teacher column is not read
+            taught = b["teacher"][idx]
             known = taught >= 0
-            imitation = -self.teacher_weight() * dist.log_prob(taught.clamp(min=0))[known].mean()
+            if bool(known.any()):
+                imitation = -weight * dist.log_prob(taught.clamp(min=0))[known].mean()
         return dist.log_prob(b["action"][idx]), dist.entropy(), net.value(b["critic"][idx]), imitation
 
     def teacher_weight(self) -> float:
