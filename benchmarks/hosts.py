@@ -11,6 +11,10 @@ real `zenohedge-node` inside its namespace; the figures are the run's own (summa
 every process is ready, ticks/s) and the peak resident memory summed over every process. All hosts
 share this machine's cores, so this measures the protocol and the routers at N, not H machines' speed.
 
+Each host's `zenohedge-node` forwards its processes' reports of a tick as one message (the default);
+`--aggregation both` also runs each N with `--no-aggregate`, right after, to compare the two in one
+sitting (`reports/tick`: the report messages the orchestrator handled per tick).
+
 Right after each run, a bare Zenoh barrier (`orchestrator bench`'s) with the same processes on the same
 hosts: the orchestrator's router on the root namespace, and in each namespace a router joined to it with
 that host's share of the participants behind it on a unix socket, as `zenohedge-node` lays a host out.
@@ -91,7 +95,8 @@ def peak_rss(pids: list[int], until: subprocess.Popen) -> float:
     return peak
 
 
-def measure(n: int, procs: int, hosts: int, ticks: int, work: Path) -> dict[str, Any]:
+def measure(n: int, procs: int, hosts: int, ticks: int, work: Path, aggregate: bool = True,
+            with_barrier: bool = True) -> dict[str, Any]:
     data, sc = scenario(n)
     (work / "scenario.yaml").write_text(yaml.safe_dump(data))
     groups = placement(sc, procs, hosts)
@@ -111,7 +116,7 @@ def measure(n: int, procs: int, hosts: int, ticks: int, work: Path) -> dict[str,
         time.sleep(0.1)
     members = [subprocess.Popen(["ip", "netns", "exec", f"zedge-host{h}", sys.executable, "-m",
                                  "node_runtime.runtime.remote", "--connect", f"tcp/10.77.{h}.1:{port}", "--sim", SIM,
-                                 "--group", group, "--timeout", "600"],
+                                 "--group", group, "--timeout", "600", *([] if aggregate else ["--no-aggregate"])],
                                 stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, cwd=ROOT)
                for h, group in enumerate(groups, start=1)]
     rss = peak_rss([launch.pid, *(m.pid for m in members)], until=launch)
@@ -120,11 +125,14 @@ def measure(n: int, procs: int, hosts: int, ticks: int, work: Path) -> dict[str,
         member.wait(60)
     if launch.returncode != 0:
         raise RuntimeError(f"launch exited with status {launch.returncode}:\n{log.read_text()}")
-    run = json.loads((work / f"run-{n}" / "summary.json").read_text())["run"]
-    base = barrier(run["processes"], hosts, ticks=200)
-    return {"nodes": n, "hosts": len(groups), "processes": run["processes"], "zenoh_startup_s": run["startup_s"],
-            "zenoh_ticks_per_s": run["ticks_per_s"], "barrier_ticks_per_s": round(base, 1), "rss_mb": round(rss),
-            "wall_s": round(wall, 1)}
+    summary = json.loads((work / f"run-{n}" / "summary.json").read_text())
+    run, reports = summary["run"], summary["run"]["reports"]
+    row = {"nodes": n, "hosts": len(groups), "processes": run["processes"], "aggregated": "yes" if aggregate else "no",
+           "reports_per_tick": round((reports["alone"] + reports["host_messages"]) / summary["ticks"], 1),
+           "zenoh_startup_s": run["startup_s"], "zenoh_ticks_per_s": run["ticks_per_s"]}
+    if with_barrier:
+        row["barrier_ticks_per_s"] = round(barrier(run["processes"], hosts, ticks=200), 1)
+    return {**row, "rss_mb": round(rss), "wall_s": round(wall, 1)}
 
 
 def main() -> None:
@@ -133,6 +141,9 @@ def main() -> None:
     p.add_argument("--hosts", type=int, default=4, help="network namespaces standing for hosts (default 4)")
     p.add_argument("--groups", type=int, default=16, help="node processes (layout groups:K; default 16)")
     p.add_argument("--ticks", type=int, default=40, help="ticks per run (default 40)")
+    p.add_argument("--aggregation", choices=["on", "off", "both"], default="on",
+                   help="hosts forward their processes' reports of a tick as one message (on, the default), each "
+                        "process reports alone (off), or both, one run after the other (the barrier once)")
     p.add_argument("--json", type=Path, help="also write the rows here")
     p.add_argument("--barrier-host", nargs=4, metavar=("UPSTREAM", "ROOT", "FIRST", "COUNT"), help=argparse.SUPPRESS)
     args = p.parse_args()
@@ -150,7 +161,9 @@ def main() -> None:
         with tempfile.TemporaryDirectory(prefix="zenohedge-hosts-") as work:
             for n in args.nodes:
                 console.print(f"N = {n} on {args.hosts} hosts ...")
-                rows.append(measure(n, min(args.groups, n), args.hosts, args.ticks, Path(work)))
+                modes = {"on": [True], "off": [False], "both": [True, False]}[args.aggregation]
+                rows += [measure(n, min(args.groups, n), args.hosts, args.ticks, Path(work), aggregate, i == 0)
+                         for i, aggregate in enumerate(modes)]
     finally:
         subprocess.run([NETNS, "down"], capture_output=True)
     report(rows, f"{args.hosts} hosts (network namespaces), layout groups:{args.groups}, one router per host",

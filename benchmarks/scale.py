@@ -34,7 +34,7 @@ RADIUS = 40.0  # metres
 DEGREE = 12  # mean degree aimed at: the square's side is chosen for it
 HEADERS = {"inproc_setup_s": "set-up s", "inproc_ticks_per_s": "ticks/s", "processes": "procs",
            "zenoh_startup_s": "start s", "zenoh_ticks_per_s": "ticks/s", "barrier_ticks_per_s": "barrier",
-           "rss_mb": "RSS MB", "wall_s": "wall s"}
+           "rss_mb": "RSS MB", "wall_s": "wall s", "reports_per_tick": "reports/tick"}
 
 
 def scenario(n: int) -> tuple[dict[str, Any], Any]:
@@ -93,13 +93,22 @@ def zenoh(sc: Any, groups: int, ticks: int, rounds: int) -> dict[str, float]:
             "rss_mb": round(memory)}
 
 
+def cell(v: Any) -> str:
+    if v is None:
+        return "–"
+    if isinstance(v, str):
+        return v
+    return f"{v:,}" if isinstance(v, int) else f"{v:,.2f}"
+
+
 def report(rows: list[dict[str, Any]], title: str, path: Path | None) -> None:
     """The rows as a table on the console; also as JSON in ``path``."""
     table = Table(title=title)
-    for key in rows[0]:
+    columns = list(dict.fromkeys(key for r in rows for key in r))  # a row may leave a column out
+    for key in columns:
         table.add_column(HEADERS.get(key, key), justify="right")
     for r in rows:
-        table.add_row(*(f"{v:,}" if isinstance(v, int) else f"{v:,.2f}" for v in r.values()))
+        table.add_row(*(cell(r.get(key)) for key in columns))
     Console().print(table)
     if path:
         path.write_text(json.dumps(rows, indent=1) + "\n")

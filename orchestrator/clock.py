@@ -7,8 +7,12 @@ or said in their last ``Done`` that they have work at t: the others sleep, and t
 stand. A reset opens tick 0 for all. A process that reports an error, dies, or stays silent past the
 timeout ends the run with an error that names it and the nodes it hosted.
 
+A host that runs several processes (``zenohedge-node``) may forward their reports of a tick together,
+as one ``Dones`` message on ``…/clock/dones/<group>``; each report in it is checked as if it had come alone
+on its process's key, and only processes placed in that group may report there.
+
 Anyone on the bus can publish on ``…/clock/done/*``, so a ``Done`` counts only if it comes on the key
-of a process the tick was opened for, names that process, is for the current episode and tick, is
+of a process the tick was opened for (or its host's), names that process, is for the current episode and tick, is
 the first for it, and reports only on the roles the process hosts and the processes it may send to.
 Anything else is refused, counted and logged (docs/bus.md, "Rejected messages"); an error in a
 refused ``Done`` ends nothing. Without authentication that is as far as the bus allows: a forgery
@@ -22,7 +26,7 @@ from typing import Any
 
 from node_runtime.runtime.keys import Keys
 from node_runtime.runtime.layout import ProcessLayout
-from node_runtime.runtime.protocol import Done, Tick
+from node_runtime.runtime.protocol import Done, Dones, Tick
 from node_runtime.runtime.rejections import UNKNOWN_SENDER, WRONG_SHAPE, WRONG_TICK
 from node_runtime.runtime.transport import Transport
 
@@ -44,10 +48,11 @@ class ProcessFailed(ClockError):
 
 class Clock:
     def __init__(self, transport: Transport, keys: Keys, plan: ProcessLayout, timeout: float = 30.0,
-                 health: Callable[[], None] | None = None, why_silent: Callable[[list[str]], str] | None = None
-                 ) -> None:
+                 health: Callable[[], None] | None = None, why_silent: Callable[[list[str]], str] | None = None,
+                 placement: dict[str, list[str]] | None = None) -> None:
         """``health`` raises when a process is known to have failed; ``why_silent(procs)`` adds what is known
-        of processes that sent no report in time (e.g. their OS state)."""
+        of processes that sent no report in time (e.g. their OS state); ``placement`` (group -> processes):
+        the hosts that may forward their processes' reports together."""
         self.transport = transport
         self.keys = keys
         self.plan = plan
@@ -70,7 +75,13 @@ class Clock:
         self.receivers = [frozenset(plan.proc_index[q] for q in plan.recipients[p]) for p in self.procs]
         self.rejections = transport.rejections
         self.node_rejections: dict[int, dict[str, int]] = {}  # process index -> what it refused, by reason
+        # reports accepted: on their own, in hosts' messages; and how many such messages brought them
+        self.reports = {"alone": 0, "from_hosts": 0, "host_messages": 0}
+        self.host_keys = {keys.dones(group): frozenset(p for p in procs if p in plan.proc_index)
+                          for group, procs in (placement or {}).items()}
         transport.subscribe(keys.done(), self.on_done)
+        if self.host_keys:
+            transport.subscribe(keys.dones(), self.on_dones)
 
     def on_done(self, key: str, done: Done) -> None:
         if type(done) is not Done:
@@ -80,16 +91,37 @@ class Clock:
         if i is None or self.procs[i] != done.proc:
             self.rejections.add(key, UNKNOWN_SENDER, f"a done of {done.proc!r}, which does not publish on this key")
             return
+        if self.accept(key, i, done):
+            self.reports["alone"] += 1
+
+    def on_dones(self, key: str, dones: Dones) -> None:
+        """A host's reports of a tick, each checked as if it had come alone."""
+        if type(dones) is not Dones:
+            self.rejections.add(key, WRONG_SHAPE, f"a {type(dones).__name__} where a host's dones were expected")
+            return
+        placed = self.host_keys.get(key, frozenset())
+        accepted = 0
+        for done in dones.dones:
+            if done.proc not in placed:
+                self.rejections.add(key, UNKNOWN_SENDER, f"a done of {done.proc!r}, which this host does not run")
+            elif self.accept(key, self.plan.proc_index[done.proc], done):
+                accepted += 1
+        if accepted:
+            self.reports["from_hosts"] += accepted
+            self.reports["host_messages"] += 1
+
+    def accept(self, key: str, i: int, done: Done) -> bool:
+        """Take the report of process ``i`` that came on ``key``, unless it cannot be trusted; True if taken."""
         if done.episode != self.episode:
             if self.episode < done.episode <= self.latest + 1:  # another driver's episode (launch --serve)
                 self.latest = done.episode
             else:
                 self.rejections.add(key, WRONG_TICK, f"episode {done.episode}; the clock is in episode {self.episode}")
-            return
+            return False
         why = self.untrusted(i, done)
         if why is not None:
             self.rejections.add(key, *why)
-            return
+            return False
         if done.error is not None:
             first = done.error.strip().splitlines()[0]
             raise ProcessFailed(done.proc, self.plan.node_of_proc(done.proc), f"failed in tick {done.tick}: {first}",
@@ -97,6 +129,7 @@ class Clock:
         if done.rejected:
             self.node_rejections[i] = done.rejected
         self.dones[done.proc] = done
+        return True
 
     def untrusted(self, i: int, done: Done) -> tuple[str, str] | None:
         """Why a done of the current episode from process ``i`` cannot be its report (reason, detail), or None."""

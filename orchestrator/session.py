@@ -133,7 +133,7 @@ class Simulation:
                 refuse_taken_id(router, self.keys)
                 self.supervisor = Supervisor(router, self.keys, self.plan)
                 self.clock = Clock(router, self.keys, self.plan, timeout, health=self.supervisor.check,
-                                   why_silent=self.supervisor.hung)
+                                   why_silent=self.supervisor.hung, placement=placement)
                 self.live = router.monitored(self.keys.metrics())
                 remote = {p for procs in (placement or {}).values() for p in procs}
                 local = tuple(p for p in self.plan.procs if p not in remote)
@@ -216,7 +216,8 @@ class Simulation:
         try:
             self.supervisor = Supervisor(transport, keys, self.plan, token=driver)
             self.supervisor.wait_ready(timeout)
-            self.clock = Clock(transport, keys, self.plan, timeout, health=self.supervisor.check)
+            self.clock = Clock(transport, keys, self.plan, timeout, health=self.supervisor.check,
+                               placement=info.get("placement"))
             self.clock.catch_up(info["episode"])
             self.live = transport.monitored(keys.metrics())
         except BaseException:
@@ -308,6 +309,8 @@ class Simulation:
             # messages refused on the bus since the simulation started (docs/bus.md, "Rejected messages")
             "rejected_messages": {"orchestrator": dict(sorted(self.transport.rejections.counts.items())),
                                   "nodes": self.clock.node_rejected()},
+            # end-of-tick reports taken, and the messages of hosts that forwarded theirs together (docs/protocol.md)
+            "reports": dict(self.clock.reports),
         }
         return s
 

@@ -1,5 +1,6 @@
 """An outsider for tests/test_deploy.py: tries to join a simulation's router and, if it gets in, forges
-a ``stop`` tick, ``Done`` messages of a victim process and a release of the clock, over and over, until
+a ``stop`` tick, ``Done`` messages of a victim process (alone, and as its host's aggregator would send them)
+and a release of the clock, over and over, until
 the orchestrator's liveliness token vanishes.
 
     python -m tests.intruder ENDPOINT SIM VICTIM [--security DIR] [--ca FILE] [--password P]
@@ -18,7 +19,7 @@ import threading
 from node_runtime.runtime import codec
 from node_runtime.runtime.keys import Keys
 from node_runtime.runtime.process import ORCHESTRATOR
-from node_runtime.runtime.protocol import Done, Tick
+from node_runtime.runtime.protocol import Done, Dones, Tick
 from node_runtime.runtime.security import Security
 from node_runtime.runtime.zenoh_bus import ZenohTransport
 
@@ -31,6 +32,7 @@ def main() -> int:
     parser.add_argument("endpoint")
     parser.add_argument("sim")
     parser.add_argument("victim")
+    parser.add_argument("--victim-group", default="cluster-b", help="the placement group the victim runs in")
     parser.add_argument("--security", help="an identity directory (a stolen or compromised host's)")
     parser.add_argument("--ca", help="TLS checking the router against this CA, without a client certificate")
     parser.add_argument("--password", help="replace the identity's password")
@@ -57,7 +59,10 @@ def main() -> int:
         except TimeoutError:  # a round of forgeries between two looks at the orchestrator's token
             for tick in range(rounds, rounds + 3):
                 session.put(keys.tick(), codec.encode(Tick(0, tick, "stop")))
-                session.put(keys.done(args.victim), codec.encode(Done(args.victim, 0, tick, {}, {})))
+                forged = Done(args.victim, 0, tick, {}, {})
+                session.put(keys.done(args.victim), codec.encode(forged))
+                session.put(keys.host_done(args.victim_group, args.victim), codec.encode(forged))
+                session.put(keys.dones(args.victim_group), codec.encode(Dones(args.victim_group, [forged])))
             session.get(keys.control(), payload=codec.encode(
                 {"type": "control", "release": "driver/x", "episode": 9}), timeout=0.1)
             rounds += 1

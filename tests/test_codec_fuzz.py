@@ -16,7 +16,7 @@ from node_runtime.model.messages import Decision, Envelope, Kind, NodeState, Pen
 from node_runtime.model.role import STAT_FIELDS
 from node_runtime.model.view import NodeView, Observation, TaskView
 from node_runtime.runtime import codec
-from node_runtime.runtime.protocol import SCHEMA_VERSION, Batch, Done, Tick
+from node_runtime.runtime.protocol import SCHEMA_VERSION, Batch, Done, Dones, Tick
 from node_runtime.runtime.rejections import BAD_MSGPACK, WRONG_SHAPE
 from node_runtime.runtime.rejections import SCHEMA_VERSION as OTHER_SCHEMA
 
@@ -32,6 +32,7 @@ GOOD = [
     Done("node-a", 2, 17, {1: 1}, {0: [1] * len(STAT_FIELDS)}, {1: [7.0]}, {0: {19: 2}}, 18, {2: OBS},
          rejected={"bad_msgpack": 2}),
     Done("node-a", 2, 17, {}, {}, error="ValueError: boom"),
+    Dones("host-1", [Done("node-a", 2, 17, {1: 1}, {}, wake=18), Done("node-b", 2, 17, {}, {}, error="boom")]),
     Batch(0, 5, "node-a", [
         Envelope(Kind.TASK, "worker:a", "worker:b", 1, 4, 7, TASK),
         Envelope(Kind.RESULT, "worker:b", "client:a", 2, 5, 6, Result(TASK, "b", 5, 1)),
@@ -59,7 +60,7 @@ def decoded(data: bytes):
 
 def assert_well_formed(msg) -> None:
     """A decoded protocol message survives another trip through the codec unchanged."""
-    if isinstance(msg, Tick | Done | Batch):
+    if isinstance(msg, Tick | Done | Dones | Batch):
         assert codec.decode(codec.encode(msg)) == msg
 
 
@@ -128,6 +129,6 @@ def test_reasons_name_what_is_wrong():
         codec.decode(codec.encode(Done("p", 0, 1, {}, {0: [1, 2, 3]})))
     assert exc.value.reason == WRONG_SHAPE
     with pytest.raises(codec.CodecError, match="envelope"):
-        bad = codec.to_wire(GOOD[4]) | {"v": SCHEMA_VERSION}
+        bad = codec.to_wire(GOOD[-1]) | {"v": SCHEMA_VERSION}  # the batch
         bad["msgs"][0][0] = 9  # no such kind
         codec.decode(msgpack.packb(bad))

@@ -20,6 +20,8 @@ from env import ZenohEdgeEnv
 from node_runtime.model.messages import Decision, Envelope, Kind, NodeState, Task
 from node_runtime.model.role import STAT_FIELDS
 from node_runtime.runtime import codec, remote
+from node_runtime.runtime.aggregator import DoneAggregator
+from node_runtime.runtime.inproc import InprocBus
 from node_runtime.runtime.keys import Keys
 from node_runtime.runtime.protocol import SCHEMA_VERSION, Batch, Done, Tick
 from node_runtime.runtime.zenoh_bus import ZenohTransport, zenoh_config
@@ -161,6 +163,11 @@ def wired():
         return lambda key, msg: (calls.append(key), handler(key, msg))
 
     targets[sim.keys.done("node-rpi3_0")] = sim.clock.on_done
+    targets[sim.keys.dones("cluster")] = sim.clock.on_dones
+    host = Keys("fuzzed-host")  # a host's aggregator, on keys of its own
+    aggregator = DoneAggregator(InprocBus().endpoint(), host, "cluster", ["node-rpi3_0", "node-rpi3_1"])
+    targets[host.host_done("cluster", "node-rpi3_0")] = aggregator.on_done
+    targets[host.tick("node-rpi3_1")] = aggregator.on_tick
     for driver in sim.drivers:
         targets[sim.keys.tick()] = driver.on_tick
         targets[sim.keys.tick(driver.proc)] = driver.on_tick
@@ -176,10 +183,10 @@ def wired():
 @HANDLED
 @given(st.data(), st.binary(max_size=64) | values.map(lambda v: msgpack.packb(v, use_bin_type=True))
        | st.builds(lambda kind, fields: msgpack.packb({**fields, "type": kind, "v": SCHEMA_VERSION}),
-                   st.sampled_from(["tick", "done", "batch"]),
+                   st.sampled_from(["tick", "done", "batch", "dones"]),
                    st.dictionaries(st.sampled_from(["e", "t", "cmd", "expect", "actions", "seed", "external",
                                                     "policy", "proc", "sent", "stats", "rt", "fl", "wake", "obs",
-                                                    "error", "src", "msgs"]), values)))
+                                                    "error", "src", "msgs", "group", "dones"]), values)))
 def test_handlers_take_anything(wired, data, payload):
     """Whatever is published on a key, the clock and the drivers refuse it or take it; nothing escapes."""
     bus, keys, calls = wired

@@ -9,8 +9,9 @@ allowed is dropped by the router, silently for publications, with no answer for 
 
 - ``orchestrator`` (the orchestrator's own node processes): everything;
 - each placement group (login = group name): publishes only the ``Done`` and liveliness tokens of its
-  own processes, mail to the inboxes those processes may send to, their broadcasts (states) and
-  events of their own nodes;
+  own processes (on the clock's keys, or on its host's aggregator's and the group's ``…/clock/dones``
+  key), mail to the inboxes those processes may send to, their broadcasts (states) and events of their
+  own nodes;
 - ``driver``: publishes ticks and per-tick metrics, queries ``…/control``, announces ``…/alive/driver/*``;
 - ``monitor`` and everyone above: subscribes, watches tokens, queries ``…/session``.
 
@@ -40,11 +41,12 @@ def _subject(name: str) -> dict[str, Any]:
     return {"id": name, "cert_common_names": [name], "usernames": [name]}
 
 
-def group_keys(keys: Keys, plan: ProcessLayout, procs: list[str]) -> tuple[list[str], list[str]]:
-    """What the processes of one group publish: (put keys, liveliness tokens)."""
-    puts: dict[str, None] = {}
+def group_keys(keys: Keys, plan: ProcessLayout, group: str, procs: list[str]) -> tuple[list[str], list[str]]:
+    """What the processes of one group, and its host's aggregator, publish: (put keys, liveliness tokens)."""
+    puts: dict[str, None] = {keys.dones(group): None}
     for proc in procs:
         puts[keys.done(proc)] = None
+        puts[keys.host_done(group, proc)] = None
         puts.update(dict.fromkeys(keys.inbox(dst) for dst in plan.destinations(proc)))
         if plan.listeners[proc]:
             puts[keys.broadcasts(proc)] = None
@@ -86,7 +88,7 @@ def access_control(keys: Keys, plan: ProcessLayout, placement: dict[str, list[st
         {"id": MONITOR, "rules": read, "subjects": [MONITOR]},
     ]
     for group, procs in placement.items():
-        puts, tokens = group_keys(keys, plan, procs)
+        puts, tokens = group_keys(keys, plan, group, procs)
         rules += [_rule(f"group-{group}-put", ["put"], puts),
                   _rule(f"group-{group}-token", ["liveliness_token"], tokens)]
         policies.append({"id": f"group-{group}", "rules": [*read, f"group-{group}-put", f"group-{group}-token"],

@@ -19,7 +19,7 @@ import msgpack
 from node_runtime.model.messages import Decision, Envelope, Kind, NodeState, Pending, Report, Result, Task
 from node_runtime.model.role import STAT_FIELDS
 from node_runtime.model.view import Observation
-from node_runtime.runtime.protocol import SCHEMA_VERSION, Batch, Done, Tick
+from node_runtime.runtime.protocol import SCHEMA_VERSION, Batch, Done, Dones, Tick
 from node_runtime.runtime.rejections import BAD_MSGPACK, WRONG_SHAPE
 from node_runtime.runtime.rejections import SCHEMA_VERSION as OTHER_SCHEMA
 
@@ -211,17 +211,23 @@ def to_wire(msg: Any) -> dict[str, Any]:
         return {"type": "tick", "e": msg.episode, "t": msg.tick, "cmd": msg.command, "expect": msg.expect,
                 "actions": msg.actions, "seed": msg.seed, "external": msg.external, "policy": msg.policy}
     if isinstance(msg, Done):
-        d = {"type": "done", "proc": msg.proc, "e": msg.episode, "t": msg.tick, "sent": msg.sent,
-             "stats": msg.stats, "rt": msg.response_times, "fl": msg.flights, "wake": msg.wake,
-             "obs": {k: o.to_wire() for k, o in msg.obs.items()}, "error": msg.error}
-        if msg.rejected:
-            d["rej"] = msg.rejected
-        return d
+        return _done_wire(msg)
+    if isinstance(msg, Dones):
+        return {"type": "dones", "group": msg.group, "dones": [_done_wire(d) for d in msg.dones]}
     if isinstance(msg, dict):
         if "type" not in msg:
             raise CodecError("a plain message needs a 'type' field")
         return msg
     raise CodecError(f"cannot encode {type(msg).__name__}")
+
+
+def _done_wire(msg: Done) -> dict[str, Any]:
+    d = {"type": "done", "proc": msg.proc, "e": msg.episode, "t": msg.tick, "sent": msg.sent,
+             "stats": msg.stats, "rt": msg.response_times, "fl": msg.flights, "wake": msg.wake,
+         "obs": {k: o.to_wire() for k, o in msg.obs.items()}, "error": msg.error}
+    if msg.rejected:
+        d["rej"] = msg.rejected
+    return d
 
 
 def from_wire(d: dict[str, Any]) -> Any:
@@ -234,6 +240,8 @@ def from_wire(d: dict[str, Any]) -> Any:
             return _batch(d)
         if kind == "tick":
             return _tick(d)
+        if kind == "dones":
+            return _dones(d)
     except KeyError as exc:
         raise CodecError(f"{kind} without field {exc}") from None
     return d
@@ -256,6 +264,15 @@ def _done(d: dict[str, Any]) -> Done:
         _diagnose(d, "done", DONE_FIELDS)
     return Done(proc, e, t, sent, stats, rt, fl, wake, {k: Observation.from_wire(o) for k, o in obs.items()},
                 error, rejected)
+
+
+def _dones(d: dict[str, Any]) -> Dones:
+    group, dones = d["group"], d["dones"]
+    if not isinstance(group, str):
+        _malformed("dones field 'group' is not of the documented shape")
+    if not (type(dones) is list and all(type(x) is dict and x.get("type") == "done" for x in dones)):
+        _malformed("dones field 'dones' is not a list of done maps")
+    return Dones(group, [_done(x) for x in dones])
 
 
 def _batch(d: dict[str, Any]) -> Batch:

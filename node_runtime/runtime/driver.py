@@ -31,7 +31,8 @@ NOTHING: dict = {}  # no mail (never mutated)
 
 
 class HostDriver:
-    def __init__(self, host: Host, transport: Transport, keys: Keys) -> None:
+    def __init__(self, host: Host, transport: Transport, keys: Keys, done_key: str | None = None) -> None:
+        """``done_key``: where to report, when not to the clock itself (a host's aggregator)."""
         self.host = host
         self.transport = transport
         self.keys = keys
@@ -57,7 +58,7 @@ class HostDriver:
         self.listeners = [transport.monitored(keys.events("*", node)) for node in host.nodes]
         self.monitors: dict[tuple[str, str], Monitored] = {}
         # the keys this process publishes on, built once rather than every tick
-        self.done_key = keys.done(self.proc)
+        self.done_key = done_key or keys.done(self.proc)
         self.inbox_keys = {p: keys.inbox(p) for p in plan.destinations(self.proc)}
         self.broadcast_key = keys.broadcasts(self.proc) if plan.listeners[self.proc] else None
         transport.subscribe(keys.tick(), self.on_tick)

@@ -30,6 +30,14 @@ class Keys:
     def done(self, proc: str = "*") -> str:
         return f"{self.root}/clock/done/{proc}"
 
+    def host_done(self, group: str, proc: str = "*") -> str:
+        """A process's ``Done`` to its host's aggregator, when ``zenohedge-node`` runs one (docs/protocol.md)."""
+        return f"{self.root}/host/{group}/done/{proc}"
+
+    def dones(self, group: str = "*") -> str:
+        """One host's ``Done`` reports of a tick, in one message."""
+        return f"{self.root}/clock/dones/{group}"
+
     def inbox(self, proc: str) -> str:
         return f"{self.root}/proc/{proc}/inbox"
 

@@ -44,6 +44,7 @@ class ProcSpec:
     settings: dict[str, Any] | None = None  # a user's Zenoh configuration (zenohedge-node --zenoh-config)
     lease_s: float | None = None  # how long the router keeps a silent session (default: Zenoh's 10 s)
     ready_timeout: float = READY_TIMEOUT  # how long to wait for the peers' subscriptions before giving up
+    done_key: str | None = None  # where to publish Done: the host's aggregator (zenohedge-node), else the clock
 
 
 PR_SET_PDEATHSIG, PR_SET_NAME = 1, 15
@@ -80,7 +81,7 @@ def run(spec: ProcSpec) -> int:
         plan = ProcessLayout(spec.scenario, spec.layout)
         _prctl(PR_SET_NAME, short_name(spec.proc, plan).encode())
         host = Host(spec.proc, plan)
-        driver = HostDriver(host, transport, spec.keys)
+        driver = HostDriver(host, transport, spec.keys, spec.done_key)
         orchestrator = {"seen": False, "gone": False}
 
         def on_orchestrator(key: str, alive: bool) -> None:

@@ -5,7 +5,9 @@
 - ``Batch``: one process's mail of one tick for one destination process (or one broadcast topic);
 - ``Done``: a process finished tick t: what it sent to whom, its roles' accounting, and the next
   tick at which it has work of its own. Only processes with mail or work due get a tick: the others
-  sleep, which is what makes a mostly idle network cheap.
+  sleep, which is what makes a mostly idle network cheap;
+- ``Dones``: the ``Done`` reports of one tick from the processes of one host, sent by that host's
+  aggregator, so that the orchestrator hears one message a host, not one a process.
 
 Processes and roles are named by their canonical index (``ProcessLayout.procs`` / ``ProcessLayout.roles``
 order): every participant derives the same indices from the scenario and the layout, and small ints
@@ -23,7 +25,7 @@ from typing import Any, Literal
 from node_runtime.model.messages import Envelope
 from node_runtime.model.view import Observation
 
-SCHEMA_VERSION = 4
+SCHEMA_VERSION = 5
 # A tick carries the episode's seed as a msgpack integer (64 bits at most); launch adds the episode to it
 MAX_SEED = 2**62 - 1
 Command = Literal["run", "reset", "stop"]
@@ -65,3 +67,11 @@ class Done:
     error: str | None = None  # set when the process failed; it exits after sending this
     rejected: dict[str, int] = field(default_factory=dict)  # reason -> messages this process refused so far;
     # only in the first Done after the counts changed (docs/bus.md, "Rejected messages")
+
+
+@dataclass(slots=True)
+class Dones:
+    """A host's reports, forwarded together; each is checked as if it had come alone."""
+
+    group: str  # the placement group the host runs
+    dones: list[Done]

@@ -9,8 +9,11 @@ end. They end when the orchestrator stops the run or vanishes; Ctrl-C here stops
 
 This command's session is a Zenoh router joined to the orchestrator's: the processes started here
 connect to it over a unix socket in a private directory, so that mail between them stays on this host
-and the orchestrator's router holds one session per host, not one per process. ``--direct`` connects
-every process straight to the orchestrator's router instead.
+and the orchestrator's router holds one session per host, not one per process. The processes report
+the end of each tick to this command, which forwards a tick's reports as one message
+(``aggregator.py``): the orchestrator hears one report per host and tick, not one per process.
+``--direct`` connects every process straight to the orchestrator's router instead, each reporting on
+its own; ``--no-aggregate`` keeps the router but lets each process report on its own.
 """
 
 from __future__ import annotations
@@ -31,6 +34,7 @@ from typing import Any
 from node_runtime.model.spec import Scenario
 from node_runtime.runtime import process as node_process
 from node_runtime.runtime.access import LOCAL_LINK, access_control
+from node_runtime.runtime.aggregator import DoneAggregator
 from node_runtime.runtime.cli_options import TIMEOUT, add_security_options, add_sim_options, security_options
 from node_runtime.runtime.forkserver import ForkServer
 from node_runtime.runtime.keys import Keys
@@ -67,9 +71,10 @@ class GroupInfo:
 
 
 def run_group(endpoint: str, keys: Keys, group: str, timeout: float = 30.0, security: Security | None = None,
-              settings: dict[str, Any] | None = None, direct: bool = False) -> int:
+              settings: dict[str, Any] | None = None, direct: bool = False, aggregate: bool = True) -> int:
     """``security`` and ``settings`` (a Zenoh configuration): for this command's sessions and every process
-    started. ``direct``: every process opens its own session to ``endpoint``, with no router on this host."""
+    started. ``direct``: every process opens its own session to ``endpoint``, with no router on this host.
+    ``aggregate``: behind this host's router, forward the processes' reports of a tick as one message."""
     try:
         transport = connect(lambda: ZenohTransport.client(endpoint, security, settings), endpoint)
         try:
@@ -88,7 +93,7 @@ def run_group(endpoint: str, keys: Keys, group: str, timeout: float = 30.0, secu
                 rules = {"access_control": access_control(keys, plan, info.placement, on_host=True)}
             router = connect(lambda: ZenohTransport.router(local, [endpoint], host_login(security, Path(folder)),
                                                            {**FAIL_FAST, **rules, **(settings or {})}), endpoint)
-            return run_processes(router, info, local, keys, security, settings)
+            return run_processes(router, info, local, keys, security, settings, aggregate)
     except GroupError as exc:
         print(f"zenohedge-node: {exc}", file=sys.stderr)
         return EXIT_USAGE
@@ -130,24 +135,33 @@ def host_login(security: Security | None, folder: Path) -> Security | None:
 
 
 def run_processes(transport: ZenohTransport, info: GroupInfo, endpoint: str, keys: Keys,
-                  security: Security | None, settings: dict[str, Any] | None) -> int:
-    """Start the group's processes, connected to ``endpoint``, and stay until they end; closes ``transport``."""
+                  security: Security | None, settings: dict[str, Any] | None, aggregate: bool = False) -> int:
+    """Start the group's processes, connected to ``endpoint``, and stay until they end; closes ``transport``.
+    ``aggregate``: their reports come here, and go on to the orchestrator one message a tick."""
     forks: ForkServer | None = None
     pids: list[int] = []
     procs = info.procs
+    aggregator = DoneAggregator(transport, keys, info.group, procs) if aggregate and len(procs) > 1 else None
     try:
+        if aggregator:  # the processes may report once the reports can go on
+            transport.wait_matching([aggregator.out_key], info.ready_timeout)
         forks = ForkServer.shared()
         for proc in procs:
             spec = ProcSpec(proc, info.scenario, info.layout, endpoint, keys, security=security,
-                            settings=settings, lease_s=info.lease_s, ready_timeout=info.ready_timeout)
+                            settings=settings, lease_s=info.lease_s, ready_timeout=info.ready_timeout,
+                            done_key=keys.host_done(info.group, proc) if aggregator else None)
             pids.append(forks.start(proc, node_process.main, spec))
         print(f"zenohedge-node: group {info.group}: started {len(procs)} processes of simulation {keys.sim_id} "
               f"({', '.join(procs[:6])}{' ...' if len(procs) > 6 else ''}), connected to {endpoint}",
               file=sys.stderr, flush=True)
 
-        gone = threading.Event()
+        gone, ended = threading.Event(), threading.Event()
         transport.watch_tokens(keys.alive(ORCHESTRATOR), lambda key, alive: alive or gone.set())
-        transport.dispatch(until=lambda: gone.is_set() or not forks.wait(pids, 0.0))
+        threading.Thread(target=lambda: (forks.wait(pids, None), ended.set()), daemon=True).start()
+        transport.dispatch(until=lambda: gone.is_set() or ended.is_set(),
+                           idle=aggregator.flush if aggregator else None)
+        if aggregator:  # a process failed: the others' reports of its tick still reach the orchestrator
+            aggregator.flush()
         left = forks.wait(pids, 10.0)
         failed = [(proc, pid) for proc, pid in zip(procs, pids, strict=True)
                   if (forks.exit_status(pid) or 0) not in (0, node_process.EXIT_ORPHANED)]
@@ -180,6 +194,10 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--direct", action="store_true",
                         help="connect every process to the orchestrator's router (one session per process across "
                              "the network) instead of through a router this command runs on this host")
+    parser.add_argument("--no-aggregate", dest="aggregate", action="store_false",
+                        help="behind this host's router, let each process report the end of a tick to the "
+                             "orchestrator itself, instead of this command forwarding the host's reports of a tick "
+                             "as one message (the default)")
     add_security_options(parser, identity="group's",
                          config_help="a Zenoh JSON5 configuration file merged last into the configuration of this "
                                      "command's sessions and of the processes it starts (its settings win)")
@@ -190,7 +208,7 @@ def main(argv: list[str] | None = None) -> None:
         print(f"zenohedge-node: {exc}", file=sys.stderr)
         sys.exit(EXIT_USAGE)
     sys.exit(run_group(args.connect, Keys(args.sim, args.prefix), args.group, args.timeout, security, settings,
-                       args.direct))
+                       args.direct, args.aggregate))
 
 
 if __name__ == "__main__":

@@ -1,0 +1,90 @@
+"""One host's ``Done`` reports, forwarded to the orchestrator as one message a tick (docs/protocol.md,
+"Several hosts").
+
+``zenohedge-node`` runs it in its own session, on the router its processes connect to. Those processes
+publish their ``Done`` on ``…/host/<group>/done/<proc>``, which only this host listens to; the aggregator
+forwards the reports of a tick together, as ``Dones`` on ``…/clock/dones/<group>``, once every local
+process the tick was opened for has reported. So the orchestrator handles one message per host and tick
+instead of one per process: what matters when a host runs hundreds of processes.
+
+It learns which processes a tick was opened for from the ticks themselves: it hears the same
+``…/clock/tick`` and ``…/clock/tick/<proc>`` publications as its processes. Nothing orders those against
+the processes' reports, so a report can arrive before the aggregator knows its tick, or after it forwarded
+the others: it then travels in a batch of its own. A report is never held for a process that may never
+report either: a failure (a ``Done`` with an error) goes at once, and whatever waits is forwarded when
+the bus has been quiet for a moment (``flush``), so the orchestrator blames only the silent. The
+orchestrator checks each report in a batch as if it had come alone.
+"""
+
+from __future__ import annotations
+
+from node_runtime.runtime.keys import Keys
+from node_runtime.runtime.protocol import Done, Dones, Tick
+from node_runtime.runtime.rejections import UNKNOWN_SENDER, WRONG_SHAPE
+from node_runtime.runtime.transport import Transport
+
+TickId = tuple[int, int]  # (episode, tick)
+
+
+class DoneAggregator:
+    def __init__(self, transport: Transport, keys: Keys, group: str, procs: list[str]) -> None:
+        self.transport = transport
+        self.group = group
+        self.procs = frozenset(procs)
+        self.report_keys = {keys.host_done(group, p): p for p in procs}
+        self.out_key = keys.dones(group)
+        self.opened: dict[TickId, set[str]] = {}  # the local processes each tick was opened for, as heard
+        self.reports: dict[TickId, dict[str, Done]] = {}  # reports not yet forwarded
+        self.forwarded = 0  # Dones messages sent
+        self.rejections = transport.rejections
+        self.tick_keys = {keys.tick(p): p for p in procs}
+        transport.subscribe(keys.tick(), self.on_tick)
+        for key in self.tick_keys:
+            transport.subscribe(key, self.on_tick)
+        transport.subscribe(keys.host_done(group), self.on_done)
+
+    def on_tick(self, key: str, cmd: Tick) -> None:
+        if type(cmd) is not Tick or cmd.command == "stop":  # the processes refuse and count a bad tick
+            return
+        tick = (cmd.episode, cmd.tick)
+        for old in [t for t in self.reports if t < tick]:  # the clock moved on: nobody still waits for these
+            self.forward(old)
+        for old in [t for t in self.opened if t < tick]:
+            del self.opened[old]
+        proc = self.tick_keys.get(key)
+        self.opened.setdefault(tick, set()).update(self.procs if proc is None else (proc,))
+        self.maybe_forward(tick)
+
+    def on_done(self, key: str, done: Done) -> None:
+        if type(done) is not Done:
+            self.rejections.add(key, WRONG_SHAPE, f"a {type(done).__name__} where a done was expected")
+            return
+        if self.report_keys.get(key) != done.proc:
+            self.rejections.add(key, UNKNOWN_SENDER, f"a done of {done.proc!r}, which does not publish on this key")
+            return
+        tick = (done.episode, done.tick)
+        self.reports.setdefault(tick, {})[done.proc] = done
+        if done.error is not None:
+            self.forward(tick)
+        else:
+            self.maybe_forward(tick)
+
+    def maybe_forward(self, tick: TickId) -> None:
+        """Forward a tick's reports once every process it was opened for, as far as known, has reported."""
+        reports = self.reports.get(tick)
+        if reports and self.opened.get(tick, set()).issubset(reports):
+            self.forward(tick)
+
+    def forward(self, tick: TickId) -> None:
+        reports = self.reports.pop(tick, None)
+        if reports:
+            opened = self.opened.get(tick)
+            if opened is not None:
+                opened.difference_update(reports)
+            self.transport.publish(self.out_key, Dones(self.group, list(reports.values())))
+            self.forwarded += 1
+
+    def flush(self) -> None:
+        """Forward everything waiting: the bus is quiet, so a process the reports wait for may be hung."""
+        for tick in list(self.reports):
+            self.forward(tick)
