@@ -2,11 +2,14 @@
 
 For each point of the sweep (a scenario and an arrival rate) the learning agents are trained from
 scratch, then every agent, learning or not, is evaluated on the same K episodes (the same seeds, so the
-same task arrivals); all of it once per training seed. Each (point, seed, agent) is one independent run,
+same task arrivals); all of it once per training seed, except for the baselines that the seed does not
+change (all but ``random``), which are evaluated once: five identical copies would only narrow their
+confidence intervals. Each (point, seed, agent) is one independent run,
 so the grid can run on Ray (experiments.distributed) with the same outputs. Outputs under ``--out``:
 
     results.csv          one row per training seed x agent x sweep value x evaluation episode
-    summary.csv          mean and 95% CI half-width per agent and sweep value (over seeds and episodes)
+    summary.csv          mean and 95% CI half-width per agent and sweep value (over the training seeds'
+                         means when there are several, else over the episodes)
     timings.csv          wall time of every training and evaluation run
     marl_eval.json       the evaluations in marl-eval's format (experiments.marl_eval)
     <study>.png          the paper's three panels
@@ -161,7 +164,8 @@ def run_study(study: str, points: Sequence[Point], x_key: str, xlabel: str, args
         "learners": {a: {k: v for k, v in dataclasses.asdict(configs[a, args.seeds[0]]).items() if k != "seed"}
                      for a in learners}}, indent=1))
     runs = [Run(study, point, agent, seed, settings, configs.get((agent, seed)), args.reward, args.transport,
-                args.device, args.threads) for seed in args.seeds for point in points for agent in args.agents]
+                args.device, args.threads) for seed in args.seeds for point in points for agent in args.agents
+            if agent in LEARNERS or BASELINES[agent].seeded or seed == args.seeds[0]]
     if wants_ray(args):
         results = run_on_ray(run_one, runs, out, args)
     else:
