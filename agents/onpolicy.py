@@ -50,6 +50,7 @@ class ActorCriticConfig(LearnerConfig):
     centralised_critic: bool = False  # the critic sees every agent's observation (MAPPO)
     actor: str = "targets"  # "targets": one MLP scores each target (TargetScorer); "mlp": one logit per slot
     sample_eval: bool = True  # act() samples the learnt policy; False: its most likely action
+    eval_temperature: float = 1.0  # act() samples softmax(logits / T): below 1 greedier, toward the mode as T -> 0
     teacher: str = ""  # a baseline the actor imitates at first (kickstarting); "" for none
     teacher_coef: float = 1.0  # weight of the imitation loss at the start, annealed linearly to 0 ...
     teacher_fraction: float = 0.25  # ... over this fraction of the training horizon
@@ -59,6 +60,9 @@ class ActorCriticConfig(LearnerConfig):
             raise ValueError(f"actor must be one of {', '.join(ACTORS)}, not {self.actor!r}")
         if self.teacher and self.teacher not in BASELINES:
             raise ValueError(f"teacher must be one of {', '.join(BASELINES)}, not {self.teacher!r}")
+        if not self.eval_temperature > 0:
+            raise ValueError(f"eval_temperature must be > 0, not {self.eval_temperature!r} (sample_eval=false "
+                             "takes the most likely action)")
 
 
 ACTORS = ("targets", "mlp")
@@ -142,8 +146,10 @@ class OnPolicyLearner(Learner):
                observations: Mapping[str, Observation], explore: bool) -> tuple[np.ndarray, dict[str, np.ndarray]]:
         net = self.nets[group]
         with torch.no_grad():
-            dist = MaskedCategorical(net.actor(torch.as_tensor(feats, device=self.device)),
-                                     torch.as_tensor(masks, device=self.device))
+            logits = net.actor(torch.as_tensor(feats, device=self.device))
+            if not explore and self.config.eval_temperature != 1.0:
+                logits = logits / self.config.eval_temperature
+            dist = MaskedCategorical(logits, torch.as_tensor(masks, device=self.device))
             actions = dist.sample(self.generator) if explore or self.config.sample_eval else dist.mode()
             if not explore:
                 return actions.cpu().numpy(), {}

@@ -372,6 +372,26 @@ def test_the_teachers_weight_falls_linearly_to_zero():
         PPOConfig(teacher="oracle")
 
 
+def test_evaluation_temperature_goes_from_sampling_to_the_most_likely_action():
+    env = ZenohEdgeEnv("aot1", transport="inproc", max_steps=30, overrides=ScenarioOverrides(arrival_rate=0.5),
+                       uniform_spaces=True)
+    policies = {name: make_policy("ppo", env, PPOConfig(hidden=(16,), seed=3, **changes)) for name, changes in {
+        "sampled": {}, "T=1": {"eval_temperature": 1.0}, "cold": {"eval_temperature": 1e-3},
+        "mode": {"sample_eval": False}}.items()}
+    obs, _ = env.reset(seed=5)
+    chosen: dict[str, list] = {name: [] for name in policies}
+    while env.agents:
+        for name, policy in policies.items():
+            policy.reset(9)  # the same random stream for every policy
+            chosen[name].append(policy.act(obs))
+        obs, *_ = env.step(chosen["sampled"][-1])
+    env.close()
+    assert chosen["T=1"] == chosen["sampled"]
+    assert chosen["cold"] == chosen["mode"] != chosen["sampled"]
+    with pytest.raises(ValueError, match="eval_temperature must be > 0"):
+        PPOConfig(eval_temperature=0.0)
+
+
 # ----- checkpoints -----
 
 @pytest.mark.parametrize("algo,config", [("ddqn", DDQNConfig(learning_starts=8, batch_size=8)),
