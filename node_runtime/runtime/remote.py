@@ -160,8 +160,6 @@ def run_processes(transport: ZenohTransport, info: GroupInfo, endpoint: str, key
         threading.Thread(target=lambda: (forks.wait(pids, None), ended.set()), daemon=True).start()
         transport.dispatch(until=lambda: gone.is_set() or ended.is_set(),
                            idle=aggregator.flush if aggregator else None)
-        if aggregator:  # a process failed: the others' reports of its tick still reach the orchestrator
-            aggregator.flush()
         left = forks.wait(pids, 10.0)
         failed = [(proc, pid) for proc, pid in zip(procs, pids, strict=True)
                   if (forks.exit_status(pid) or 0) not in (0, node_process.EXIT_ORPHANED)]
