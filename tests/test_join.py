@@ -9,17 +9,21 @@ and a paused one is reported hung after ``--timeout``, not dropped as dead by Ze
 from __future__ import annotations
 
 import json
+import signal
 import sys
 
+import numpy as np
 import psutil
 import pytest
 
+from env import ZenohEdgeEnv
 from node_runtime.runtime.keys import Keys
 from node_runtime.runtime.remote import group_info
 from node_runtime.runtime.zenoh_bus import ZenohTransport
 from orchestrator.scenario import load_scenario
 from tests.conftest import ROOT, model_part, run_summary
 from tests.launcher import Launch, Output, assert_all_gone, paused_run
+from tests.test_serve import play
 
 pytestmark = pytest.mark.zenoh
 
@@ -46,7 +50,7 @@ def join(argv: list[str]) -> Output:
 
 
 def test_hosts_join_with_the_printed_commands_and_get_the_orchestrators_timing(tmp_path):
-    run, commands = launch_placed(tmp_path, "--steps", "40", "--timeout", "45")
+    run, commands = launch_placed(tmp_path, "--steps", "40", "--timeout", "45", "--serve")
     argv = commands["cluster-a"]
     endpoint, sim = argv[argv.index("--connect") + 1], argv[argv.index("--sim") + 1]
     asker = ZenohTransport.client(endpoint)
@@ -58,7 +62,19 @@ def test_hosts_join_with_the_printed_commands_and_get_the_orchestrators_timing(t
 
     # cluster-a forwards its processes' reports of a tick as one message (the default); cluster-b's report alone
     hosts = [join(commands["cluster-a"]), join([*commands["cluster-b"], "--no-aggregate"])]
-    assert run.finish(180) == 0, "".join(run.err)
+    run.wait_for("serving until Ctrl-C")
+    # a driver attached from elsewhere takes the forwarded reports too: it learns the hosts from the session
+    env = ZenohEdgeEnv(connect=endpoint, sim_id=sim, max_steps=20)
+    obs, rewards, _ = play(env, seed=3, steps=20)
+    forwarded = env.sim.clock.reports["host_messages"]
+    env.close()
+    local = ZenohEdgeEnv("aot2", transport="inproc", max_steps=20)
+    local_obs, local_rewards, _ = play(local, seed=3, steps=20)
+    local.close()
+    assert forwarded > 0 and rewards == local_rewards
+    assert all(np.array_equal(obs[a][k], local_obs[a][k]) for a in obs for k in obs[a])
+    run.proc.send_signal(signal.SIGTERM)
+    assert run.finish(120) == 130, "".join(run.err)
     for host in hosts:
         status, _, err = host.finish(timeout=60)
         assert status == 0, err
