@@ -22,7 +22,6 @@ class Baseline(ABC):
     """Shared plumbing: per-slot masks, the extra load a batch puts on each target, no-op slots."""
 
     name = "baseline"
-    seeded = False  # whether the seed changes what it does: only then is it worth evaluating once per seed
 
     def __init__(self, seed: int | None = None) -> None:
         self.reset(seed)
@@ -71,7 +70,6 @@ class Random(Baseline):
     """A uniformly random valid target, the node itself included."""
 
     name = "random"
-    seeded = True
 
     def choose(self, agent, obs, task, valid, extra):
         return self.rng.choice(valid)

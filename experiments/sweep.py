@@ -2,9 +2,10 @@
 
 For each point of the sweep (a scenario and an arrival rate) the learning agents are trained from
 scratch, then every agent, learning or not, is evaluated on the same K episodes (the same seeds, so the
-same task arrivals); all of it once per training seed, except for the baselines that the seed does not
-change (all but ``random``), which are evaluated once: five identical copies would only narrow their
-confidence intervals. Each (point, seed, agent) is one independent run,
+same task arrivals); all of it once per training seed, except for the baselines, which are evaluated
+once: evaluation reseeds every policy from the episode's seed, so for a policy that does not learn the
+training seed changes nothing, and identical copies of its episodes would only narrow its intervals.
+Each (point, seed, agent) is one independent run,
 so the grid can run on Ray (experiments.distributed) with the same outputs. Outputs under ``--out``:
 
     results.csv          one row per training seed x agent x sweep value x evaluation episode
@@ -165,7 +166,7 @@ def run_study(study: str, points: Sequence[Point], x_key: str, xlabel: str, args
                      for a in learners}}, indent=1))
     runs = [Run(study, point, agent, seed, settings, configs.get((agent, seed)), args.reward, args.transport,
                 args.device, args.threads) for seed in args.seeds for point in points for agent in args.agents
-            if agent in LEARNERS or BASELINES[agent].seeded or seed == args.seeds[0]]
+            if agent in LEARNERS or seed == args.seeds[0]]
     if wants_ray(args):
         results = run_on_ray(run_one, runs, out, args)
     else:
