@@ -35,7 +35,6 @@ class DoneAggregator:
         self.out_key = keys.dones(group)
         self.opened: dict[TickId, set[str]] = {}  # the local processes each tick was opened for, as heard
         self.reports: dict[TickId, dict[str, Done]] = {}  # reports not yet forwarded
-        self.forwarded = 0  # Dones messages sent
         self.rejections = transport.rejections
         self.tick_keys = {keys.tick(p): p for p in procs}
         transport.subscribe(keys.tick(), self.on_tick)
@@ -82,7 +81,6 @@ class DoneAggregator:
             if opened is not None:
                 opened.difference_update(reports)
             self.transport.publish(self.out_key, Dones(self.group, list(reports.values())))
-            self.forwarded += 1
 
     def flush(self) -> None:
         """Forward everything waiting: the bus is quiet, so a process the reports wait for may be hung."""

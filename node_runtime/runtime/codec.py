@@ -223,7 +223,7 @@ def to_wire(msg: Any) -> dict[str, Any]:
 
 def _done_wire(msg: Done) -> dict[str, Any]:
     d = {"type": "done", "proc": msg.proc, "e": msg.episode, "t": msg.tick, "sent": msg.sent,
-             "stats": msg.stats, "rt": msg.response_times, "fl": msg.flights, "wake": msg.wake,
+         "stats": msg.stats, "rt": msg.response_times, "fl": msg.flights, "wake": msg.wake,
          "obs": {k: o.to_wire() for k, o in msg.obs.items()}, "error": msg.error}
     if msg.rejected:
         d["rej"] = msg.rejected
