@@ -123,3 +123,16 @@ def test_the_clock_takes_a_hosts_reports_and_refuses_what_the_host_does_not_run(
     assert [d.proc for d in dones] == list(plan.procs)
     assert clock.reports == {"alone": len(others), "from_hosts": len(ours), "host_messages": 1}
     assert clock.rejections.counts == {"unknown_sender": 2, "wrong_shape": 1}
+
+
+def test_what_the_aggregator_refused_is_said_once_more_when_it_ends(caplog):
+    host = Host()
+    host.aggregator.rejections.who = "zenohedge-node g"
+    host.aggregator.rejections.log_total()
+    assert not caplog.records  # nothing refused, nothing to say
+    host.bus.publish(KEYS.host_done("g", "node-a"), Done("node-b", 0, 1, {}, {}))
+    host.bus.publish(KEYS.host_done("g", "node-a"), Tick(0, 1))
+    caplog.clear()
+    host.aggregator.rejections.log_total()
+    assert [r.getMessage() for r in caplog.records] == [
+        "zenohedge: zenohedge-node g rejected 2 messages in all: unknown_sender 1, wrong_shape 1"]

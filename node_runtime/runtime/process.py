@@ -23,7 +23,6 @@ from node_runtime.runtime.forkserver import ChildFailed
 from node_runtime.runtime.host import Host
 from node_runtime.runtime.keys import Keys
 from node_runtime.runtime.layout import Layout, ProcessLayout
-from node_runtime.runtime.rejections import log
 from node_runtime.runtime.security import Security
 from node_runtime.runtime.zenoh_bus import ZenohTransport, use_lean_runtime
 
@@ -77,6 +76,7 @@ def run(spec: ProcSpec) -> int:
     if spec.lease_s is not None:  # a paused process must stay "hung", not "died", until the clock's timeout
         settings.setdefault("transport/link/tx/lease", round(spec.lease_s * 1000))
     transport = ZenohTransport.client(spec.endpoint, spec.security, settings or None)
+    transport.rejections.who = spec.proc
     try:
         plan = ProcessLayout(spec.scenario, spec.layout)
         _prctl(PR_SET_NAME, short_name(spec.proc, plan).encode())
@@ -98,9 +98,7 @@ def run(spec: ProcSpec) -> int:
             raise ChildFailed(driver.failed)
         return EXIT_ORPHANED if orchestrator["gone"] and not driver.stopped else EXIT_OK
     finally:
-        rejected = transport.rejections
-        if rejected.total:
-            log.warning("zenohedge: %s rejected %d messages in all: %s", spec.proc, rejected.total, rejected.line())
+        transport.rejections.log_total()
         transport.close()  # a close that hangs raises TransportError: the fork server reports it
 
 

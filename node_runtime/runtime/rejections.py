@@ -69,3 +69,8 @@ class Rejections:
     def line(self) -> str:
         """The counts as 'bad_msgpack 2, wrong_tick 1' (for a closing log line)."""
         return ", ".join(f"{reason} {n}" for reason, n in sorted(self.counts.items()))
+
+    def log_total(self) -> None:
+        """The closing log line of a process that refused anything: how many messages, for which reasons."""
+        if self.total:
+            log.warning("zenohedge: %s rejected %d messages in all: %s", self.who, self.total, self.line())

@@ -141,6 +141,7 @@ def run_processes(transport: ZenohTransport, info: GroupInfo, endpoint: str, key
     forks: ForkServer | None = None
     pids: list[int] = []
     procs = info.procs
+    transport.rejections.who = f"zenohedge-node {info.group}"
     aggregator = DoneAggregator(transport, keys, info.group, procs) if aggregate and len(procs) > 1 else None
     try:
         if aggregator:  # the processes may report once the reports can go on
@@ -171,6 +172,7 @@ def run_processes(transport: ZenohTransport, info: GroupInfo, endpoint: str, key
     except KeyboardInterrupt:
         return EXIT_OK
     finally:
+        transport.rejections.log_total()  # what the aggregator refused, as a node process says it at exit
         if forks is not None:
             for pid in forks.wait(pids, 0.0):
                 with contextlib.suppress(ProcessLookupError):
