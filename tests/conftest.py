@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 import os
 import shutil
+import signal
 import subprocess
 from pathlib import Path
 from typing import Any
@@ -17,6 +18,12 @@ from orchestrator.scenario import load_scenario
 from orchestrator.session import Simulation
 
 ROOT = Path(__file__).resolve().parent.parent
+
+# A suite started in the background by a script (`pytest &`) inherits SIGINT ignored, and every process it
+# starts would too: the tests that press Ctrl-C on a launch would then wait for nothing. A handled SIGINT here
+# is reset to the default in every child.
+if signal.getsignal(signal.SIGINT) is signal.SIG_IGN:
+    signal.signal(signal.SIGINT, signal.default_int_handler)
 
 
 @pytest.fixture(autouse=True, scope="session")
