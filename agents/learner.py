@@ -256,7 +256,8 @@ class ReturnScale:
         for agent in ended:  # a new episode starts a new return
             self.running.pop(agent, None)
         std = float(np.sqrt(self.rms.var + self.epsilon))
-        return {a: float(np.clip(r / std, -self.clip, self.clip)) for a, r in rewards.items()}
+        clip = self.clip
+        return {a: max(-clip, min(clip, r / std)) for a, r in rewards.items()}  # every step: no numpy per scalar
 
     def stats(self) -> list[float]:
         return [float(self.rms.mean), float(self.rms.var), float(self.rms.count)]

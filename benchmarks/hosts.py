@@ -158,10 +158,10 @@ def main() -> None:
     subprocess.run([NETNS, "down"], check=True, capture_output=True)
     subprocess.run([NETNS, "up", str(args.hosts)], check=True, capture_output=True)
     try:
+        modes = {"on": [True], "off": [False], "both": [True, False]}[args.aggregation]
         with tempfile.TemporaryDirectory(prefix="zenohedge-hosts-") as work:
             for n in args.nodes:
                 console.print(f"N = {n} on {args.hosts} hosts ...")
-                modes = {"on": [True], "off": [False], "both": [True, False]}[args.aggregation]
                 rows += [measure(n, min(args.groups, n), args.hosts, args.ticks, Path(work), aggregate, i == 0)
                          for i, aggregate in enumerate(modes)]
     finally:

@@ -49,7 +49,7 @@ def summarise(rows: Sequence[Mapping[str, Any]], x_key: str, agents: Sequence[st
     """One row per agent and sweep value: mean and CI half-width of every panel's metric.
 
     With several training seeds the interval is over the seeds' means (what another training run would
-    give); with one (a baseline the seed does not change, or a single seed) over the episodes."""
+    give); with one (a baseline, evaluated once, or a single seed) over the episodes."""
     out = []
     for agent in agents:
         for x in sorted({r[x_key] for r in rows if r["agent"] == agent}):
@@ -57,12 +57,12 @@ def summarise(rows: Sequence[Mapping[str, Any]], x_key: str, agents: Sequence[st
             seeds = sorted({r.get("train_seed") for r in sel}, key=str)
             row: dict[str, Any] = {"agent": agent, x_key: x, "episodes": len(sel), "seeds": len(seeds),
                                    "ci_over": "seeds" if len(seeds) > 1 else "episodes"}
+            groups = [[r for r in sel if r.get("train_seed") == s] for s in seeds] if len(seeds) > 1 else [sel]
             for metric in ("response_time_mean", "completion_ratio", "penalised_response_time", "dropped",
                            "overloaded_node_ticks", "completed"):
-                values = [float(r[metric]) for r in sel]
-                if len(seeds) > 1:
-                    values = [mean_ci([float(r[metric]) for r in sel if r.get("train_seed") == s])[0] for s in seeds]
-                row[metric], row[f"{metric}_ci95"] = mean_ci(values)
+                values = [[float(r[metric]) for r in group] for group in groups]
+                row[metric], row[f"{metric}_ci95"] = mean_ci([mean_ci(v)[0] for v in values] if len(groups) > 1
+                                                             else values[0])
             out.append(row)
     return out
 

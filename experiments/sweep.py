@@ -5,8 +5,8 @@ scratch, then every agent, learning or not, is evaluated on the same K episodes 
 same task arrivals); all of it once per training seed, except for the baselines, which are evaluated
 once: evaluation reseeds every policy from the episode's seed, so for a policy that does not learn the
 training seed changes nothing, and identical copies of its episodes would only narrow its intervals.
-Each (point, seed, agent) is one independent run,
-so the grid can run on Ray (experiments.distributed) with the same outputs. Outputs under ``--out``:
+Each (point, seed, agent) is one independent run, so the grid can run on Ray (experiments.distributed)
+with the same outputs. Outputs under ``--out``:
 
     results.csv          one row per training seed x agent x sweep value x evaluation episode
     summary.csv          mean and 95% CI half-width per agent and sweep value (over the training seeds'

@@ -142,10 +142,11 @@ def run_processes(transport: ZenohTransport, info: GroupInfo, endpoint: str, key
     pids: list[int] = []
     procs = info.procs
     transport.rejections.who = f"zenohedge-node {info.group}"
-    aggregator = DoneAggregator(transport, keys, info.group, procs) if aggregate and len(procs) > 1 else None
+    aggregator: DoneAggregator | None = None
     try:
-        if aggregator:  # the processes may report once the reports can go on
-            transport.wait_matching([aggregator.out_key], info.ready_timeout)
+        if aggregate and len(procs) > 1:
+            aggregator = DoneAggregator(transport, keys, info.group, procs)
+            transport.wait_matching([aggregator.out_key], info.ready_timeout)  # reports can go on: processes may start
         forks = ForkServer.shared()
         for proc in procs:
             spec = ProcSpec(proc, info.scenario, info.layout, endpoint, keys, security=security,
