@@ -2,10 +2,13 @@
 
 from __future__ import annotations
 
+import msgpack
+import pytest
+
 from node_runtime.model.messages import Decision, Envelope, Kind, NodeState, Pending, Report, Result, Task
 from node_runtime.model.view import NodeView, Observation, TaskView
 from node_runtime.runtime import codec
-from node_runtime.runtime.protocol import Batch, Done, Tick
+from node_runtime.runtime.protocol import SCHEMA_VERSION, Batch, Done, Tick
 
 
 def task(**kw):
@@ -18,7 +21,7 @@ def task(**kw):
 def test_batch_roundtrip():
     envs = [
         Envelope(Kind.TASK, "worker:a", "worker:b", 1, 4, 7, task()),
-        Envelope(Kind.RESULT, "worker:b", "client:a", 2, 5, 6, Result(task(), "b", 5, 1)),
+        Envelope(Kind.RESULT, "worker:b", "client:a", 2, 5, 6, Result(task(), "b", 5, 1, 12.5)),
         Envelope(Kind.DECISION, "controller:a", "worker:a", 3, 5, 6, [Decision(1, ""), Decision(2, "b")]),
         Envelope(Kind.REPORT, "worker:a", "controller:a", 4, 5, 6,
                  Report([Pending(1, "a", 2, 1e6, 1.0, 2.0, 1.0, 9.0, 3)], [7.5, 0.0])),
@@ -28,13 +31,23 @@ def test_batch_roundtrip():
     assert codec.decode(codec.encode(msg)) == msg
 
 
+@pytest.mark.parametrize("imposed", [-1.0, float("nan"), float("inf"), "3"])
+def test_a_result_must_impose_a_finite_delay_of_at_least_zero(imposed):
+    """The delay a result reports feeds the agents' rewards: a forged one must not reach them."""
+    wire = codec.to_wire(Batch(0, 5, "node-b", [Envelope(Kind.RESULT, "worker:b", "client:a", 2, 5, 6,
+                                                         Result(task(), "b", 5, 1, 1.0))]))
+    wire["msgs"][0][6][4] = imposed
+    with pytest.raises(codec.CodecError, match="imposed seconds >= 0"):
+        codec.decode(msgpack.packb({**wire, "v": SCHEMA_VERSION}))
+
+
 def test_tick_and_done_roundtrip():
     tick = Tick(2, 17, "run", {0: 2}, {"controller:a": 1, "controller:b": [0, 2]}, 0, [], None)
     assert codec.decode(codec.encode(tick)) == tick
     obs = Observation(5, "a", NodeView("a", 1, 2, 3, 4e6, 0, 0.0, 1, True), 2,
                       [TaskView(7, 8e7, 1.0, 2.0, 1.0, 100.0, 95.0, 2, "a")],
                       [NodeView("b", 0, 0, 26, 4e6, 1, 3e7, 1, True, 2.5)])
-    stats = [1, 0, 0, 0, 0, 0, 0, 0, 0, 0, 2.5, 0.0, 0.0, 0.0, 1, 0, 0]
+    stats = [1, 0, 0, 0, 0, 0, 0, 0, 0, 0, 2.5, 0.0, 0.0, 0.0, 0.0, 1, 0, 0]
     done = Done("node-a", 2, 17, {1: 1}, {0: stats}, {1: [7.0]}, {0: {19: 2, 21: 1}}, 18, {2: obs})
     assert codec.decode(codec.encode(done)) == done
 

@@ -65,16 +65,21 @@ def test_local_queueing_drops_and_expiry(tmp_path):
     assert s["totals"]["in_system"] == 0
 
 
-def test_offload_over_a_link(tmp_path):
-    (tmp_path / "trace.csv").write_text(HEADER + "0,a,1e6,2e6,1e6,1,100\n0,a,1e6,2e6,1e6,1,100\n")
-    scenario = load_scenario(write_scenario(tmp_path, {
-        "simulation": {"dt": 1.0, "steps": 12, "policy": "round_robin"},
+def round_robin_pair(tmp_path, rows: str, steps: int, buffer: int):
+    """a (1e6 cycles/s) places its tasks round robin over itself and b (2e6), over an 8e6 bit/s link."""
+    (tmp_path / "trace.csv").write_text(HEADER + rows)
+    return load_scenario(write_scenario(tmp_path, {
+        "simulation": {"dt": 1.0, "steps": steps, "policy": "round_robin"},
         "workload": {"trace": "trace.csv"},
         "topology": {"nodes": [
-            {"id": "a", "frequency": 1.0e6, "buffer": 4, "controller": True, "client": True},
-            {"id": "b", "frequency": 2.0e6, "buffer": 4},
+            {"id": "a", "frequency": 1.0e6, "buffer": buffer, "controller": True, "client": True},
+            {"id": "b", "frequency": 2.0e6, "buffer": buffer},
         ], "links": [{"between": ["a", "b"], "rate_bps": 8.0e6}]},
     }))
+
+
+def test_offload_over_a_link(tmp_path):
+    scenario = round_robin_pair(tmp_path, "0,a,1e6,2e6,1e6,1,100\n0,a,1e6,2e6,1e6,1,100\n", steps=12, buffer=4)
     # round robin over [local, b]: task 1 stays, task 2 goes to b.
     # task 1: queued at 4, done in 4 (1e6 cycles) -> client at 5 -> 5 s
     # task 2: decision reaches a at 5; 2 MB = 16e6 bits at 8e6 bit/s = 2 s on air (5.0 -> 7.0) -> b at 7;
@@ -88,6 +93,18 @@ def test_offload_over_a_link(tmp_path):
     assert s["nodes"]["a"]["energy_j"] == pytest.approx(0.2 + 1e-27 * 1e6 * 1e12)
     assert s["nodes"]["b"]["energy_j"] == pytest.approx(0.1 + 1e-27 * 1e6 * 4e12)
     assert s["nodes"]["b"]["utilisation"] == pytest.approx(1e6 / (12 * 2e6))
+
+
+def test_delay_imposed_in_a_cpu_queue_and_on_a_link(tmp_path):
+    scenario = round_robin_pair(tmp_path, "0,a,3e6,4e6,1000,1,100\n0,a,2e6,4e6,1000,1,100\n"
+                                          "0,a,1e6,4e6,1000,1,100\n0,a,2e6,4e6,1000,1,100\n", steps=20, buffer=8)
+    # round robin over [local, b], one decision a tick reaching a at 4, 5, 6, 7: tasks 1 and 3 stay, 2 and 4
+    # go to b. Task 1 runs 4, 5, 6 and finishes with task 3 (queued at 6) behind it: 3 s imposed. Task 2
+    # is on air 5.0 -> 9.0 (32e6 bits at 8e6 bit/s); task 4, sent at 7, waits its last 2 s: 2 s imposed.
+    # Task 3 (tick 7), and tasks 2 (b, 9) and 4 (b, 13) finish with nothing behind them: 5 s in all.
+    s = run_summary(scenario, ticks=20)
+    assert s["totals"]["completed"] == 4
+    assert s["delay_imposed"] == pytest.approx(5.0)
 
 
 @pytest.mark.zenoh

@@ -54,6 +54,7 @@ class Client(Role):
             if env.kind != Kind.RESULT:
                 raise ValueError(f"{self.id}: unexpected {env.kind.name} from {env.src}")
             task = env.body.task
+            st.delay_imposed += env.body.imposed  # whatever became of the task, its service delayed others
             if failed:
                 self.drop(out, "node_failure", task.id)
             elif task.expired(t, dt):

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+from collections import deque
 
 import numpy as np
 
@@ -47,25 +48,35 @@ class LinkTransmitter:
     Time is kept in ticks (floats) so that ``dt`` never introduces rounding drift: a message of b
     bits sent in tick t starts when the link frees up, occupies it for b / r / dt ticks, and is
     delivered at the first tick boundary after it finishes — but never before t + 1.
+
+    It also keeps the airtime of the ``charged`` messages still queued (a worker's offloaded tasks), to
+    tell what waiting they impose on each later message: the delay a decision imposes on others.
     """
 
-    __slots__ = ("busy_until", "dt", "rate_bps")
+    __slots__ = ("busy_until", "charged", "dt", "rate_bps")
 
     def __init__(self, rate_bps: float, dt: float) -> None:
         self.rate_bps = rate_bps
         self.dt = dt
-        self.busy_until = 0.0
+        self.reset()
 
     def reset(self) -> None:
         self.busy_until = 0.0
+        self.charged: deque[tuple[float, float]] = deque()  # (start, finish) in ticks, in sending order
 
-    def send(self, tick: int, bits: float) -> tuple[int, float]:
-        """Queue a message; return (arrival tick, seconds on air)."""
+    def send(self, tick: int, bits: float, charged: bool = False) -> tuple[int, float, float]:
+        """Queue a message; return (arrival tick, seconds on air, seconds it waits for charged messages)."""
         seconds = bits / self.rate_bps
         start = max(float(tick), self.busy_until)
         finish = start + seconds / self.dt
         self.busy_until = finish
-        return max(tick + 1, math.ceil(finish)), seconds
+        queued = self.charged
+        while queued and queued[0][1] <= tick:
+            queued.popleft()
+        imposed = sum(f - max(float(tick), s) for s, f in queued) * self.dt  # their airtime left ahead of it
+        if charged:
+            queued.append((start, finish))
+        return max(tick + 1, math.ceil(finish)), seconds, imposed
 
 
 class Radio:
@@ -94,8 +105,10 @@ class Radio:
     def __contains__(self, node: str) -> bool:
         return node in self.links
 
-    def send(self, tick: int, dst: str, bits: float, latest_start: float = math.inf) -> tuple[int, float] | str:
-        """(arrival tick, seconds on air), or why the message never arrives: "expired" or "link_loss".
+    def send(self, tick: int, dst: str, bits: float, latest_start: float = math.inf,
+             charged: bool = False) -> tuple[int, float, float] | str:
+        """(arrival tick, seconds on air, seconds it waits for charged messages; ``LinkTransmitter.send``),
+        or why the message never arrives: "expired" or "link_loss".
 
         A message whose transmission could only start after ``latest_start`` (in ticks: its task's
         deadline) is never sent and takes no airtime: a sender does not transmit an expired task, so a
@@ -105,8 +118,8 @@ class Radio:
         link = self.links[dst]
         if max(float(tick), link.busy_until) > latest_start:
             return "expired"
-        arrive, seconds = link.send(tick, bits)
+        sent = link.send(tick, bits, charged)
         loss = self.loss[dst]
         if loss > 0.0 and self.rng.random() < loss:
             return "link_loss"
-        return arrive, seconds
+        return sent

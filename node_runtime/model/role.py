@@ -60,6 +60,9 @@ class Counters:
     energy_compute: float = 0.0
     energy_idle: float = 0.0
     energy_transmit: float = 0.0
+    # seconds of waiting this node's decisions imposed on other tasks: on its links (the sending worker
+    # counts it) and in the CPU queue of the task's executor (the origin's client counts it from the result)
+    delay_imposed: float = 0.0
     # levels at the end of the tick
     queue: int = 0
     undecided: int = 0
@@ -149,15 +152,18 @@ class Role:
             out.emit("dropped", self.node.id, task=task_id, cause=cause, role=self.kind)
 
     def transmit(self, t: int, kind: Kind, dst_node: str, dst_role: str, body: Body, bits: float,
-                 out: Outbox) -> None:
-        """Queue a message on this node's link to ``dst_node``; it may expire in the queue or be lost."""
+                 out: Outbox, charged: bool = False) -> None:
+        """Queue a message on this node's link to ``dst_node``; it may expire in the queue or be lost.
+        ``charged``: the message is this node's decision, and the waiting it imposes on the later messages
+        of the link counts as this node's ``delay_imposed``."""
         task = body if kind == Kind.TASK else body.task
-        sent = self.radio.send(t, dst_node, bits, task.created + task.deadline / self.scenario.dt)
+        sent = self.radio.send(t, dst_node, bits, task.created + task.deadline / self.scenario.dt, charged)
         if isinstance(sent, str):
             self.drop(out, sent, task.id)
             return
-        arrive, seconds = sent
+        arrive, seconds, imposed = sent
         self.stats.energy_transmit += transmit_energy(self.node.tx_power_dbm, seconds)
+        self.stats.delay_imposed += imposed
         out.send(kind, dst_role, body, arrive)
 
     def tick(self, t: int, inbox: list[Envelope], out: Outbox) -> None:

@@ -117,7 +117,7 @@ class Worker(Role):
     def transmit(self, t: int, kind: Kind, dst_node: str, dst_role: str, body: Task | Result, bits: float,
                  out: Outbox) -> None:
         """A transmission changes a link's backlog: the controller is told with the tasks it may place."""
-        super().transmit(t, kind, dst_node, dst_role, body, bits, out)
+        super().transmit(t, kind, dst_node, dst_role, body, bits, out, charged=kind == Kind.TASK)  # an offload
         self._links_changed = True
         if self.undecided or self._divertible:
             self.tasks_version += 1
@@ -289,7 +289,8 @@ class Worker(Role):
                 used += remaining
                 queue.popleft()
                 task = entry[0]
-                self.route_result(t, Result(task, self.node.id, t, len(task.path) - 1), out)
+                imposed = task.cycles / self.node.capacity * len(queue)  # each task behind it waited its service
+                self.route_result(t, Result(task, self.node.id, t, len(task.path) - 1, imposed), out)
             else:
                 entry[1] = remaining - budget
                 used += budget

@@ -12,6 +12,7 @@ message may be trusted (its sender, its tick) is for the handlers to decide.
 
 from __future__ import annotations
 
+import math
 from typing import Any, NoReturn
 
 import msgpack
@@ -41,7 +42,7 @@ def _malformed(what: str) -> NoReturn:
 
 NUM = (int, float)
 TASK = (int, str, int, NUM, NUM, NUM, NUM, NUM, int, list)
-RESULT = (list, str, int, int)
+RESULT = (list, str, int, int, NUM)
 DECISION = (int, str)
 PENDING = (int, str, int, NUM, NUM, NUM, NUM, NUM, int)
 STATE = (str, NUM, NUM)
@@ -155,7 +156,7 @@ def _body(kind: Kind, body: Any) -> Any:
     if kind == Kind.TASK:
         return _task(body)
     if kind == Kind.RESULT:
-        return [_task(body.task), body.executor, body.finished, body.hop]
+        return [_task(body.task), body.executor, body.finished, body.hop, body.imposed]
     if kind == Kind.DECISION:
         return [[d.task_id, d.target] for d in body]
     if kind == Kind.REPORT:
@@ -170,9 +171,9 @@ def _unbody(kind: Kind, a: Any) -> Any:
     if kind == Kind.TASK:
         return _untask(a)
     if kind == Kind.RESULT:
-        if not _fits(a, RESULT):
-            _malformed("a result that is not [task, executor, finished, hop]")
-        return Result(_untask(a[0]), a[1], a[2], a[3])
+        if not (_fits(a, RESULT) and 0.0 <= a[4] < math.inf):  # imposed feeds rewards: no nan, no negatives
+            _malformed("a result that is not [task, executor, finished, hop, imposed seconds >= 0]")
+        return Result(_untask(a[0]), a[1], a[2], a[3], a[4])
     if kind == Kind.DECISION:
         if not (type(a) is list and all(_fits(d, DECISION) for d in a)):
             _malformed("decisions that are not [[task id, target], ...]")

@@ -25,7 +25,7 @@ from typing import Any, Literal
 from node_runtime.model.messages import Envelope
 from node_runtime.model.view import Observation
 
-SCHEMA_VERSION = 5
+SCHEMA_VERSION = 6
 # A tick carries the episode's seed as a msgpack integer (64 bits at most); launch adds the episode to it
 MAX_SEED = 2**62 - 1
 Command = Literal["run", "reset", "stop"]
