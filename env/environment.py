@@ -64,7 +64,7 @@ class ZenohEdgeEnv(ParallelEnv):
         seed: seed of the first episode (later resets without a seed draw from a stream it seeds).
         transport: "zenoh" (node processes over a Zenoh router) or "inproc" (same code, one process).
         layout: "per-role" (default for zenoh), "per-node", "single" (default for inproc) or "groups:K".
-        reward: "paper" (Eq. 1–5, see docs/reward.md), "reference", "sparse", "team", "score", "team_score",
+        reward: "paper" (Eq. 1–5, see docs/reward.md), "reference", "sparse", "team", "score", "team_score", "marginal",
             a callable ``f(RewardContext)`` or its import path (default: the scenario's ``reward`` key, else
             "paper").
         observation: an ``ObservationBuilder`` subclass or its import path (default: the scenario's

@@ -186,13 +186,29 @@ def score_reward(ctx: RewardContext) -> float:
     return timeliness(ctx.node_delta, ctx.penalty)
 
 
+CONGESTION_PRICE = 3.0  # what marginal_reward charges per second of delay imposed, in seconds of the score
+
+
+def marginal_reward(ctx: RewardContext) -> float:
+    """``score`` minus the congestion the agent's decisions caused: each second another task waited behind
+    one of its tasks (in a CPU queue, or on a link it offloaded over) costs ``CONGESTION_PRICE`` / P.
+
+    A difference reward (Wolpert and Tumer 2002; marginal-cost pricing in congestion games): a decision is
+    charged what it takes from the others, so that agents each maximising their own reward maximise the
+    team's score, without ``team_score``'s credit assignment over every agent. The first-order delay is
+    priced twice: the tasks it makes expire or overflow a buffer cost more than their wait (docs/reward.md
+    gives the measurements behind 2)."""
+    return timeliness(ctx.node_delta, ctx.penalty) - CONGESTION_PRICE * ctx.node_delta["delay_imposed"] / ctx.penalty
+
+
 def team_score_reward(ctx: RewardContext) -> float:
     """``score`` over the whole network, the same for every agent (as ``team`` is to ``sparse``)."""
     return timeliness(ctx.network_delta, ctx.penalty)
 
 
 REWARDS: dict[str, RewardFn] = {"paper": paper_reward, "reference": reference_reward, "sparse": sparse_reward,
-                                "team": team_reward, "score": score_reward, "team_score": team_score_reward}
+                                "team": team_reward, "score": score_reward, "team_score": team_score_reward,
+                                "marginal": marginal_reward}
 
 
 TermsFn = Callable[[Observation, TaskView, int, float, PaperWeights, Mapping[str, float]], RewardTerms]

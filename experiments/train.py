@@ -31,7 +31,7 @@ def main(argv: Sequence[str] | None = None) -> None:
     p.add_argument("algo", choices=list(LEARNERS))
     p.add_argument("--episodes", type=positive_int, default=50, help="training episodes (default 50)")
     p.add_argument("--out", type=Path, default=None, help="output directory (default runs/<algo>-<scenario>)")
-    add_env_arguments(p)
+    add_env_arguments(p, reward="marginal")
     add_learner_arguments(p)
     args = p.parse_args(argv)
     try:

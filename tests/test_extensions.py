@@ -100,7 +100,8 @@ BAD = [
     ({"simulation": {"policy": "json:dumps"}}, "simulation.policy: json:dumps is not a subclass of"),
     ({"workload": {"source": "json:JSONDecoder"}}, "workload.source: json:JSONDecoder is not a subclass of"),
     ({"reward": "math:pi"}, "reward: math:pi is not callable"),
-    ({"reward": "teem"}, "reward: expected one of paper, reference, sparse, team, score, team_score or an import path"),
+    ({"reward": "teem"},
+     "reward: expected one of paper, reference, sparse, team, score, team_score, marginal or an import path"),
     ({"observation": "json:dumps"}, "observation: json:dumps is not an observation builder class"),
     ({"roles": {"worker": "BatteryWorker"}}, "roles.worker: expected an import path"),
 ]

@@ -204,6 +204,17 @@ def test_the_score_reward_weighs_each_completion_by_its_timeliness():
     assert team_score_reward(ctx) == pytest.approx(2.1)
 
 
+def test_the_marginal_reward_charges_the_delay_imposed_at_the_congestion_price():
+    """The score reward of the node's completions (1.6, above) minus 3 x 20 s of delay imposed / P = 0.6."""
+    from env.reward import CONGESTION_PRICE, RewardContext, marginal_reward
+
+    assert CONGESTION_PRICE == 3.0
+    ctx = RewardContext("ctrl_a", "a", OBS, 0, OBS, (),
+                        {"completed": 2, "response_time_total": 40.0, "delay_imposed": 20.0}, 1.0, PaperWeights(),
+                        {}, {"completed": 3, "response_time_total": 90.0, "delay_imposed": 50.0}, penalty=100.0)
+    assert marginal_reward(ctx) == pytest.approx(1.6 - 0.6)
+
+
 @pytest.mark.parametrize("scenario", ["aot1", "aot3_compute"])
 def test_the_team_score_rewards_of_an_episode_add_up_to_the_headline_score(scenario):
     """Over an episode, the team-score rewards add up to generated - penalised response time x generated / P

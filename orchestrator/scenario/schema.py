@@ -250,7 +250,7 @@ class FailureCfg(Strict):
 
 
 # the environment's built-in rewards (env.reward.REWARDS)
-REWARD_NAMES = ("paper", "reference", "sparse", "team", "score", "team_score")
+REWARD_NAMES = ("paper", "reference", "sparse", "team", "score", "team_score", "marginal")
 
 
 class ScenarioFile(Strict):
