@@ -153,9 +153,9 @@ CATALOGUE: tuple[Metric, ...] = (
     # rewards that weigh each completion by its timeliness (env.reward.score_reward)
     Metric("response_time_total", "s", Agg.COUNT, "response time (sum)", "rts", Out.ENV_DELTA,
            fields=("response_time_sum",), dtype=float),
-    # seconds of waiting the node's decisions imposed on other tasks (in executors' CPU queues and on its links),
-    # for rewards that price congestion (env.reward.marginal_reward)
-    Metric("delay_imposed", "s", Agg.COUNT, "delay imposed on others", "dimp", Out.SUMMARY | Out.ENV_DELTA,
+    # the waiting the node's decisions imposed on other tasks (in executors' CPU queues and on its links), each
+    # wait in deadlines of the task that waited, for rewards that price congestion (env.reward.marginal_reward)
+    Metric("delay_imposed", "deadlines", Agg.COUNT, "delay imposed on others", "dimp", Out.SUMMARY | Out.ENV_DELTA,
            dtype=float),
     # completed / generated so far: the share of the tasks created that came back in time
     Metric("completion_ratio", "ratio", Agg.RATIO, "completion ratio", "c/g",

@@ -116,8 +116,11 @@ def test_train_then_evaluate_command_lines(tmp_path, capsys):
                    "--csv", str(tmp_path / "eval.csv"), "--no-progress"])
     assert "response_time_mean" in capsys.readouterr().out
     assert len(read_csv(tmp_path / "eval.csv")) == 2
-    # training's default reward is the one its learners win with; the studies keep the paper's
-    assert json.loads((tmp_path / "config.json").read_text())["reward"] == "marginal"
+    # the default reward is the learner's: the paper's for the learners tuned on it, marginal for PPO
+    assert json.loads((tmp_path / "config.json").read_text())["reward"] == "paper"
+    train.main(["ppo", "--scenario", "aot1", "--episodes", "1", "--max-steps", "20", "--out", str(tmp_path / "ppo"),
+                "--no-progress"])
+    assert json.loads((tmp_path / "ppo" / "config.json").read_text())["reward"] == "marginal"
 
 
 def test_evaluate_adds_its_runs_to_a_marl_eval_file(tmp_path):

@@ -97,14 +97,15 @@ def test_offload_over_a_link(tmp_path):
 
 def test_delay_imposed_in_a_cpu_queue_and_on_a_link(tmp_path):
     scenario = round_robin_pair(tmp_path, "0,a,3e6,4e6,1000,1,100\n0,a,2e6,4e6,1000,1,100\n"
-                                          "0,a,1e6,4e6,1000,1,100\n0,a,2e6,4e6,1000,1,100\n", steps=20, buffer=8)
+                                          "0,a,1e6,4e6,1000,1,50\n0,a,2e6,4e6,1000,1,40\n", steps=20, buffer=8)
     # round robin over [local, b], one decision a tick reaching a at 4, 5, 6, 7: tasks 1 and 3 stay, 2 and 4
-    # go to b. Task 1 runs 4, 5, 6 and finishes with task 3 (queued at 6) behind it: 3 s imposed. Task 2
-    # is on air 5.0 -> 9.0 (32e6 bits at 8e6 bit/s); task 4, sent at 7, waits its last 2 s: 2 s imposed.
-    # Task 3 (tick 7), and tasks 2 (b, 9) and 4 (b, 13) finish with nothing behind them: 5 s in all.
+    # go to b. Task 1 runs 4, 5, 6 and finishes with task 3 (queued at 6, due in 50 s) behind it: 3 s, 0.06
+    # of a deadline. Task 2 is on air 5.0 -> 9.0 (32e6 bits at 8e6 bit/s); task 4 (due in 40 s), sent at 7,
+    # waits its last 2 s: 0.05. Task 3 (tick 7), and tasks 2 (b, 9) and 4 (b, 13) finish with nothing
+    # behind them: 0.11 in all.
     s = run_summary(scenario, ticks=20)
     assert s["totals"]["completed"] == 4
-    assert s["delay_imposed"] == pytest.approx(5.0)
+    assert s["delay_imposed"] == pytest.approx(0.11)
 
 
 @pytest.mark.zenoh

@@ -60,7 +60,7 @@ class Result:
     executor: str  # node that ran it
     finished: int  # tick in which its last cycle ran
     hop: int  # position on task.path of the worker it is travelling to (or at)
-    imposed: float = 0.0  # seconds of waiting its service imposed on the tasks queued behind it (docs/reward.md)
+    imposed: float = 0.0  # the waiting its service imposed on the tasks queued behind it, in their deadlines
 
 
 @dataclass(slots=True)

@@ -11,7 +11,7 @@ from operator import attrgetter
 from typing import ClassVar
 
 from node_runtime.model.energy import transmit_energy
-from node_runtime.model.messages import Body, Envelope, Kind
+from node_runtime.model.messages import Body, Envelope, Kind, Task
 from node_runtime.model.radio import Radio
 from node_runtime.model.spec import NodeSpec, Scenario
 
@@ -60,8 +60,9 @@ class Counters:
     energy_compute: float = 0.0
     energy_idle: float = 0.0
     energy_transmit: float = 0.0
-    # seconds of waiting this node's decisions imposed on other tasks: on its links (the sending worker
-    # counts it) and in the CPU queue of the task's executor (the origin's client counts it from the result)
+    # waiting this node's decisions imposed on other tasks, each wait in deadlines of the task that waited
+    # (2 s imposed on a task due in 10 s count 0.2): on its links (the sending worker counts it) and in the
+    # CPU queue of the task's executor (the origin's client counts it from the result)
     delay_imposed: float = 0.0
     # levels at the end of the tick
     queue: int = 0
@@ -151,6 +152,11 @@ class Role:
         if out.events is not None:
             out.emit("dropped", self.node.id, task=task_id, cause=cause, role=self.kind)
 
+    def urgency(self, task: Task) -> float:
+        """What one second of waiting costs ``task``, in its own deadlines (a deadline under a tick counts
+        one tick): the weight of the delay imposed on it (``Counters.delay_imposed``)."""
+        return 1.0 / max(task.deadline, self.scenario.dt)
+
     def transmit(self, t: int, kind: Kind, dst_node: str, dst_role: str, body: Body, bits: float,
                  out: Outbox, charged: bool = False) -> None:
         """Queue a message on this node's link to ``dst_node``; it may expire in the queue or be lost.
@@ -161,9 +167,10 @@ class Role:
         if isinstance(sent, str):
             self.drop(out, sent, task.id)
             return
-        arrive, seconds, imposed = sent
+        arrive, seconds, waited = sent
         self.stats.energy_transmit += transmit_energy(self.node.tx_power_dbm, seconds)
-        self.stats.delay_imposed += imposed
+        if waited:
+            self.stats.delay_imposed += waited * self.urgency(task)
         out.send(kind, dst_role, body, arrive)
 
     def tick(self, t: int, inbox: list[Envelope], out: Outbox) -> None:

@@ -289,7 +289,7 @@ class Worker(Role):
                 used += remaining
                 queue.popleft()
                 task = entry[0]
-                imposed = task.cycles / self.node.capacity * len(queue)  # each task behind it waited its service
+                imposed = task.cycles / self.node.capacity * sum(self.urgency(e[0]) for e in queue)
                 self.route_result(t, Result(task, self.node.id, t, len(task.path) - 1, imposed), out)
             else:
                 entry[1] = remaining - budget

@@ -172,7 +172,7 @@ def _unbody(kind: Kind, a: Any) -> Any:
         return _untask(a)
     if kind == Kind.RESULT:
         if not (_fits(a, RESULT) and 0.0 <= a[4] < math.inf):  # imposed feeds rewards: no nan, no negatives
-            _malformed("a result that is not [task, executor, finished, hop, imposed seconds >= 0]")
+            _malformed("a result that is not [task, executor, finished, hop, imposed >= 0]")
         return Result(_untask(a[0]), a[1], a[2], a[3], a[4])
     if kind == Kind.DECISION:
         if not (type(a) is list and all(_fits(d, DECISION) for d in a)):
