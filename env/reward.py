@@ -186,19 +186,20 @@ def score_reward(ctx: RewardContext) -> float:
     return timeliness(ctx.node_delta, ctx.penalty)
 
 
-CONGESTION_PRICE = 3.0  # what marginal_reward charges per second of delay imposed, in seconds of the score
+CONGESTION_PRICE = 3.0  # what marginal_reward charges for a deadline's worth of delay imposed, in completions
 
 
 def marginal_reward(ctx: RewardContext) -> float:
-    """``score`` minus the congestion the agent's decisions caused: each second another task waited behind
-    one of its tasks (in a CPU queue, or on a link it offloaded over) costs ``CONGESTION_PRICE`` / P.
+    """``score`` minus the congestion the agent's decisions caused: the waiting they imposed on other tasks
+    (in CPU queues, and on the links they offloaded over), each wait in deadlines of the task that waited,
+    times ``CONGESTION_PRICE``.
 
     A difference reward (Wolpert and Tumer 2002; marginal-cost pricing in congestion games): a decision is
     charged what it takes from the others, so that agents each maximising their own reward maximise the
-    team's score, without ``team_score``'s credit assignment over every agent. The first-order delay is
-    priced twice: the tasks it makes expire or overflow a buffer cost more than their wait (docs/reward.md
-    gives the measurements behind 2)."""
-    return timeliness(ctx.node_delta, ctx.penalty) - CONGESTION_PRICE * ctx.node_delta["delay_imposed"] / ctx.penalty
+    team's score, without ``team_score``'s credit assignment over every agent. Counting a wait in the
+    waiting task's deadlines prices it by what it risks: a task delayed by its whole deadline is lost, and
+    2 s cost an alert due in 10 s ten times what they cost batch work due in 100 s (docs/reward.md)."""
+    return timeliness(ctx.node_delta, ctx.penalty) - CONGESTION_PRICE * ctx.node_delta["delay_imposed"]
 
 
 def team_score_reward(ctx: RewardContext) -> float:

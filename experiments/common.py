@@ -60,9 +60,10 @@ def rate(text: str) -> float:
     return _number(text, float, lambda v: 0 <= v < float("inf"), "an arrival rate >= 0 (tasks/s per source)")
 
 
-def add_env_arguments(parser: argparse.ArgumentParser, scenario: bool = True, reward: str = "paper") -> None:
-    """``reward``: the command's default reward (the studies reproduce the paper; training defaults to
-    ``marginal``, the reward its learners win with: docs/agents.md)."""
+def add_env_arguments(parser: argparse.ArgumentParser, scenario: bool = True, reward: str | None = "paper",
+                      reward_default_help: str | None = None) -> None:
+    """``reward``: the command's default reward (the studies reproduce the paper's); ``reward_default_help``
+    says what the default is when the command decides it later (training: per learner)."""
     g = parser.add_argument_group("environment")
     if scenario:
         g.add_argument("--scenario", default="aot2",
@@ -73,12 +74,13 @@ def add_env_arguments(parser: argparse.ArgumentParser, scenario: bool = True, re
     g.add_argument("--max-steps", type=positive_int, default=None,
                    help="decision steps per episode (default: the scenario's, 1000; rq1/rq2 --quick: 300)")
     g.add_argument("--reward", default=reward, choices=list(REWARDS),
-                   help=f"default: {reward}. paper (Eq. 1-5 of the paper), reference (the reference "
-                        "implementation's), sparse (completed - dropped at the agent's node), team (the same, "
-                        "network-wide, shared by all agents), score (each of the node's own tasks that completes "
-                        "earns 1 - response / penalty: the headline score, credited to the origin), team_score "
-                        "(the same, network-wide) or marginal (score minus the delay the agent's decisions "
-                        "imposed on other tasks, priced: a difference reward); docs/reward.md")
+                   help=f"default: {reward_default_help or reward}. paper (Eq. 1-5 of the paper), "
+                        "reference (the reference implementation's), sparse (completed - dropped at the "
+                        "agent's node), team (the same, network-wide, shared by all agents), score (each of "
+                        "the node's own tasks that completes earns 1 - response / penalty: the headline score, "
+                        "credited to the origin), team_score (the same, network-wide) or marginal (score minus "
+                        "the delay the agent's decisions imposed on other tasks, priced: a difference reward); "
+                        "docs/reward.md")
     g.add_argument("--transport", default="inproc", choices=["inproc", "zenoh"],
                    help="inproc (default: one process, same results as zenoh) or zenoh (node processes)")
 

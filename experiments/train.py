@@ -25,15 +25,19 @@ from experiments.common import (
     set_threads,
 )
 
+DEFAULT_REWARD = {"ppo": "marginal"}  # PPO normalises its rewards; DDQN and A2C scale them for the paper's
+
 
 def main(argv: Sequence[str] | None = None) -> None:
     p = Parser(prog="python -m experiments.train", description=__doc__.splitlines()[0])
     p.add_argument("algo", choices=list(LEARNERS))
     p.add_argument("--episodes", type=positive_int, default=50, help="training episodes (default 50)")
     p.add_argument("--out", type=Path, default=None, help="output directory (default runs/<algo>-<scenario>)")
-    add_env_arguments(p, reward="marginal")
+    add_env_arguments(p, reward=None, reward_default_help="marginal for ppo (the reward it beats the baselines "
+                      "with, docs/agents.md), paper for ddqn and a2c (their settings were tuned on it)")
     add_learner_arguments(p)
     args = p.parse_args(argv)
+    args.reward = args.reward or DEFAULT_REWARD.get(args.algo, "paper")
     try:
         config = learner_config(args.algo, seed=args.seed, hidden=args.hidden, overrides=args.overrides)
     except ValueError as e:
