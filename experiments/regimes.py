@@ -49,8 +49,8 @@ FAMILIES = (
            "Heavy compute, small data: 2e8 instructions (50 s on an rpi3, 2.3 s on the server), 2 MB in, "
            "200 kB out, deadlines U[40, 80) s. Capacity runs out near lambda = 0.07."),
     Family("wired", "aot3_wired", (0.1, 0.2),
-           "The paper's task over the Ether file's wired rates: 500 Mbit/s to the cluster's nuc, "
-           "25 Mbit/s up to the server. The nucs saturate first."),
+           "The paper's task over the Ether file's wired rates: 500 Mbit/s to the cluster's nuc, 25 Mbit/s "
+           "each way to the server, whose 100 s round trip misses the 100 s deadline. The nucs saturate first."),
     Family("urgent", "aot3_urgent", (0.03, 0.04),
            "Urgent alerts beside tolerant batch work: compute's task (2e8 instructions, 2 MB in, 200 kB out), "
            "half with deadlines U[10, 20) s, which only the server or a nuc meets, half U[100, 200) s, which an "
