@@ -24,15 +24,28 @@ __all__ = ["ScenarioError", "load_scenario"]
 def load_scenario(source: str | Path | dict[str, Any], *, name_hint: str = "") -> Scenario:
     """A scenario from a bundled name ("aot2"), a YAML path, or a dict. Raises ``ScenarioError``."""
     if isinstance(source, dict):
-        return resolve(source, Path.cwd(), name_hint or "scenario", "<dict>")
-    path = Path(source)
-    if not path.exists() and not path.suffix and scenario_path(str(source)).exists():
-        path = scenario_path(str(source))
+        data, folders = _inherit(dict(source), Path.cwd(), "<dict>", ())
+        return resolve(data, folders[0], name_hint or "scenario", "<dict>", folders[1:])
+    path = _locate(str(source))
     label = str(source)
+    data, folders = _inherit(_read(path, label, label), path.parent, label, (path.resolve(),))
+    return resolve(data, path.parent, path.stem, label, folders[1:])
+
+
+def _locate(ref: str, folder: Path = Path()) -> Path:
+    """A scenario file by path (relative to ``folder``) or by a bundled scenario's name."""
+    path = folder / ref
+    if not path.exists() and not Path(ref).suffix and scenario_path(ref).exists():
+        return scenario_path(ref)
+    return path
+
+
+def _read(path: Path, label: str, ref: str) -> dict[str, Any]:
+    """The top-level mapping of the scenario file ``ref`` names, or a one-line error."""
     try:
         text = path.read_text()
     except FileNotFoundError:
-        raise ScenarioError([f"{label}: {_not_found(str(source))}"]) from None
+        raise ScenarioError([f"{label}: {_not_found(ref)}"]) from None
     except (IsADirectoryError, PermissionError, UnicodeDecodeError) as exc:
         raise ScenarioError([f"{label}: cannot read: {exc}"]) from None
     try:
@@ -48,9 +61,37 @@ def load_scenario(source: str | Path | dict[str, Any], *, name_hint: str = "") -
         raise ScenarioError([f"{label}: the file is empty; expected a scenario mapping with at least 'topology'"])
     if not isinstance(data, dict):
         raise ScenarioError([f"{label}: expected a mapping at the top level, got {type(data).__name__}"])
-    return resolve(data, path.parent, path.stem, label)
+    return data
 
 
+def _inherit(data: dict[str, Any], folder: Path, label: str,
+             chain: tuple[Path, ...]) -> tuple[dict[str, Any], tuple[Path, ...]]:
+    """Apply ``extends: BASE``: the base scenario's keys, overridden key by key by this file's (mappings
+    merge, anything else replaces; the base's name and description are not inherited). Also returns the
+    folders to look for the files the scenario names in: this file's first, then its bases'."""
+    if "extends" not in data:
+        return data, (folder,)
+    ref = data.pop("extends")
+    if not isinstance(ref, str) or not ref.strip():
+        raise ScenarioError([f"{label}: extends: expected a bundled scenario's name or the path of a scenario "
+                             f"file, got {ref!r}"])
+    path = _locate(ref, folder)
+    if path.resolve() in chain:
+        cycle = " -> ".join(p.name for p in (*chain, path.resolve()))
+        raise ScenarioError([f"{label}: extends: {ref!r} extends itself ({cycle})"])
+    base = _read(path, f"{label}: extends: {ref}", ref)
+    for own in ("name", "description"):
+        base.pop(own, None)
+    base, folders = _inherit(base, path.parent, f"{label}: extends: {ref}", (*chain, path.resolve()))
+    return _merge(base, data), (folder, *folders)
+
+
+def _merge(base: dict[str, Any], over: dict[str, Any]) -> dict[str, Any]:
+    merged = dict(base)
+    for key, value in over.items():
+        merged[key] = (_merge(merged[key], value) if isinstance(value, dict) and isinstance(merged.get(key), dict)
+                       else value)
+    return merged
 
 
 def _not_found(name: str) -> str:

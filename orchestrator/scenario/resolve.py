@@ -46,7 +46,10 @@ MAX_TASKS_PER_TICK = 1e6
 FINITE = ConfigDict(allow_inf_nan=False)  # a generator's numbers, as the file's own (schema.Strict)
 
 
-def resolve(data: dict[str, Any], base: Path, default_name: str, label: str) -> Scenario:
+def resolve(data: dict[str, Any], base: Path, default_name: str, label: str,
+            also: tuple[Path, ...] = ()) -> Scenario:
+    """``base``: the scenario file's folder; ``also``: further folders to find the files it names in (those
+    of the scenarios it extends)."""
     import_new_kinds(data, base, label)
     model = file_format(tuple(ROLE_KINDS))
     try:
@@ -54,7 +57,7 @@ def resolve(data: dict[str, Any], base: Path, default_name: str, label: str) -> 
     except ValidationError as exc:
         raise ScenarioError([f"{label}: {key_path(e['loc'])}: {describe(e, model)}"
                              for e in exc.errors()]) from None
-    return _Resolver(cfg, base, label).scenario(cfg.name or default_name)
+    return _Resolver(cfg, base, label, also).scenario(cfg.name or default_name)
 
 
 def import_new_kinds(data: dict[str, Any], base: Path, label: str) -> None:
@@ -92,9 +95,10 @@ def importable_from(base: Path) -> None:
 class _Resolver:
     """The second pass: meaning, references and derived values."""
 
-    def __init__(self, cfg: ScenarioFile, base: Path, label: str) -> None:
+    def __init__(self, cfg: ScenarioFile, base: Path, label: str, also: tuple[Path, ...] = ()) -> None:
         self.cfg = cfg
         self.base = base
+        self.also = also
         self.label = label
         self.errors: list[str] = []
 
@@ -106,12 +110,13 @@ class _Resolver:
             raise ScenarioError(self.errors)
 
     def file(self, ref: str) -> Path:
-        """A file named in the scenario: absolute, next to the scenario, or shipped with the package
-        (so that any scenario can say ``ether: ether/network_2_clusters.json``)."""
+        """A file named in the scenario: absolute, next to the scenario (or to a scenario it extends), or
+        shipped with the package (so that any scenario can say ``ether: ether/network_2_clusters.json``)."""
         p = Path(ref)
-        if p.is_absolute() or (self.base / p).exists():
-            return p if p.is_absolute() else self.base / p
-        return bundled_file(ref) or self.base / p
+        if p.is_absolute():
+            return p
+        found = next((folder / p for folder in (self.base, *self.also) if (folder / p).exists()), None)
+        return found or bundled_file(ref) or self.base / p
 
     def scenario(self, name: str) -> Scenario:
         cfg = self.cfg
