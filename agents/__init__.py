@@ -22,6 +22,7 @@ from agents.ddqn import DDQN, DDQNConfig
 from agents.learner import Learner, LearnerConfig
 from agents.ppo import PPO, PPOConfig
 from agents.training import evaluate, train
+from node_runtime.model.plugins import is_import_path, load
 
 LEARNERS: dict[str, type[Learner]] = {"ddqn": DDQN, "a2c": A2C, "ppo": PPO}
 POLICY_NAMES = (*LEARNERS, *BASELINES)
@@ -29,7 +30,10 @@ POLICY_NAMES = (*LEARNERS, *BASELINES)
 
 def make_policy(name: str, env: Any = None, config: LearnerConfig | None = None, device: str = "cpu",
                 seed: int | None = None) -> Policy:
-    """A baseline by name, or a fresh learner for ``env``'s agents (``config`` defaults to the learner's)."""
+    """A baseline by name, a user's ``Baseline`` subclass by import path ("module:Class"; ``PluginError`` if it
+    is none), or a fresh learner for ``env``'s agents (``config`` defaults to the learner's)."""
+    if is_import_path(name):
+        return load(name, Baseline)(seed)
     if name in BASELINES:
         return BASELINES[name](seed)
     if name not in LEARNERS:

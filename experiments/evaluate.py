@@ -3,6 +3,7 @@
     python -m experiments.evaluate least_queue --scenario aot2 --episodes 10
     python -m experiments.evaluate runs/ddqn-aot2/ddqn.pt --scenario aot2 --episodes 10 --csv runs/ddqn-eval.csv
     python -m experiments.evaluate greedy --scenario aot2 --episodes 10 --marl-eval runs/marl_eval.json
+    python -m experiments.evaluate mylab.rules:ShortQueues --scenario aot2   # a Baseline subclass of your own
     python -m experiments.evaluate runs/ddqn-aot2/ddqn.pt --episodes 100 --ray   # one Ray task per episode
 """
 
@@ -15,12 +16,13 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from agents import BASELINES, Learner, Policy, evaluate, load_learner
+from agents import BASELINES, Learner, Policy, evaluate, load_learner, make_policy
 from agents.training import EVAL_SEED, progress_bar, write_csv
 from experiments import marl_eval
 from experiments.common import Parser, add_env_arguments, check_scenario, make_env, positive_int, seed_int, set_threads
 from experiments.distributed import add_ray_arguments, ray_problem, run_on_ray, wants_ray
 from experiments.plot import mean_ci
+from node_runtime.model.plugins import PluginError, extend_path, is_import_path
 
 
 @dataclass(frozen=True)
@@ -28,7 +30,7 @@ class Episode:
     """One evaluation episode as a Ray task: the policy travels as a baseline's name or a checkpoint's bytes."""
 
     k: int  # the episode's index: its seed is EVAL_SEED + k
-    baseline: str | None
+    baseline: str | None  # a built-in's name or a user's import path
     checkpoint: bytes | None
     seed: int
     device: str
@@ -46,7 +48,7 @@ def run_episode(job: Episode, scratch: Path) -> dict[str, Any]:
     set_threads(1)
     policy: Policy
     if job.checkpoint is None:
-        policy = BASELINES[job.baseline](job.seed)
+        policy = make_policy(job.baseline, seed=job.seed)
     else:
         (scratch / "policy.pt").write_bytes(job.checkpoint)
         policy = load_learner(scratch / "policy.pt", job.device)
@@ -61,7 +63,8 @@ def run_episode(job: Episode, scratch: Path) -> dict[str, Any]:
 
 def main(argv: Sequence[str] | None = None) -> None:
     p = Parser(prog="python -m experiments.evaluate", description=__doc__.splitlines()[0])
-    p.add_argument("policy", help=f"a baseline ({', '.join(BASELINES)}) or a checkpoint file (.pt)")
+    p.add_argument("policy", help=f"a baseline ({', '.join(BASELINES)}), a Baseline subclass of your own as "
+                                  "module:Class (docs/extending.md), or a checkpoint file (.pt)")
     p.add_argument("--episodes", type=positive_int, default=10, help="evaluation episodes (default 10)")
     p.add_argument("--seed", type=seed_int, default=0, help="seed of the baselines' random choices (default 0)")
     p.add_argument("--csv", type=Path, default=None, help="write one row per episode here")
@@ -74,20 +77,26 @@ def main(argv: Sequence[str] | None = None) -> None:
     args = p.parse_args(argv)
     set_threads(1)
     policy: Policy
-    if args.policy in BASELINES:
-        policy = BASELINES[args.policy](args.seed)
+    baseline = args.policy in BASELINES or is_import_path(args.policy)
+    if baseline:
+        extend_path([str(Path.cwd())])  # as python -m does for the module it runs
+        try:
+            policy = make_policy(args.policy, seed=args.seed)
+        except PluginError as e:
+            p.error(f"{args.policy}: {e}")
     elif Path(args.policy).is_file():
         try:
             policy = load_learner(args.policy, args.device)
         except (OSError, RuntimeError, ValueError, KeyError, pickle.UnpicklingError) as e:
             p.error(f"{args.policy}: not a checkpoint of this project's learners ({str(e).splitlines()[0]})")
     else:
-        p.error(f"{args.policy!r} is neither a baseline ({', '.join(BASELINES)}) nor a checkpoint file")
+        p.error(f"{args.policy!r} is neither a baseline ({', '.join(BASELINES)}), an import path module:Class, "
+                "nor a checkpoint file")
     check_scenario(p.prog, args.scenario, args.lam)
     if why := ray_problem(args):
         p.error(why)
     if wants_ray(args):
-        checkpoint = None if args.policy in BASELINES else Path(args.policy).read_bytes()
+        checkpoint = None if baseline else Path(args.policy).read_bytes()
         jobs = [Episode(k, args.policy if checkpoint is None else None, checkpoint, args.seed, args.device,
                         args.scenario, args.lam, args.max_steps, args.reward, args.transport)
                 for k in range(args.episodes)]

@@ -7,7 +7,10 @@ argparse turns the ``ArgumentTypeError`` into ``error: argument --steps: expecte
 from __future__ import annotations
 
 import argparse
+from pathlib import Path
 
+from node_runtime.model.plugins import PluginError, extend_path, is_import_path, load
+from node_runtime.model.policies import POLICIES, Policy
 from node_runtime.runtime.cli_options import integer, number
 from node_runtime.runtime.layout import check_layout
 
@@ -18,6 +21,23 @@ def layout_name(text: str) -> str:
         return check_layout(text)
     except ValueError as e:
         raise argparse.ArgumentTypeError(str(e)) from None
+
+
+def policy_name(text: str) -> str:
+    """A built-in node-side policy, or a user's ``Policy`` subclass by import path ("module:Class"), imported
+    here so that a typo fails before any process starts (modules in the working directory are importable,
+    as with ``python -m``)."""
+    if text in POLICIES:
+        return text
+    if not is_import_path(text):
+        raise argparse.ArgumentTypeError(f"expected one of {', '.join(sorted(POLICIES))} or an import path "
+                                         f"'module:Class' (got {text!r})")
+    extend_path([str(Path.cwd())])
+    try:
+        load(text, Policy)
+    except PluginError as e:
+        raise argparse.ArgumentTypeError(str(e)) from None
+    return text
 
 
 COUNT = integer(1)

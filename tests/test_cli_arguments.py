@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import json
 
 import pytest
 
@@ -98,3 +99,23 @@ def test_no_episodes_without_serve_is_refused(capsys):
     assert main(["launch", "aot1", "--transport", "inproc", "--episodes", "0", "-q"]) == 2
     assert capsys.readouterr().err.strip() == (
         "orchestrator: --episodes 0 runs no episode: it is for --serve, which then only serves")
+
+
+def test_launch_takes_a_policy_of_your_own_by_import_path(tmp_path, monkeypatch, capsys):
+    """--policy names a built-in or a Policy subclass (module:Class); anything else fails before any process."""
+    (tmp_path / "mypolicies.py").write_text(
+        "from node_runtime.model.policies import Policy\n\nclass Last(Policy):\n    name = 'last'\n\n"
+        "    def choose(self, obs, task, valid, extra):\n        return valid[-1]\n\n\nVALUE = 3\n")
+    monkeypatch.chdir(tmp_path)
+    assert main(["launch", "aot1", "--transport", "inproc", "--steps", "30", "--policy", "mypolicies:Last",
+                 "--out", "run", "--json"]) == 0
+    summary = json.loads((tmp_path / "run" / "summary.json").read_text())
+    assert summary["policy"] == "mypolicies:Last" and summary["totals"]["offloaded"] > 0
+    for policy, error in (("lowest_queue", "expected one of greedy, greedy_backlog, least_queue, local, local_first, "
+                                           "random, round_robin or an import path 'module:Class' (got 'lowest_queue')"),
+                          ("mypolicies:VALUE", "mypolicies:VALUE is not a subclass of "
+                                               "node_runtime.model.policies.Policy")):
+        with pytest.raises(SystemExit) as e:
+            main(["launch", "aot1", "--policy", policy])
+        assert e.value.code == 2
+        assert capsys.readouterr().err.strip().endswith(f"argument --policy: {error}")

@@ -123,6 +123,21 @@ def test_train_then_evaluate_command_lines(tmp_path, capsys):
     assert json.loads((tmp_path / "ppo" / "config.json").read_text())["reward"] == "marginal"
 
 
+def test_evaluate_takes_a_rule_of_your_own_by_import_path(tmp_path, monkeypatch, capsys):
+    """A Baseline subclass named module:Class, from the working directory, plays the same episodes."""
+    (tmp_path / "myrules.py").write_text(
+        "from agents.baselines import GreedyBacklog\n\nclass Mine(GreedyBacklog):\n    name = 'mine'\n")
+    monkeypatch.chdir(tmp_path)
+    common = ["--scenario", "aot1", "--lam", "0.3", "--episodes", "2", "--max-steps", "40", "--no-progress"]
+    evaluate.main(["myrules:Mine", *common, "--csv", "mine.csv"])
+    evaluate.main(["greedy_backlog", *common, "--csv", "builtin.csv"])
+    mine, builtin = read_csv(tmp_path / "mine.csv"), read_csv(tmp_path / "builtin.csv")
+    assert [r["completed"] for r in mine] == [r["completed"] for r in builtin] and int(mine[0]["decisions"]) > 0
+    with pytest.raises(SystemExit):
+        evaluate.main(["myrules:Nope", *common])
+    assert "myrules:Nope: module 'myrules' has no 'Nope'" in capsys.readouterr().err
+
+
 def test_evaluate_adds_its_runs_to_a_marl_eval_file(tmp_path):
     train.main(["a2c", "--scenario", "aot1", "--episodes", "1", "--max-steps", "20", "--seed", "3",
                 "--out", str(tmp_path), "--no-progress"])
