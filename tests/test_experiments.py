@@ -104,6 +104,11 @@ def test_several_seeds_give_intervals_over_seeds_and_evaluate_a_baseline_once(tm
         assert (float(r["dropped"]), float(r["dropped_ci95"])) == pytest.approx((mean, half))
 
 
+def test_rq2_counts_the_clusters_of_the_paper_networks_and_their_variants():
+    names = ("aot1", "aot4_urgent", "aot3_reference", "ring", "aot2x")
+    assert [rq2.clusters(s) for s in names] == [1, 4, 3, None, None]
+
+
 def test_rq2_quick_writes_csv_and_figure(tmp_path):
     rq2.main([*TINY, "--scenarios", "aot1", "aot2", "--out", str(tmp_path), "--set", "ppo.rollout_steps=10"])
     check_outputs(tmp_path, "rq2", "clusters", ["1.0", "2.0"])
