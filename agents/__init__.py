@@ -22,7 +22,7 @@ from agents.ddqn import DDQN, DDQNConfig
 from agents.learner import Learner, LearnerConfig
 from agents.ppo import PPO, PPOConfig
 from agents.training import evaluate, train
-from node_runtime.model.plugins import is_import_path, load
+from node_runtime.model.plugins import is_import_path, load_from_command_line
 
 LEARNERS: dict[str, type[Learner]] = {"ddqn": DDQN, "a2c": A2C, "ppo": PPO}
 POLICY_NAMES = (*LEARNERS, *BASELINES)
@@ -33,7 +33,7 @@ def make_policy(name: str, env: Any = None, config: LearnerConfig | None = None,
     """A baseline by name, a user's ``Baseline`` subclass by import path ("module:Class"; ``PluginError`` if it
     is none), or a fresh learner for ``env``'s agents (``config`` defaults to the learner's)."""
     if is_import_path(name):
-        return load(name, Baseline)(seed)
+        return load_from_command_line(name, Baseline)(seed)
     if name in BASELINES:
         return BASELINES[name](seed)
     if name not in LEARNERS:

@@ -22,7 +22,7 @@ from experiments import marl_eval
 from experiments.common import Parser, add_env_arguments, check_scenario, make_env, positive_int, seed_int, set_threads
 from experiments.distributed import add_ray_arguments, ray_problem, run_on_ray, wants_ray
 from experiments.plot import mean_ci
-from node_runtime.model.plugins import PluginError, extend_path, is_import_path
+from node_runtime.model.plugins import PluginError, is_import_path
 
 
 @dataclass(frozen=True)
@@ -79,7 +79,6 @@ def main(argv: Sequence[str] | None = None) -> None:
     policy: Policy
     baseline = args.policy in BASELINES or is_import_path(args.policy)
     if baseline:
-        extend_path([str(Path.cwd())])  # as python -m does for the module it runs
         try:
             policy = make_policy(args.policy, seed=args.seed)
         except PluginError as e:

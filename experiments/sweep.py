@@ -34,7 +34,7 @@ from rich.console import Console
 from rich.progress import Progress
 from rich.table import Table
 
-from agents import BASELINES, LEARNERS, LearnerConfig, Policy, evaluate, train
+from agents import BASELINES, LEARNERS, Baseline, LearnerConfig, Policy, evaluate, make_policy, train
 from agents.training import progress_bar, write_csv
 from experiments import marl_eval
 from experiments.common import (
@@ -50,6 +50,7 @@ from experiments.common import (
 )
 from experiments.distributed import add_ray_arguments, ray_problem, run_on_ray, wants_ray
 from experiments.plot import plot_study, summarise
+from node_runtime.model.plugins import PluginError, is_import_path, load_from_command_line
 
 AGENTS = (*LEARNERS, *BASELINES)  # every learner, then every baseline
 
@@ -107,6 +108,21 @@ class RunResult:
     trained_steps: int  # environment steps the policy learnt from (0 for a baseline)
 
 
+def agent_name(text: str) -> str:
+    """A learner, a baseline, or a user's ``Baseline`` subclass by import path, imported here so that a typo
+    fails before any training."""
+    if text in AGENTS:
+        return text
+    if not is_import_path(text):
+        raise argparse.ArgumentTypeError(f"expected one of {', '.join(AGENTS)} or an import path 'module:Class' "
+                                         f"(got {text!r})")
+    try:
+        load_from_command_line(text, Baseline)
+    except PluginError as e:
+        raise argparse.ArgumentTypeError(str(e)) from None
+    return text
+
+
 def parser(study: str, description: str) -> argparse.ArgumentParser:
     p = Parser(prog=f"python -m experiments.{study}", description=description)
     p.add_argument("--quick", action="store_true",
@@ -114,8 +130,9 @@ def parser(study: str, description: str) -> argparse.ArgumentParser:
                         f"training and {QUICK.eval_episodes} evaluation episodes, {QUICK.hidden} networks, fewer "
                         "sweep values (docs/agents.md)")
     p.add_argument("--out", type=Path, default=Path(f"runs/{study}"), help=f"output directory (default runs/{study})")
-    p.add_argument("--agents", nargs="+", default=list(AGENTS), choices=list(AGENTS), metavar="AGENT",
-                   help=f"agents to run (default: all of {', '.join(AGENTS)})")
+    p.add_argument("--agents", nargs="+", default=list(AGENTS), type=agent_name, metavar="AGENT",
+                   help=f"agents to run: {', '.join(AGENTS)} (the default: all), or a Baseline subclass of your own "
+                        "as module:Class (docs/extending.md)")
     p.add_argument("--train-episodes", type=positive_int, default=None,
                    help="training episodes per learner and point (default 300, quick 10)")
     p.add_argument("--eval-episodes", type=positive_int, default=None,
@@ -217,7 +234,7 @@ def run_one(run: Run, out: Path, progress: Progress | None = None) -> RunResult:
             timings.append(_timing(run, "train", s.train_episodes, start))
             start = time.perf_counter()
         else:
-            policy = BASELINES[run.agent](run.seed)
+            policy = make_policy(run.agent, seed=run.seed)
         rows = evaluate(env, policy, s.eval_episodes, progress=progress, label=f"{run} eval")
         timings.append(_timing(run, "eval", s.eval_episodes, start))
     finally:

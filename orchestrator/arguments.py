@@ -7,9 +7,8 @@ argparse turns the ``ArgumentTypeError`` into ``error: argument --steps: expecte
 from __future__ import annotations
 
 import argparse
-from pathlib import Path
 
-from node_runtime.model.plugins import PluginError, extend_path, is_import_path, load
+from node_runtime.model.plugins import PluginError, is_import_path, load_from_command_line
 from node_runtime.model.policies import POLICIES, Policy
 from node_runtime.runtime.cli_options import integer, number
 from node_runtime.runtime.layout import check_layout
@@ -32,9 +31,8 @@ def policy_name(text: str) -> str:
     if not is_import_path(text):
         raise argparse.ArgumentTypeError(f"expected one of {', '.join(sorted(POLICIES))} or an import path "
                                          f"'module:Class' (got {text!r})")
-    extend_path([str(Path.cwd())])
     try:
-        load(text, Policy)
+        load_from_command_line(text, Policy)
     except PluginError as e:
         raise argparse.ArgumentTypeError(str(e)) from None
     return text

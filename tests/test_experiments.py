@@ -141,6 +141,12 @@ def test_evaluate_takes_a_rule_of_your_own_by_import_path(tmp_path, monkeypatch,
     with pytest.raises(SystemExit):
         evaluate.main(["myrules:Nope", *common])
     assert "myrules:Nope: module 'myrules' has no 'Nope'" in capsys.readouterr().err
+    # and in a study, beside the built-ins, on the same episodes
+    rq1.main(["--agents", "greedy_backlog", "myrules:Mine", "--lambdas", "0.3", "--eval-episodes", "2",
+              "--max-steps", "40", "--out", "study", "--no-progress"])
+    rows = read_csv(tmp_path / "study" / "results.csv")
+    by_agent = {a: [r["completed"] for r in rows if r["agent"] == a] for a in ("greedy_backlog", "myrules:Mine")}
+    assert by_agent["myrules:Mine"] == by_agent["greedy_backlog"] and len(by_agent["greedy_backlog"]) == 2
 
 
 def test_evaluate_adds_its_runs_to_a_marl_eval_file(tmp_path):
@@ -173,6 +179,10 @@ def test_evaluate_adds_its_runs_to_a_marl_eval_file(tmp_path):
     (train, ["a2c", "--scenario", "aot9"], "aot9: no such file or bundled scenario (did you mean 'aot4'?); "
                                            "bundled: aot1, aot1_reference, aot2, "),
     (rq2, ["--scenarios", "aot1", "nowhere.yaml"], "nowhere.yaml: no such file or bundled scenario"),
+    (rq1, ["--agents", "ppo", "best"], "argument --agents: expected one of ddqn, a2c, ppo, local, random, round_robin, "
+                                       "least_queue, greedy, greedy_backlog, local_first or an import path "
+                                       "'module:Class' (got 'best')"),
+    (rq2, ["--agents", "agents.baselines:Nothing"], "argument --agents: module 'agents.baselines' has no 'Nothing'"),
     (evaluate, ["greedy", "--scenario", "aot5"], "aot5: no such file or bundled scenario"),
     (evaluate, ["nothing.pt"], "'nothing.pt' is neither a baseline (local, random,"),
     (rq1, ["--lambdas", "0.1", "-1"], "argument --lambdas: expected an arrival rate >= 0 (tasks/s per source), "

@@ -9,6 +9,7 @@ validating, so a typo fails there, with the key path, before any process starts.
 from __future__ import annotations
 
 import importlib
+import os
 import sys
 from collections.abc import Iterable
 from typing import Any
@@ -54,3 +55,10 @@ def extend_path(paths: Iterable[str]) -> None:
     for p in paths:
         if p not in sys.path:
             sys.path.append(p)
+
+
+def load_from_command_line(path: str, base: type) -> Any:
+    """``load`` for an import path given on a command line: the working directory is importable, as
+    ``python -m`` makes it (node processes inherit it)."""
+    extend_path([os.getcwd()])
+    return load(path, base)
