@@ -78,6 +78,16 @@ def test_a_cycle_is_refused(tmp_path):
     assert str(e.value).endswith("extends: 'a.yaml' extends itself (a.yaml -> b.yaml -> a.yaml)"), str(e.value)
 
 
+def test_a_chain_too_deep_is_refused(tmp_path):
+    for i in range(40):
+        write(tmp_path / f"s{i}.yaml", {"extends": f"s{i + 1}.yaml"})
+    write(tmp_path / "s40.yaml", {"extends": "aot1"})
+    with pytest.raises(ScenarioError) as e:
+        load_scenario(tmp_path / "s0.yaml")
+    assert str(e.value).endswith("extends: more than 16 scenarios deep"), str(e.value)
+    assert load_scenario(tmp_path / "s30.yaml").name == "s30"  # ten deep is fine
+
+
 def test_an_error_in_an_inherited_key_names_the_extending_file(tmp_path, capsys):
     write(tmp_path / "base.yaml", {"extends": "aot2", "simulation": {"steps": "many"}})
     path = write(tmp_path / "child.yaml", {"extends": "base.yaml"})

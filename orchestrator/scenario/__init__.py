@@ -20,6 +20,8 @@ from topologies import bundled_scenarios, scenario_path
 
 __all__ = ["ScenarioError", "load_scenario"]
 
+MAX_BASES = 16  # a chain of ``extends`` longer than this is a mistake (or a file made to exhaust the stack)
+
 
 def load_scenario(source: str | Path | dict[str, Any], *, name_hint: str = "") -> Scenario:
     """A scenario from a bundled name ("aot2"), a YAML path, or a dict. Raises ``ScenarioError``."""
@@ -76,6 +78,8 @@ def _inherit(data: dict[str, Any], folder: Path, label: str,
         raise ScenarioError([f"{label}: extends: expected a bundled scenario's name or the path of a scenario "
                              f"file, got {ref!r}"])
     path = _locate(ref, folder)
+    if len(chain) > MAX_BASES:
+        raise ScenarioError([f"{label}: extends: more than {MAX_BASES} scenarios deep"])
     if path.resolve() in chain:
         cycle = " -> ".join(p.name for p in (*chain, path.resolve()))
         raise ScenarioError([f"{label}: extends: {ref!r} extends itself ({cycle})"])
