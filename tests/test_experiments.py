@@ -177,7 +177,7 @@ def test_evaluate_adds_its_runs_to_a_marl_eval_file(tmp_path):
     (train, ["ppo", "--set", "teacher=oracle"], "ppo: teacher must be one of local, random, round_robin,"),
     (rq1, ["--agents", "a2c", "--set", "actor=cnn"], "a2c: actor must be one of targets, mlp, not 'cnn'"),
     (train, ["a2c", "--scenario", "aot9"], "aot9: no such file or bundled scenario (did you mean 'aot4'?); "
-                                           "bundled: aot1, aot1_reference, aot2, "),
+                                           "bundled: aot1, aot1_compute, aot1_reference, aot1_urgent, "),
     (rq2, ["--scenarios", "aot1", "nowhere.yaml"], "nowhere.yaml: no such file or bundled scenario"),
     (rq1, ["--agents", "ppo", "best"], "argument --agents: expected one of ddqn, a2c, ppo, local, random, round_robin, "
                                        "least_queue, greedy, greedy_backlog, local_first or an import path "

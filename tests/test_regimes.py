@@ -7,6 +7,7 @@ import pytest
 from agents import BASELINES, evaluate
 from experiments import regimes
 from experiments.common import make_env
+from orchestrator.scenario import load_scenario
 
 
 def _stats(completion: dict[str, float], score: dict[str, float], dropped: dict[str, float]) -> dict:
@@ -59,6 +60,19 @@ def test_every_family_is_a_bundled_scenario_with_two_rates():
         env = make_env(family.scenario, None, 5)
         assert len(env.scenario.nodes) == 28 and len(family.lambdas) == 2
         env.close()
+
+
+@pytest.mark.parametrize("family", ["compute", "urgent", "wired"])
+def test_each_variant_family_comes_at_every_size_of_the_paper(family):
+    """RQ2 adds clusters: aot1..aot4's networks with the family's tasks and links, and nothing else changed."""
+    three = load_scenario(f"aot3_{family}")
+    for k, nodes in ((1, 12), (2, 19), (4, 31)):
+        sc = load_scenario(f"aot{k}_{family}")
+        assert len(sc.nodes) == nodes == len(load_scenario(f"aot{k}").nodes)
+        assert sc.name == f"aot{k}_{family}"
+        own = dict.fromkeys(("name", "source", "extra", "nodes", "links", "workload"))
+        assert sc.to_dict() | own == three.to_dict() | own
+        assert sc.workload.task_types == three.workload.task_types and sc.workload.arrival == three.workload.arrival
 
 
 @pytest.mark.parametrize("scenario,lam", [("aot3_compute", 0.03), ("aot3_wired", 0.1), ("aot3_urgent", 0.04)])

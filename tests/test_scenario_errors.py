@@ -207,7 +207,7 @@ def test_unknown_bundled_name_lists_the_bundled_scenarios_and_suggests_one(capsy
     assert main(["validate", "aot5"]) == 2
     err = capsys.readouterr().err.strip()
     assert err.startswith("aot5: no such file or bundled scenario (did you mean 'aot4'?); "
-                          "bundled: aot1, aot1_reference, aot2,")
+                          "bundled: aot1, aot1_compute, aot1_reference, aot1_urgent, aot1_wired, aot2,")
     assert "examples/minimal" in err and len(err.splitlines()) == 1
 
 
