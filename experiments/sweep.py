@@ -50,7 +50,7 @@ from experiments.common import (
 )
 from experiments.distributed import add_ray_arguments, ray_problem, run_on_ray, wants_ray
 from experiments.plot import plot_study, summarise
-from node_runtime.model.plugins import PluginError, is_import_path, load_from_command_line
+from node_runtime.runtime.cli_options import builtin_or_import
 
 AGENTS = (*LEARNERS, *BASELINES)  # every learner, then every baseline
 
@@ -108,21 +108,6 @@ class RunResult:
     trained_steps: int  # environment steps the policy learnt from (0 for a baseline)
 
 
-def agent_name(text: str) -> str:
-    """A learner, a baseline, or a user's ``Baseline`` subclass by import path, imported here so that a typo
-    fails before any training."""
-    if text in AGENTS:
-        return text
-    if not is_import_path(text):
-        raise argparse.ArgumentTypeError(f"expected one of {', '.join(AGENTS)} or an import path 'module:Class' "
-                                         f"(got {text!r})")
-    try:
-        load_from_command_line(text, Baseline)
-    except PluginError as e:
-        raise argparse.ArgumentTypeError(str(e)) from None
-    return text
-
-
 def parser(study: str, description: str) -> argparse.ArgumentParser:
     p = Parser(prog=f"python -m experiments.{study}", description=description)
     p.add_argument("--quick", action="store_true",
@@ -130,7 +115,8 @@ def parser(study: str, description: str) -> argparse.ArgumentParser:
                         f"training and {QUICK.eval_episodes} evaluation episodes, {QUICK.hidden} networks, fewer "
                         "sweep values (docs/agents.md)")
     p.add_argument("--out", type=Path, default=Path(f"runs/{study}"), help=f"output directory (default runs/{study})")
-    p.add_argument("--agents", nargs="+", default=list(AGENTS), type=agent_name, metavar="AGENT",
+    p.add_argument("--agents", nargs="+", default=list(AGENTS), type=builtin_or_import(AGENTS, Baseline),
+                   metavar="AGENT",
                    help=f"agents to run: {', '.join(AGENTS)} (the default: all), or a Baseline subclass of your own "
                         "as module:Class (docs/extending.md)")
     p.add_argument("--train-episodes", type=positive_int, default=None,

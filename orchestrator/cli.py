@@ -35,7 +35,7 @@ from node_runtime.runtime.layout import LAYOUT_HELP, ProcessLayout
 from node_runtime.runtime.protocol import MAX_SEED
 from node_runtime.runtime.security import SecurityError
 from orchestrator import local_sims
-from orchestrator.arguments import COUNT, NON_NEGATIVE, POSITIVE, integer, layout_name, policy_name
+from orchestrator.arguments import COUNT, NON_NEGATIVE, POLICY, POSITIVE, integer, layout_name
 from orchestrator.clock import ClockError, ProcessFailed
 from orchestrator.metrics import ConservationError, TickReport
 from orchestrator.placement import load_placement
@@ -345,7 +345,7 @@ def build_parser() -> argparse.ArgumentParser:
                         "process over an in-memory bus (fast, same results)")
     p.add_argument("--layout", type=layout_name, metavar="LAYOUT",
                    help=f"process layout: {LAYOUT_HELP}. Default: per-role over zenoh, single inproc")
-    p.add_argument("--policy", type=policy_name, metavar="POLICY",
+    p.add_argument("--policy", type=POLICY, metavar="POLICY",
                    help=f"node-side decision policy for every controller: {', '.join(sorted(POLICIES))}, or a "
                         "Policy subclass of your own as module:Class (docs/extending.md; default: the scenario's)")
     p.add_argument("--out", metavar="DIR", help="output directory (default: runs/<scenario>-<time>)")

@@ -6,15 +6,34 @@ from __future__ import annotations
 
 import argparse
 import math
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from typing import Any
 
+from node_runtime.model.plugins import PluginError, is_import_path, load_from_command_line
 from node_runtime.runtime.keys import CHUNK, DEFAULT_PREFIX
 from node_runtime.runtime.security import Security, file_overrides
 from node_runtime.runtime.zenoh_bus import ENDPOINT
 
 # Seconds a command waits at most: past it, Zenoh's lease (milliseconds) and Python's waits overflow
 MAX_TIMEOUT_S = 1e6
+
+
+def builtin_or_import(names: Sequence[str], base: type) -> Callable[[str], str]:
+    """One of ``names``, or the import path ("module:Class") of a user's subclass of ``base``, imported here
+    so that a typo fails before any work (modules in the working directory are importable)."""
+
+    def parse(text: str) -> str:
+        if text in names:
+            return text
+        if not is_import_path(text):
+            raise argparse.ArgumentTypeError(f"expected one of {', '.join(names)} or an import path "
+                                             f"'module:Class' (got {text!r})")
+        try:
+            load_from_command_line(text, base)
+        except PluginError as e:
+            raise argparse.ArgumentTypeError(str(e)) from None
+        return text
+    return parse
 
 
 def integer(minimum: int, maximum: int | None = None) -> Callable[[str], int]:
