@@ -77,17 +77,17 @@ def main(argv: Sequence[str] | None = None) -> None:
     args = p.parse_args(argv)
     set_threads(1)
     policy: Policy
-    baseline = args.policy in BASELINES or is_import_path(args.policy)
-    if baseline:
-        try:
-            policy = make_policy(args.policy, seed=args.seed)
-        except PluginError as e:
-            p.error(f"{args.policy}: {e}")
-    elif Path(args.policy).is_file():
+    checkpoint = args.policy not in BASELINES and Path(args.policy).is_file()  # a file wins over an import path
+    if checkpoint:
         try:
             policy = load_learner(args.policy, args.device)
         except (OSError, RuntimeError, ValueError, KeyError, pickle.UnpicklingError) as e:
             p.error(f"{args.policy}: not a checkpoint of this project's learners ({str(e).splitlines()[0]})")
+    elif args.policy in BASELINES or is_import_path(args.policy):
+        try:
+            policy = make_policy(args.policy, seed=args.seed)
+        except PluginError as e:
+            p.error(f"{args.policy}: {e}")
     else:
         p.error(f"{args.policy!r} is neither a baseline ({', '.join(BASELINES)}), an import path module:Class, "
                 "nor a checkpoint file")
@@ -95,8 +95,8 @@ def main(argv: Sequence[str] | None = None) -> None:
     if why := ray_problem(args):
         p.error(why)
     if wants_ray(args):
-        checkpoint = None if baseline else Path(args.policy).read_bytes()
-        jobs = [Episode(k, args.policy if checkpoint is None else None, checkpoint, args.seed, args.device,
+        weights = Path(args.policy).read_bytes() if checkpoint else None
+        jobs = [Episode(k, None if checkpoint else args.policy, weights, args.seed, args.device,
                         args.scenario, args.lam, args.max_steps, args.reward, args.transport)
                 for k in range(args.episodes)]
         rows = run_on_ray(run_episode, jobs, Path.cwd(), args)

@@ -26,12 +26,12 @@ MAX_BASES = 16  # a chain of ``extends`` longer than this is a mistake (or a fil
 def load_scenario(source: str | Path | dict[str, Any], *, name_hint: str = "") -> Scenario:
     """A scenario from a bundled name ("aot2"), a YAML path, or a dict. Raises ``ScenarioError``."""
     if isinstance(source, dict):
-        data, folders = _inherit(dict(source), Path.cwd(), "<dict>", ())
-        return resolve(data, folders[0], name_hint or "scenario", "<dict>", folders[1:])
+        data, bases = _inherit(dict(source), Path.cwd(), "<dict>", ())
+        return resolve(data, Path.cwd(), name_hint or "scenario", "<dict>", bases)
     path = _locate(str(source))
     label = str(source)
-    data, folders = _inherit(_read(path, label, label), path.parent, label, (path.resolve(),))
-    return resolve(data, path.parent, path.stem, label, folders[1:])
+    data, bases = _inherit(_read(path, label, label), path.parent, label, (path.resolve(),))
+    return resolve(data, path.parent, path.stem, label, bases)
 
 
 def _locate(ref: str, folder: Path = Path()) -> Path:
@@ -70,24 +70,25 @@ def _inherit(data: dict[str, Any], folder: Path, label: str,
              chain: tuple[Path, ...]) -> tuple[dict[str, Any], tuple[Path, ...]]:
     """Apply ``extends: BASE``: the base scenario's keys, overridden key by key by this file's (mappings
     merge, anything else replaces; the base's name and description are not inherited). Also returns the
-    folders to look for the files the scenario names in: this file's first, then its bases'."""
+    bases' folders, nearest first: the files the scenario names are looked for there after its own."""
     if "extends" not in data:
-        return data, (folder,)
+        return data, ()
     ref = data.pop("extends")
     if not isinstance(ref, str) or not ref.strip():
         raise ScenarioError([f"{label}: extends: expected a bundled scenario's name or the path of a scenario "
                              f"file, got {ref!r}"])
-    path = _locate(ref, folder)
     if len(chain) > MAX_BASES:
         raise ScenarioError([f"{label}: extends: more than {MAX_BASES} scenarios deep"])
-    if path.resolve() in chain:
-        cycle = " -> ".join(p.name for p in (*chain, path.resolve()))
-        raise ScenarioError([f"{label}: extends: {ref!r} extends itself ({cycle})"])
-    base = _read(path, f"{label}: extends: {ref}", ref)
+    path = _locate(ref, folder)
+    chain = (*chain, path.resolve())
+    if chain[-1] in chain[:-1]:
+        raise ScenarioError([f"{label}: extends: {ref!r} extends itself ({' -> '.join(p.name for p in chain)})"])
+    label = f"{label}: extends: {ref}"
+    base = _read(path, label, ref)
     for own in ("name", "description"):
         base.pop(own, None)
-    base, folders = _inherit(base, path.parent, f"{label}: extends: {ref}", (*chain, path.resolve()))
-    return _merge(base, data), (folder, *folders)
+    base, folders = _inherit(base, path.parent, label, chain)
+    return _merge(base, data), (path.parent, *folders)
 
 
 def _merge(base: dict[str, Any], over: dict[str, Any]) -> dict[str, Any]:

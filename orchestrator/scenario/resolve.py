@@ -11,7 +11,6 @@ import csv
 import difflib
 import inspect
 import math
-import sys
 from pathlib import Path
 from typing import Any
 
@@ -19,7 +18,7 @@ import networkx as nx
 from pydantic import ConfigDict, ValidationError, validate_call
 
 from node_runtime.model.messages import LONGEST_DEADLINE_TICKS
-from node_runtime.model.plugins import PluginError, is_import_path, load
+from node_runtime.model.plugins import PluginError, extend_path, is_import_path, load
 from node_runtime.model.radio import free_space_loss_db, log_distance_gain_db, shannon_rate
 from node_runtime.model.registry import ROLE_KINDS
 from node_runtime.model.role import Role
@@ -88,8 +87,8 @@ def import_new_kinds(data: dict[str, Any], base: Path, label: str) -> None:
 def importable_from(base: Path) -> None:
     """Modules next to the scenario file are importable (its directory joins sys.path, which node
     processes inherit)."""
-    if base.is_dir() and str(base) not in sys.path:
-        sys.path.append(str(base))
+    if base.is_dir():
+        extend_path([str(base)])
 
 
 class _Resolver:
