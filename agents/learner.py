@@ -9,6 +9,10 @@ is closed as terminal when the agent terminated, or bootstraps from the final ob
 truncated with a task in it; truncated without a task there is no decision state to bootstrap from,
 and it is closed as terminal too.
 
+With ``credit="task"`` (on-policy learners) a decision's reward is not what the steps after it bring, but
+its tasks' own account as the environment credits it once they settle (``env.credit``,
+``infos[agent]["credits"]``): a transition is learnt from only once its credit has come.
+
 With ``shared=True`` one network serves every agent: the spaces must be uniform (pass
 ``uniform_spaces=True`` to the environment) and the agent's one-hot id is appended to its features.
 """
@@ -51,6 +55,14 @@ class LearnerConfig:
     lr: float = 5e-4
     shared: bool = False  # one network for all agents (needs uniform spaces), agent id appended
     seed: int = 0
+    credit: str = "step"  # "step": the rewards of the steps after a decision; "task": its tasks' credits (env.credit)
+
+    def __post_init__(self) -> None:  # named choices are checked here, so a command line fails before any work
+        if self.credit not in CREDITS:
+            raise ValueError(f"credit must be one of {', '.join(CREDITS)}, not {self.credit!r}")
+
+
+CREDITS = ("step", "task")
 
 
 @dataclass
@@ -63,6 +75,9 @@ class Pending:
     extras: dict[str, Any] = field(default_factory=dict)  # what the learner stored when acting (log-prob ...)
     reward: float = 0.0  # scaled, discounted sum of the rewards since the decision
     discount: float = 1.0  # gamma ** (steps since the decision)
+    step: int = 0  # of the episode, counted from 0: the decision's key in the environment's credits
+    credit: float | None = None  # credit="task": the scaled credit of its tasks, once they have all settled
+    # (None for good when its episode ends first: it is not learnt from)
 
 
 @dataclass
@@ -81,6 +96,7 @@ class Learner(ABC):
 
     name: ClassVar[str]
     Config: ClassVar[type[LearnerConfig]]
+    task_credit: ClassVar[bool] = False  # whether it can learn from per-task credits (credit="task")
 
     def __init__(self, specs: Mapping[str, AgentSpec], config: LearnerConfig | None = None,
                  device: str = "cpu") -> None:
@@ -93,7 +109,12 @@ class Learner(ABC):
             raise ValueError("shared parameters need every agent to have the same spaces: "
                              "create the environment with uniform_spaces=True")
         self.group = {a: SHARED if self.config.shared else a for a in self.agents}
+        if self.config.credit == "task" and not self.task_credit:
+            raise ValueError(f"{self.name} learns from step rewards only: credit='task' is for ppo and a2c")
         self.pending: dict[str, Pending] = {}
+        self.step = 0  # of the episode
+        self.awaiting: dict[tuple[str, int], Pending] = {}  # credit="task": decisions whose credit has not come
+        self.uncredited = 0  # decisions whose credit never came (their tasks outlived the episode): not learnt
         self.env_steps = 0  # environment steps observed while training
         self.returns = ReturnScale(self.config.gamma)
         self.total_steps = 1  # the training horizon, for schedules (set by start_training)
@@ -129,6 +150,9 @@ class Learner(ABC):
     def reset(self, seed: int | None = None) -> None:
         """Start an episode: forget open transitions (an unfinished episode's are dropped), reseed sampling."""
         self.pending.clear()
+        self.step = 0
+        self.uncredited += len(self.awaiting)  # the last episode ended before their credit came
+        self.awaiting.clear()
         if seed is not None:
             self.rng = np.random.default_rng(seed)
             self.generator.manual_seed(seed)
@@ -156,8 +180,10 @@ class Learner(ABC):
                 if explore:
                     if agent in self.pending:
                         raise RuntimeError(f"{agent}: explore() called twice without observe() in between")
-                    self.pending[agent] = Pending(feats[i], masks[i], int(chosen[i]),
-                                                  {k: v[i] for k, v in extras.items()})
+                    p = self.pending[agent] = Pending(feats[i], masks[i], int(chosen[i]),
+                                                      {k: v[i] for k, v in extras.items()}, step=self.step)
+                    if self.config.credit == "task":
+                        self.awaiting[(agent, self.step)] = p
         return actions
 
     @abstractmethod
@@ -172,13 +198,23 @@ class Learner(ABC):
         self.total_steps = max(1, int(total_steps))
 
     def observe(self, rewards: Mapping[str, float], next_observations: Mapping[str, Observation],
-                terminations: Mapping[str, bool], truncations: Mapping[str, bool]) -> None:
-        """Feed back one environment step; closes transitions and learns when the learner's schedule says so."""
+                terminations: Mapping[str, bool], truncations: Mapping[str, bool],
+                credits: Mapping[str, list[tuple[int, float]]] | None = None) -> None:
+        """Feed back one environment step; closes transitions and learns when the learner's schedule says so.
+        ``credits``: ``infos[agent]["credits"]``, which credit="task" learns from instead of ``rewards``."""
         gamma = self.config.gamma
-        scaled = {a: float(r) * self.config.reward_scale for a, r in rewards.items()}
-        if self.config.normalize_reward:
-            scaled = self.returns.normalize(scaled, {a for a in rewards
-                                                     if terminations.get(a, False) or truncations.get(a, False)})
+        scale = self.config.reward_scale
+        ended = {a for a in rewards if terminations.get(a, False) or truncations.get(a, False)}
+        if self.config.credit == "task":
+            if credits is None:
+                raise ValueError("credit='task' learns from the environment's infos[agent]['credits']: pass them "
+                                 "to observe(credits=...)")
+            self.settle(credits, list(rewards), ended)
+            scaled = dict.fromkeys(rewards, 0.0)
+        else:
+            scaled = {a: float(r) * scale for a, r in rewards.items()}
+            if self.config.normalize_reward:
+                scaled = self.returns.normalize(scaled, ended)
         closed: list[Closed] = []
         for agent, reward in scaled.items():
             p = self.pending.get(agent)
@@ -196,7 +232,21 @@ class Learner(ABC):
         for c in closed:
             del self.pending[c.agent]
         self.env_steps += 1
+        self.step += 1
         self.learn(closed, next_observations)
+
+    def settle(self, credits: Mapping[str, list[tuple[int, float]]], agents: list[str], ended: set[str]) -> None:
+        """Give each credited decision its scaled credit (normalised as the rewards would be: by the running
+        std of each agent's discounted sum of the credits as they come)."""
+        scale = self.config.reward_scale
+        if self.config.normalize_reward:
+            self.returns.normalize({a: scale * sum(v for _, v in credits.get(a, ())) for a in agents}, ended)
+        for agent, pairs in credits.items():
+            for step, value in pairs:
+                p = self.awaiting.pop((agent, step), None)
+                if p is None:
+                    raise ValueError(f"a credit for {agent}'s step {step}, which took no decision awaiting one")
+                p.credit = self.returns.divide(value * scale) if self.config.normalize_reward else value * scale
 
     @abstractmethod
     def learn(self, closed: list[Closed], next_observations: Mapping[str, Observation]) -> None:
@@ -258,6 +308,10 @@ class ReturnScale:
         std = float(np.sqrt(self.rms.var + self.epsilon))
         clip = self.clip
         return {a: max(-clip, min(clip, r / std)) for a, r in rewards.items()}  # every step: no numpy per scalar
+
+    def divide(self, reward: float) -> float:
+        """One reward normalised by the running std as it stands (``normalize`` updates it)."""
+        return max(-self.clip, min(self.clip, reward / float(np.sqrt(self.rms.var + self.epsilon))))
 
     def stats(self) -> list[float]:
         return [float(self.rms.mean), float(self.rms.var), float(self.rms.count)]

@@ -36,7 +36,7 @@ from agents.common import (
     mlp,
     one_hot,
 )
-from agents.learner import Closed, Learner, LearnerConfig
+from agents.learner import Closed, Learner, LearnerConfig, Pending
 
 
 @dataclass
@@ -56,6 +56,7 @@ class ActorCriticConfig(LearnerConfig):
     teacher_fraction: float = 0.25  # ... over this fraction of the training horizon
 
     def __post_init__(self) -> None:  # named choices are checked here, so a command line fails before any work
+        super().__post_init__()
         if self.actor not in ACTORS:
             raise ValueError(f"actor must be one of {', '.join(ACTORS)}, not {self.actor!r}")
         if self.teacher and self.teacher not in BASELINES:
@@ -98,6 +99,37 @@ class Record:
     next_value: float
     last: bool
     teacher: int = -1  # the teacher's action in that state (-1: no teacher)
+    source: Pending | None = None  # credit="task": the decision, whose credit is its reward once it has come
+
+
+def credited(records: list[Record]) -> tuple[list[Record], list[Record]]:
+    """The records that can be learnt from now, and those that wait: credit="task" holds each agent's records
+    from its first decision whose credit has not come (its advantage needs every reward after it)."""
+    ready: list[Record] = []
+    waiting: list[Record] = []
+    held: set[str] = set()
+    for r in records:
+        if r.agent in held or (r.source is not None and r.source.credit is None):
+            held.add(r.agent)
+            waiting.append(r)
+        else:
+            ready.append(r)
+    return ready, waiting
+
+
+def uncredited_removed(records: list[Record]) -> list[Record]:
+    """The records without those whose credit will never come; the record before each removed one (of the same
+    agent) ends its chain there, bootstrapping from the value of the state that followed it."""
+    kept: list[Record] = []
+    last: dict[str, Record] = {}
+    for r in records:
+        if r.source is not None and r.source.credit is None:
+            if r.agent in last:
+                last[r.agent].last = True
+            continue
+        kept.append(r)
+        last[r.agent] = r
+    return kept
 
 
 class OnPolicyLearner(Learner):
@@ -105,6 +137,7 @@ class OnPolicyLearner(Learner):
 
     config: ActorCriticConfig
     stat_names: tuple[str, ...] = ("policy_loss", "value_loss", "entropy")
+    task_credit = True
 
     def __init__(self, specs: Mapping[str, AgentSpec], config: ActorCriticConfig | None = None,
                  device: str = "cpu") -> None:
@@ -137,11 +170,6 @@ class OnPolicyLearner(Learner):
 
     # ----- acting -----
 
-    def reset(self, seed: int | None = None) -> None:
-        super().reset(seed)
-        if self.teacher is not None:  # its own state (round robin's counters, random's draws) follows the episode
-            self.teacher.reset(seed)
-
     def choose(self, group: str, agents: list[str], feats: np.ndarray, masks: np.ndarray,
                observations: Mapping[str, Observation], explore: bool) -> tuple[np.ndarray, dict[str, np.ndarray]]:
         net = self.nets[group]
@@ -160,6 +188,14 @@ class OnPolicyLearner(Learner):
             taught = self.teacher.act({a: observations[a] for a in agents})
             extras["teacher"] = np.array([taught[a] for a in agents])
         return actions.cpu().numpy(), extras
+
+    def reset(self, seed: int | None = None) -> None:
+        if self.awaiting:  # decisions whose tasks outlived their episode: what they lead to is not known
+            for group, records in self.rollout.items():
+                self.rollout[group] = uncredited_removed(records)
+        super().reset(seed)
+        if self.teacher is not None:  # its own state (round robin's counters, random's draws) follows the episode
+            self.teacher.reset(seed)
 
     # ----- learning -----
 
@@ -180,7 +216,7 @@ class OnPolicyLearner(Learner):
                 self.rollout[group].append(Record(
                     c.agent, p.features, p.extras["critic"], p.mask, p.action, float(p.extras["logp"]),
                     float(p.extras["value"]), p.reward, c.discount, next_values.get(c.agent, 0.0), c.last,
-                    int(p.extras.get("teacher", -1))))
+                    int(p.extras.get("teacher", -1)), p if self.config.credit == "task" else None))
         if self.env_steps % self.config.rollout_steps == 0:
             if self.config.anneal_lr:  # the rate at the start of the rollout, so the last one still learns
                 started = self.env_steps - self.config.rollout_steps
@@ -190,10 +226,11 @@ class OnPolicyLearner(Learner):
                         pg["lr"] = lr
             stats = []
             for group, records in self.rollout.items():
-                if records:
-                    stats.append(self.update_group(group, self.batch(records)))
+                ready, waiting = credited(records)
+                if ready:
+                    stats.append(self.update_group(group, self.batch(ready)))
                     self.updates += 1
-                    records.clear()
+                records[:] = waiting
             if stats:  # averaged over the networks updated (one per agent when independent)
                 self.last_stats = {k: float(np.mean([s[k] for s in stats])) for k in self.stat_names}
 
@@ -204,7 +241,8 @@ class OnPolicyLearner(Learner):
         following: dict[str, float] = {}  # advantage of the agent's next record, walking backwards
         for i in range(len(records) - 1, -1, -1):
             r = records[i]
-            delta = r.reward + r.discount * r.next_value - r.value
+            reward = r.reward if r.source is None else r.source.credit
+            delta = reward + r.discount * r.next_value - r.value
             cont = 0.0 if r.last else following.get(r.agent, 0.0)
             adv[i] = following[r.agent] = delta + r.discount * lam * cont
         values = np.array([r.value for r in records], dtype=np.float32)
@@ -249,7 +287,7 @@ class OnPolicyLearner(Learner):
         """Learn from one group's rollout; returns the values of ``stat_names``."""
 
     def stats(self) -> dict[str, float]:
-        return {**self.last_stats, "updates": float(self.updates)}
+        return {**self.last_stats, "updates": float(self.updates), "uncredited": float(self.uncredited)}
 
     # ----- checkpoints -----
 

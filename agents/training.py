@@ -56,7 +56,9 @@ def run_episode(env: Any, policy: Policy, seed: int, learner: Learner | None = N
         actions = learner.explore(observations) if learner is not None else policy.act(observations)
         observations, rewards, terminations, truncations, infos = env.step(actions)
         if learner is not None:
-            learner.observe(rewards, observations, terminations, truncations)
+            known = all("credits" in i for i in infos.values())  # not in flat mode's numbers-only infos
+            credits = {a: i["credits"] for a, i in infos.items()} if known else None
+            learner.observe(rewards, observations, terminations, truncations, credits)
         total += sum(rewards.values())
         steps += 1
     episode = next((i["episode"] for i in infos.values() if "episode" in i), None)

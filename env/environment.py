@@ -27,6 +27,7 @@ from gymnasium import spaces
 from pettingzoo import ParallelEnv
 
 from env.actions import ActionRules
+from env.credit import TaskCredit
 from env.observations import DictObservation, FlatObservation, ObservationBuilder, ObservationLayout
 from env.overrides import ScenarioOverrides
 from env.reward import PaperWeights, RewardContext, RewardFn, RewardTerms, nominal_arrivals, resolve_reward, terms_for
@@ -136,6 +137,7 @@ class ZenohEdgeEnv(ParallelEnv):
         self.weights = reward_weights or PaperWeights()
         self.arrivals = nominal_arrivals(sc)
         self.penalty = penalty_s(sc)  # what the headline score charges a task that does not complete
+        self.credit = TaskCredit(self.penalty)  # infos[agent]["credits"]
         self.max_steps = max_steps or sc.episode_ticks // sc.decision_interval
         self.render_mode = render_mode
         self.connect = connect
@@ -216,6 +218,7 @@ class ZenohEdgeEnv(ParallelEnv):
         self._steps = 0
         self._invalid = dict.fromkeys(self.possible_agents, 0)
         self._last_actions = {}
+        self.credit.reset()
         self._observe()
         nodes = _by_node(output_values(Out.ENV, report.nodes, report.node_delta, self.sim.metrics.capacity))
         infos = {a: self._info(a, nodes, ()) for a in self.agents}
@@ -230,14 +233,18 @@ class ZenohEdgeEnv(ParallelEnv):
         dt = self.scenario.dt
         controller_actions: dict[str, Any] = {}
         terms: dict[str, tuple[RewardTerms, ...]] = {}
+        credits: dict[str, list[tuple[int, float]]] = {}
         for agent, action in resolved.decisions.items():
             raw = self._raw[agent]
             controller_actions[self._role[agent]] = action
             if isinstance(action, int):
                 terms[agent] = (self.terms_fn(raw, raw.tasks[0], action, dt, self.weights, self.arrivals),)
+                placed = (raw.tasks[0].id,)
             else:
                 terms[agent] = tuple(self.terms_fn(raw, t, a, dt, self.weights, self.arrivals)
                                      for t, a in zip(raw.tasks, action, strict=True))
+                placed = tuple(t.id for t in raw.tasks)
+            credits.update(self.credit.place(agent, self._steps, placed))
         for agent in resolved.invalid:
             self._invalid[agent] += 1
         self._last_actions = resolved.decisions
@@ -247,6 +254,9 @@ class ZenohEdgeEnv(ParallelEnv):
         before = dict(self._raw)
         self._observe()
         self._steps += 1
+        truncated = self._steps >= self.max_steps
+        for report in reports:
+            _extend(credits, self.credit.settle(report.ledger))
 
         node_delta = reports[0].node_delta if len(reports) == 1 else sum(r.node_delta for r in reports)
         capacity = self.sim.metrics.capacity * len(reports)  # the step's cycles, for a share
@@ -263,9 +273,8 @@ class ZenohEdgeEnv(ParallelEnv):
                                 agent_terms, delta, dt, self.weights, self.arrivals, network_delta, self.penalty)
             rewards[agent] = float(self.reward_fn(ctx))
             infos[agent] = {"tick": tick, "node": nodes[row],
-                            "reward_terms": [t.as_dict() for t in agent_terms],
+                            "reward_terms": [t.as_dict() for t in agent_terms], "credits": credits.get(agent, []),
                             "invalid_action": agent in resolved.invalid, "invalid_action_count": self._invalid[agent]}
-        truncated = self._steps >= self.max_steps
         terminations = dict.fromkeys(self.agents, False)
         truncations = dict.fromkeys(self.agents, truncated)
         observations = dict(self._obs)
@@ -335,7 +344,8 @@ class ZenohEdgeEnv(ParallelEnv):
             self._obs[agent] = self.builders[agent].encode(raw)
 
     def _info(self, agent: str, nodes: list[dict[str, Any]], terms: tuple[RewardTerms, ...]) -> dict[str, Any]:
-        return {"tick": self.sim.tick, "node": nodes[self._row[agent]], "reward_terms": [t.as_dict() for t in terms]}
+        return {"tick": self.sim.tick, "node": nodes[self._row[agent]], "reward_terms": [t.as_dict() for t in terms],
+                "credits": []}
 
     def _numbers(self, infos: dict[str, dict[str, Any]]) -> dict[str, dict[str, float]]:
         """Flat mode's infos: the same keys at every reset and step, each a number (libraries stack them);
@@ -348,6 +358,11 @@ class ZenohEdgeEnv(ParallelEnv):
                        "invalid_action_count": info.get("invalid_action_count", 0)}
             out[agent] = numbers | {f"node_{k}": v for k, v in _flat_items(info["node"])}
         return out
+
+
+def _extend(credits: dict[str, list[tuple[int, float]]], more: dict[str, list[tuple[int, float]]]) -> None:
+    for agent, pairs in more.items():
+        credits.setdefault(agent, []).extend(pairs)
 
 
 def _flat_items(values: dict[str, Any], prefix: str = ""):

@@ -131,10 +131,18 @@ def coerce(text: str, default: Any) -> Any:
     return text
 
 
-def learner_config(algo: str, *, seed: int, hidden: Sequence[int] | None = None,
+# what an on-policy learner trained on the marginal reward uses unless told otherwise: each decision is learnt
+# from its own tasks' credit, which prices every wait it causes, so nothing after it is added (gamma 0)
+TASK_CREDIT: dict[str, Any] = {"credit": "task", "gamma": 0.0}
+
+
+def learner_config(algo: str, *, seed: int, reward: str, hidden: Sequence[int] | None = None,
                    base: dict[str, Any] | None = None, overrides: Sequence[str] = (),
                    chosen: Collection[str] = ()) -> LearnerConfig:
     """``algo``'s config: its defaults, then ``base`` (e.g. quick mode's), hidden sizes, seed, then ``--set``s.
+
+    On the ``marginal`` reward a learner that can (PPO, A2C) learns from each decision's own credit
+    (``TASK_CREDIT``: env.credit, docs/agents.md "Credit per task"), which is that reward's per-task account.
 
     ``chosen`` are the algorithms this run trains (default: ``algo`` alone). An ``--set`` must reach one of them:
     a prefix names one of them and a field it has, an unprefixed field belongs to at least one of them (and
@@ -142,7 +150,8 @@ def learner_config(algo: str, *, seed: int, hidden: Sequence[int] | None = None,
     chosen = set(chosen) | {algo}
     cls = LEARNERS[algo].Config
     defaults = {f.name: f.default for f in dataclasses.fields(cls)}
-    values: dict[str, Any] = dict(base or {})
+    values: dict[str, Any] = dict(TASK_CREDIT) if reward == "marginal" and LEARNERS[algo].task_credit else {}
+    values.update(base or {})
     if hidden:
         values["hidden"] = tuple(hidden)
     values["seed"] = seed
@@ -170,6 +179,9 @@ def learner_config(algo: str, *, seed: int, hidden: Sequence[int] | None = None,
             values[name] = coerce(text, defaults[name])
         except ValueError as e:
             raise ValueError(f"--set {item!r}: {e}") from None
+    if values.get("credit") == "task" and reward != "marginal":
+        raise ValueError(f"{algo}: credit=task learns from the marginal reward's credits per task, not from "
+                         f"{reward!r}: train on --reward marginal, or leave credit at step")
     try:
         return cls(**values)
     except ValueError as e:  # a value of the right type that the learner refuses (an unknown teacher ...)

@@ -149,7 +149,8 @@ def run_study(study: str, points: Sequence[Point], x_key: str, xlabel: str, args
     if args.overrides and not learners:
         usage_error(prog, f"--set {args.overrides[0]!r}: no learner among --agents")
     try:
-        configs = {(a, seed): learner_config(a, seed=seed, hidden=settings.hidden, base=settings.learners.get(a),
+        configs = {(a, seed): learner_config(a, seed=seed, reward=args.reward, hidden=settings.hidden,
+                                             base=settings.learners.get(a),
                                              overrides=args.overrides, chosen=learners)
                    for seed in args.seeds for a in learners}
     except ValueError as e:

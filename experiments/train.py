@@ -40,7 +40,8 @@ def main(argv: Sequence[str] | None = None) -> None:
     args = p.parse_args(argv)
     args.reward = args.reward or DEFAULT_REWARD.get(args.algo, "paper")
     try:
-        config = learner_config(args.algo, seed=args.seed, hidden=args.hidden, overrides=args.overrides)
+        config = learner_config(args.algo, seed=args.seed, reward=args.reward, hidden=args.hidden,
+                                overrides=args.overrides)
     except ValueError as e:
         p.error(str(e))
     check_scenario(p.prog, args.scenario, args.lam)

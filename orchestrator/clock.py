@@ -140,8 +140,10 @@ class Clock:
             return WRONG_TICK, f"a second done for tick {t}"
         hosted = self.hosted[i]
         stats, flights, times, obs, sent = done.stats, done.flights, done.response_times, done.obs, done.sent
+        ledger = done.ledger
         if not ((not stats or hosted.issuperset(stats)) and (not flights or hosted.issuperset(flights))
                 and (not times or hosted.issuperset(times)) and (not obs or hosted.issuperset(obs))
+                and (not ledger or hosted.issuperset(ledger))
                 and (not sent or self.receivers[i].issuperset(sent))):
             return UNKNOWN_SENDER, (f"a report on roles {done.proc} does not host, or on mail to processes it "
                                     "never sends to")

@@ -153,6 +153,8 @@ class TickReport:
     nodes: np.ndarray  # cumulative FIELDS per node (canonical node order)
     node_delta: np.ndarray
     response_times: list[float]  # completions this tick, seconds
+    ledger: list[tuple[int, int, float]] = field(default_factory=list)  # the roles' per-task entries this tick,
+    # in canonical role order (role.Counters.ledger); only while an agent drives the episode
 
     def __getitem__(self, name: str) -> int | float:
         """A count or level of the catalogue over the network at the end of the tick (cumulative)."""
@@ -286,16 +288,19 @@ class Metrics:
                     landing.setdefault(arrive, []).append((role, n))
         for role, n in landing.pop(tick, ()):  # delivered in this tick: held or accounted by the receiver
             m[role, IN_FLIGHT] -= n
+        ledgers: dict[int, list[tuple[int, int, float]]] = {}
         for d in dones:  # completions, in canonical role order within each process
             for role, times in d.response_times.items():
                 rts.extend(times)
                 m[role, RT_SUM] += sum(times)
                 self.rt_by_node.setdefault(role_node(self.roles[role]), []).extend(times)
+            ledgers.update(d.ledger)
         m[:, PENALISED] = m[:, RT_SUM] + self.penalty * (m[:, GENERATED] - m[:, COMPLETED])
         totals = m.sum(axis=0)
         nodes = self.incidence @ m
         self.check(tick, totals)
-        report = TickReport(tick, totals, totals - self.last_totals, nodes, nodes - self.last_nodes, rts)
+        ledger = [entry for role in sorted(ledgers) for entry in ledgers[role]] if ledgers else []
+        report = TickReport(tick, totals, totals - self.last_totals, nodes, nodes - self.last_nodes, rts, ledger)
         if self.history or self._files:
             self._rows.add(tick, totals, nodes, rts)
             if self._files and len(self._rows.ticks) >= STREAM_BLOCK:

@@ -48,8 +48,19 @@ def test_tick_and_done_roundtrip():
                       [TaskView(7, 8e7, 1.0, 2.0, 1.0, 100.0, 95.0, 2, "a")],
                       [NodeView("b", 0, 0, 26, 4e6, 1, 3e7, 1, True, 2.5)])
     stats = [1, 0, 0, 0, 0, 0, 0, 0, 0, 0, 2.5, 0.0, 0.0, 0.0, 0.0, 1, 0, 0]
-    done = Done("node-a", 2, 17, {1: 1}, {0: stats}, {1: [7.0]}, {0: {19: 2, 21: 1}}, 18, {2: obs})
+    done = Done("node-a", 2, 17, {1: 1}, {0: stats}, {1: [7.0]}, {0: {19: 2, 21: 1}}, 18, {2: obs},
+                ledger={1: [(7, 0, 7.0), (9, 2, 0.25)], 0: [(12, 1, 0.0)]})
     assert codec.decode(codec.encode(done)) == done
+
+
+@pytest.mark.parametrize("entry", [[7, 3, 1.0], [7, -1, 0.0], [7, 1.0, 0.0], [7, 2, -0.5], [7, 2, float("nan")],
+                                   [7, 2, float("inf")], [7, 2, "1"], ["7", 0, 1.0], [7, 0], [7, 0, 1.0, 2]])
+def test_a_ledger_entry_is_a_task_a_known_kind_and_a_finite_value_of_at_least_zero(entry):
+    """The ledger feeds the agents' credits: a forged entry must not reach them."""
+    wire = codec.to_wire(Done("node-a", 2, 17, {}, {}, ledger={0: [(1, 0, 3.0)]}))
+    wire["led"] = {0: [entry]}
+    with pytest.raises(codec.CodecError, match="field 'led'"):
+        codec.decode(msgpack.packb({**wire, "v": SCHEMA_VERSION}))
 
 
 def test_decoded_task_path_is_a_tuple():

@@ -30,7 +30,7 @@ GOOD = [
     Tick(2, 17, "run", {0: 2}, {"controller:a": 1, "controller:b": [0, 2]}),
     Tick(3, 0, "reset", seed=9, external=["controller:a"], policy="least_queue"),
     Done("node-a", 2, 17, {1: 1}, {0: [1] * len(STAT_FIELDS)}, {1: [7.0]}, {0: {19: 2}}, 18, {2: OBS},
-         rejected={"bad_msgpack": 2}),
+         rejected={"bad_msgpack": 2}, ledger={1: [(TASK.id, 0, 7.0), (12, 2, 0.5)], 0: [(13, 1, 0.0)]}),
     Done("node-a", 2, 17, {}, {}, error="ValueError: boom"),
     Dones("host-1", [Done("node-a", 2, 17, {1: 1}, {}, wake=18), Done("node-b", 2, 17, {}, {}, error="boom")]),
     Batch(0, 5, "node-a", [

@@ -156,6 +156,7 @@ def test_zenoh_and_inproc_give_identical_episodes(layout):
     got = run_episode(env, seed=5, actions_rng_seed=9, steps=steps)
     env.close()
     assert got[-1][3] == dict.fromkeys(got[-1][3], True)  # truncated at the end
+    assert any(info["credits"] for step in got[1:] for info in step[4].values())  # the ledger crossed the bus
     for i, (a, b) in enumerate(zip(ref, got, strict=True)):
         assert same(a, b), f"step {i} differs"
 

@@ -219,12 +219,12 @@ def test_a_user_error_prints_no_traceback():
 
 def test_overrides_reach_the_right_learner():
     every = list(LEARNERS)
-    ppo = learner_config("ppo", seed=3, hidden=[16], chosen=every,
+    ppo = learner_config("ppo", seed=3, reward="paper", hidden=[16], chosen=every,
                          overrides=["ppo.clip_coef=0.1", "lr=1e-3", "ddqn.tau=0.5", "centralised_critic=true",
                                     "target_kl=none"])
     assert isinstance(ppo, PPOConfig) and ppo.hidden == (16,) and ppo.seed == 3 and ppo.clip_coef == 0.1
     assert ppo.lr == 1e-3 and ppo.centralised_critic is True and ppo.target_kl is None
-    ddqn = learner_config("ddqn", seed=0, base={"learning_starts": 7}, chosen=every,
+    ddqn = learner_config("ddqn", seed=0, reward="paper", base={"learning_starts": 7}, chosen=every,
                           overrides=["ddqn.tau=0.5", "hidden=8,8", "clip_coef=0.3"])
     assert isinstance(ddqn, DDQNConfig) and ddqn.tau == 0.5 and ddqn.learning_starts == 7 and ddqn.hidden == (8, 8)
 
@@ -240,8 +240,21 @@ def test_overrides_reach_the_right_learner():
 ])
 def test_overrides_that_reach_no_learner_are_errors(algo, chosen, item, message):
     with pytest.raises(ValueError) as e:
-        learner_config(algo, seed=0, chosen=chosen, overrides=[item])
+        learner_config(algo, seed=0, reward="paper", chosen=chosen, overrides=[item])
     assert message in str(e.value)
+
+
+def test_on_the_marginal_reward_the_on_policy_learners_take_credit_per_task():
+    for algo in ("ppo", "a2c"):
+        config = learner_config(algo, seed=0, reward="marginal")
+        assert (config.credit, config.gamma) == ("task", 0.0)
+        config = learner_config(algo, seed=0, reward="marginal", overrides=["credit=step", "gamma=0.99"])
+        assert (config.credit, config.gamma) == ("step", 0.99)
+        assert learner_config(algo, seed=0, reward="paper").credit == "step"
+    assert learner_config("ddqn", seed=0, reward="marginal").credit == "step"
+    with pytest.raises(ValueError, match="ppo: credit=task learns from the marginal reward's credits per task, not "
+                                         "from 'paper'"):
+        learner_config("ppo", seed=0, reward="paper", overrides=["credit=task"])
 
 
 def test_confidence_interval_uses_student_t():

@@ -55,31 +55,31 @@ def test_transfer_over_an_idle_link_takes_max_1_ceil_b_over_r_dt():
 def test_link_fifo_queues_messages():
     link = LinkTransmitter(rate_bps=8e6, dt=1.0)  # 1 MB/s
     # 2 MB at tick 5: on air 5.0 -> 7.0, delivered at tick 7
-    assert link.send(5, 16e6) == (7, 2.0, 0.0)
+    assert link.send(5, 16e6) == (7, 2.0, [])
     # 1 MB sent in the same tick waits for the first: 7.0 -> 8.0, delivered at 8
-    assert link.send(5, 8e6) == (8, 1.0, 0.0)  # the first was not charged: no delay imposed is counted
+    assert link.send(5, 8e6) == (8, 1.0, [])  # the first was not charged: no delay imposed is counted
     # 0.5 MB at tick 10 (link idle since 8.0): 10.0 -> 10.5, delivered at 11
-    assert link.send(10, 4e6) == (11, 0.5, 0.0)
+    assert link.send(10, 4e6) == (11, 0.5, [])
 
 
-def test_link_counts_the_wait_that_charged_messages_impose():
-    """Each later message waits for the airtime the charged ones still have ahead of it."""
+def test_link_counts_the_wait_that_each_charged_message_imposes():
+    """Each later message waits for the airtime the charged ones (offloads, by task id) still have ahead of it."""
     link = LinkTransmitter(rate_bps=8e6, dt=0.5)  # 1 MB/s; a tick is half a second
-    assert link.send(2, 16e6, charged=True) == (6, 2.0, 0.0)  # ticks 2.0 -> 6.0
-    assert link.send(2, 8e6, charged=True) == (8, 1.0, 2.0)  # 6.0 -> 8.0; waits the first's 2 s
-    # at tick 5: the first has 1 tick (0.5 s) left, the second all its 2 ticks (1 s): 1.5 s
-    assert link.send(5, 8e6) == (10, 1.0, 1.5)
+    assert link.send(2, 16e6, charged=1) == (6, 2.0, [])  # ticks 2.0 -> 6.0
+    assert link.send(2, 8e6, charged=2) == (8, 1.0, [(1, 2.0)])  # 6.0 -> 8.0; waits the first's 2 s
+    # at tick 5: the first has 1 tick (0.5 s) left, the second all its 2 ticks (1 s)
+    assert link.send(5, 8e6) == (10, 1.0, [(1, 0.5), (2, 1.0)])
     # at tick 7 the first is done and the second has 1 tick left; an uncharged one ahead imposes nothing
-    assert link.send(7, 8e6, charged=True) == (12, 1.0, 0.5)
-    assert link.send(11, 8e6) == (14, 1.0, 0.5)  # only the last charged one is still ahead: 1 tick
+    assert link.send(7, 8e6, charged=3) == (12, 1.0, [(2, 0.5)])
+    assert link.send(11, 8e6) == (14, 1.0, [(3, 0.5)])  # only the last charged one is still ahead: 1 tick
     link.reset()
-    assert link.send(11, 8e6) == (13, 1.0, 0.0)
+    assert link.send(11, 8e6) == (13, 1.0, [])
 
 
 def test_link_fifo_with_sub_second_ticks():
     link = LinkTransmitter(rate_bps=1e6, dt=0.25)
     # 0.6 s of airtime = 2.4 ticks: 4.0 -> 6.4, delivered at tick 7
-    assert link.send(4, 0.6e6) == (7, 0.6, 0.0)
+    assert link.send(4, 0.6e6) == (7, 0.6, [])
 
 
 def test_energy_models():
@@ -154,8 +154,8 @@ def test_a_task_that_would_expire_in_the_link_queue_is_never_sent():
     radio = Radio({"b": (8e6, 0.0)}, dt=1.0)  # 1 MB/s
     radio.reset(np.random.default_rng(0))
     # 10 MB at tick 0: on air 0 -> 10, arrives at 10
-    assert radio.send(0, "b", 80e6, latest_start=100.0) == (10, 10.0, 0.0)
+    assert radio.send(0, "b", 80e6, latest_start=100.0) == (10, 10.0, [])
     # a task whose deadline passes at tick 5 would only start at 10: expired, and no airtime is used ...
     assert radio.send(1, "b", 8e6, latest_start=5.0) == "expired"
     # ... so the next message starts right after the first one
-    assert radio.send(2, "b", 8e6, latest_start=100.0) == (11, 1.0, 0.0)
+    assert radio.send(2, "b", 8e6, latest_start=100.0) == (11, 1.0, [])

@@ -99,13 +99,24 @@ def test_delay_imposed_in_a_cpu_queue_and_on_a_link(tmp_path):
     scenario = round_robin_pair(tmp_path, "0,a,3e6,4e6,1000,1,100\n0,a,2e6,4e6,1000,1,100\n"
                                           "0,a,1e6,4e6,1000,1,50\n0,a,2e6,4e6,1000,1,40\n", steps=20, buffer=8)
     # round robin over [local, b], one decision a tick reaching a at 4, 5, 6, 7: tasks 1 and 3 stay, 2 and 4
-    # go to b. Task 1 runs 4, 5, 6 and finishes with task 3 (queued at 6, due in 50 s) behind it: 3 s, 0.06
-    # of a deadline. Task 2 is on air 5.0 -> 9.0 (32e6 bits at 8e6 bit/s); task 4 (due in 40 s), sent at 7,
-    # waits its last 2 s: 0.05. Task 3 (tick 7), and tasks 2 (b, 9) and 4 (b, 13) finish with nothing
-    # behind them: 0.11 in all.
+    # go to b. Task 1 runs 4, 5, 6; task 3 (due in 50 s) joins the queue at 6 and waits behind it for that
+    # last second: 0.02 of a deadline. Task 2 is on air 5.0 -> 9.0 (32e6 bits at 8e6 bit/s); task 4 (due in
+    # 40 s), sent at 7, waits its last 2 s: 0.05. Task 3 (tick 7), and tasks 2 (b, 9) and 4 (b, 13) run with
+    # nothing behind them: 0.07 in all.
     s = run_summary(scenario, ticks=20)
     assert s["totals"]["completed"] == 4
-    assert s["delay_imposed"] == pytest.approx(0.11)
+    assert s["delay_imposed"] == pytest.approx(0.07)
+
+
+def test_a_waiter_that_expires_still_charges_the_head_for_the_seconds_it_waited(tmp_path):
+    scenario = single_node(tmp_path, "0,a,3e6,1000,1000,1,100\n0,a,1e6,1000,1000,1,5\n")
+    # task 1 runs 4, 5, 6 (decided at 4); task 2 (due in 5 s) joins the queue at 5 and waits behind it in
+    # tick 5; at 6 it is 6 s old and expires. Task 1 imposed 1 s on a task due in 5 s: 0.2 of a deadline,
+    # which the result brings back to a's client (7 s response).
+    s = run_summary(scenario, ticks=20)
+    assert s["totals"]["completed"] == 1 and s["totals"]["dropped"]["expired"] == 1
+    assert s["response_time"]["mean"] == pytest.approx(7.0)
+    assert s["delay_imposed"] == pytest.approx(0.2)
 
 
 @pytest.mark.zenoh

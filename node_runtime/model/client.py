@@ -12,7 +12,7 @@ from node_runtime.model.plugins import load
 from node_runtime.model.radio import Radio
 from node_runtime.model.registry import RoleKind, register
 from node_runtime.model.rng import stream
-from node_runtime.model.role import Outbox, Role, role_id
+from node_runtime.model.role import CHARGED, COMPLETED, Outbox, Role, role_id
 from node_runtime.model.spec import NodeSpec, Scenario
 from node_runtime.model.workload import TaskSource, draws_deadlines
 
@@ -54,7 +54,10 @@ class Client(Role):
             if env.kind != Kind.RESULT:
                 raise ValueError(f"{self.id}: unexpected {env.kind.name} from {env.src}")
             task = env.body.task
-            st.delay_imposed += env.body.imposed  # whatever became of the task, its service delayed others
+            imposed = env.body.imposed  # whatever became of the task, its service delayed others
+            if imposed:
+                st.delay_imposed += imposed
+                st.ledger.append((task.id, CHARGED, imposed))
             if failed:
                 self.drop(out, "node_failure", task.id)
             elif task.expired(t, dt):
@@ -63,6 +66,7 @@ class Client(Role):
                 response = (t - task.created) * dt
                 st.completed += 1
                 st.response_times.append(response)
+                st.ledger.append((task.id, COMPLETED, response))
                 out.emit("completed", self.node.id, task=task.id, response_time=response,
                          executor=env.body.executor)
         if failed:

@@ -49,8 +49,9 @@ class LinkTransmitter:
     bits sent in tick t starts when the link frees up, occupies it for b / r / dt ticks, and is
     delivered at the first tick boundary after it finishes — but never before t + 1.
 
-    It also keeps the airtime of the ``charged`` messages still queued (a worker's offloaded tasks), to
-    tell what waiting they impose on each later message: the delay a decision imposes on others.
+    It also keeps the airtime of the charged messages still queued (a worker's offloaded tasks, each
+    under its task's id), to tell what waiting each imposes on every later message: the delay a decision
+    imposes on others.
     """
 
     __slots__ = ("busy_until", "charged", "dt", "rate_bps")
@@ -62,10 +63,11 @@ class LinkTransmitter:
 
     def reset(self) -> None:
         self.busy_until = 0.0
-        self.charged: deque[tuple[float, float]] = deque()  # (start, finish) in ticks, in sending order
+        self.charged: deque[tuple[float, float, int]] = deque()  # (start, finish) in ticks, task id; in sending order
 
-    def send(self, tick: int, bits: float, charged: bool = False) -> tuple[int, float, float]:
-        """Queue a message; return (arrival tick, seconds on air, seconds it waits for charged messages)."""
+    def send(self, tick: int, bits: float, charged: int | None = None) -> tuple[int, float, list[tuple[int, float]]]:
+        """Queue a message (``charged``: the id of the task whose offload it is); return its arrival tick,
+        its seconds on air, and the seconds it waits for each charged message ahead of it (task id, seconds)."""
         seconds = bits / self.rate_bps
         start = max(float(tick), self.busy_until)
         finish = start + seconds / self.dt
@@ -73,10 +75,11 @@ class LinkTransmitter:
         queued = self.charged
         while queued and queued[0][1] <= tick:
             queued.popleft()
-        imposed = sum(f - max(float(tick), s) for s, f in queued) * self.dt  # their airtime left ahead of it
-        if charged:
-            queued.append((start, finish))
-        return max(tick + 1, math.ceil(finish)), seconds, imposed
+        now = float(tick)
+        ahead = [(task, (f - max(now, s)) * self.dt) for s, f, task in queued]  # their airtime left ahead of it
+        if charged is not None:
+            queued.append((start, finish, charged))
+        return max(tick + 1, math.ceil(finish)), seconds, ahead
 
 
 class Radio:
@@ -106,8 +109,8 @@ class Radio:
         return node in self.links
 
     def send(self, tick: int, dst: str, bits: float, latest_start: float = math.inf,
-             charged: bool = False) -> tuple[int, float, float] | str:
-        """(arrival tick, seconds on air, seconds it waits for charged messages; ``LinkTransmitter.send``),
+             charged: int | None = None) -> tuple[int, float, list[tuple[int, float]]] | str:
+        """(arrival tick, seconds on air, seconds it waits for each charged message; ``LinkTransmitter.send``),
         or why the message never arrives: "expired" or "link_loss".
 
         A message whose transmission could only start after ``latest_start`` (in ticks: its task's

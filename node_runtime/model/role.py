@@ -36,6 +36,11 @@ def state_topic(node: str) -> str:
 
 DROP_CAUSES = ("queue_full", "expired", "node_failure", "link_loss")
 
+# what a ``Counters.ledger`` entry (task id, kind, value) says of its task
+COMPLETED = 0  # its result reached its origin; value: the response time in seconds
+LOST = 1  # it was dropped, by any cause; value: 0
+CHARGED = 2  # it made another task wait (in a CPU queue or on a link); value: that wait, in the waiter's deadlines
+
 
 @dataclass(slots=True)
 class Counters:
@@ -70,9 +75,12 @@ class Counters:
     overloaded: int = 0  # 1 if the buffer was full at the start of this tick
     # completions this tick: response times in seconds (drained by the host every tick)
     response_times: list[float] = field(default_factory=list)
+    # this tick's entries per task, (task id, COMPLETED | LOST | CHARGED, value), drained by the host every
+    # tick: what follows a task to the decision that placed it (the environment's per-task credit)
+    ledger: list[tuple[int, int, float]] = field(default_factory=list)
 
 
-STAT_FIELDS: tuple[str, ...] = tuple(f.name for f in fields(Counters) if f.name != "response_times")
+STAT_FIELDS: tuple[str, ...] = tuple(f.name for f in fields(Counters) if f.name not in ("response_times", "ledger"))
 read_stats = attrgetter(*STAT_FIELDS)  # Counters -> tuple of STAT_FIELDS, in one C call
 
 
@@ -149,6 +157,7 @@ class Role:
     def drop(self, out: Outbox, cause: str, task_id: int) -> None:
         """Account for one lost task, by exactly one cause (conservation depends on it)."""
         setattr(self.stats, cause, getattr(self.stats, cause) + 1)
+        self.stats.ledger.append((task_id, LOST, 0.0))
         if out.events is not None:
             out.emit("dropped", self.node.id, task=task_id, cause=cause, role=self.kind)
 
@@ -161,16 +170,21 @@ class Role:
                  out: Outbox, charged: bool = False) -> None:
         """Queue a message on this node's link to ``dst_node``; it may expire in the queue or be lost.
         ``charged``: the message is this node's decision, and the waiting it imposes on the later messages
-        of the link counts as this node's ``delay_imposed``."""
+        of the link counts as this node's ``delay_imposed`` (and in the ledger, as its task's charge)."""
         task = body if kind == Kind.TASK else body.task
-        sent = self.radio.send(t, dst_node, bits, task.created + task.deadline / self.scenario.dt, charged)
+        sent = self.radio.send(t, dst_node, bits, task.created + task.deadline / self.scenario.dt,
+                               task.id if charged else None)
         if isinstance(sent, str):
             self.drop(out, sent, task.id)
             return
-        arrive, seconds, waited = sent
-        self.stats.energy_transmit += transmit_energy(self.node.tx_power_dbm, seconds)
-        if waited:
-            self.stats.delay_imposed += waited * self.urgency(task)
+        arrive, seconds, ahead = sent
+        st = self.stats
+        st.energy_transmit += transmit_energy(self.node.tx_power_dbm, seconds)
+        if ahead:
+            urgency = self.urgency(task)
+            for other, waited in ahead:
+                st.delay_imposed += waited * urgency
+                st.ledger.append((other, CHARGED, waited * urgency))
         out.send(kind, dst_role, body, arrive)
 
     def tick(self, t: int, inbox: list[Envelope], out: Outbox) -> None:

@@ -26,6 +26,7 @@ from __future__ import annotations
 
 import math
 from collections import deque
+from itertools import islice
 
 from node_runtime.model.energy import compute_energy, idle_energy
 from node_runtime.model.messages import Decision, Envelope, Kind, NodeState, Pending, Report, Result, Task
@@ -72,6 +73,7 @@ class Worker(Role):
         self._reported_version = -1
         self._links_changed = False  # since the last report
         self._divertible: list[list] = []  # queue_first: the queue entries a decision may still divert
+        self._head: list = [-1, 0.0]  # the task in service and the delay its service imposed so far
 
     # ----- helpers -----
 
@@ -278,19 +280,29 @@ class Worker(Role):
                     self.queue.append([task, task.cycles])
 
     def serve(self, t: int, out: Outbox) -> None:
+        """Spend the tick's cycles on the queue, head first. While the head is served, every task behind it
+        waits: each second of that service is charged to the head as 1/deadline per waiting task (the delay
+        it imposes, ``Result.imposed``), a waiter that later expires or is diverted included."""
         budget = self.budget
         used = 0.0
         queue = self.queue
+        capacity = self.node.capacity
+        urgency = self.urgency
         while queue and budget > 0.0:
             entry = queue[0]
+            task = entry[0]
+            if task.id != self._head[0]:  # a new head (the last one finished, or left the queue)
+                self._head = [task.id, 0.0]
             remaining = entry[1]
-            if remaining <= budget + EPS_CYCLES:
+            finishes = remaining <= budget + EPS_CYCLES
+            if len(queue) > 1:
+                spent = remaining if finishes else budget
+                self._head[1] += spent / capacity * sum(urgency(e[0]) for e in islice(queue, 1, None))
+            if finishes:
                 budget -= remaining
                 used += remaining
                 queue.popleft()
-                task = entry[0]
-                imposed = task.cycles / self.node.capacity * sum(self.urgency(e[0]) for e in queue)
-                self.route_result(t, Result(task, self.node.id, t, len(task.path) - 1, imposed), out)
+                self.route_result(t, Result(task, self.node.id, t, len(task.path) - 1, self._head[1]), out)
             else:
                 entry[1] = remaining - budget
                 used += budget

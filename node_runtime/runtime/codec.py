@@ -89,6 +89,20 @@ def _times(m: Any) -> bool:
     return type(m) is dict and (not m or (all(map(_is_int, m)) and _number_rows(m.values())))
 
 
+LEDGER_KINDS = range(3)  # role.COMPLETED, LOST, CHARGED
+
+
+def _ledger_entry(a: Any) -> bool:
+    """[task id, kind, value]: a value feeds rewards, so it is finite and not negative."""
+    return (type(a) is list and len(a) == 3 and _is_int(a[0]) and _is_int(a[1]) and a[1] in LEDGER_KINDS
+            and isinstance(a[2], NUM) and 0.0 <= a[2] < math.inf)
+
+
+def _ledger(m: Any) -> bool:
+    return type(m) is dict and (not m or (all(map(_is_int, m)) and all(
+        type(v) is list and all(map(_ledger_entry, v)) for v in m.values())))
+
+
 def _flights(m: Any) -> bool:
     return type(m) is dict and (not m or (all(map(_is_int, m)) and all(map(_int_map, m.values()))))
 
@@ -126,7 +140,8 @@ COMMANDS = ("run", "reset", "stop")
 TICK_FIELDS = (("e", _is_int), ("t", _is_int), ("cmd", COMMANDS.__contains__), ("expect", _int_map),
                ("actions", _actions), ("seed", _is_int), ("external", _str_list), ("policy", _maybe_str))
 DONE_FIELDS = (("proc", _is_str), ("e", _is_int), ("t", _is_int), ("sent", _int_map), ("stats", _stats),
-               ("rt", _times), ("fl", _flights), ("wake", _maybe_int), ("obs", _observations), ("error", _maybe_str))
+               ("rt", _times), ("fl", _flights), ("wake", _maybe_int), ("obs", _observations), ("error", _maybe_str),
+               ("led", _ledger))
 # "rej" (optional) comes last: a done that passes every field above is malformed there
 BATCH_FIELDS = (("e", _is_int), ("t", _is_int), ("src", _is_str), ("msgs", list.__instancecheck__))
 
@@ -225,7 +240,7 @@ def to_wire(msg: Any) -> dict[str, Any]:
 def _done_wire(msg: Done) -> dict[str, Any]:
     d = {"type": "done", "proc": msg.proc, "e": msg.episode, "t": msg.tick, "sent": msg.sent,
          "stats": msg.stats, "rt": msg.response_times, "fl": msg.flights, "wake": msg.wake,
-         "obs": {k: o.to_wire() for k, o in msg.obs.items()}, "error": msg.error}
+         "obs": {k: o.to_wire() for k, o in msg.obs.items()}, "error": msg.error, "led": msg.ledger}
     if msg.rejected:
         d["rej"] = msg.rejected
     return d
@@ -256,15 +271,16 @@ NONE: list = []
 
 def _done(d: dict[str, Any]) -> Done:
     proc, e, t, sent, stats, rt, fl = d["proc"], d["e"], d["t"], d["sent"], d["stats"], d["rt"], d["fl"]
-    wake, obs, error, rejected = d["wake"], d["obs"], d["error"], d.get("rej", EMPTY)
+    wake, obs, error, ledger, rejected = d["wake"], d["obs"], d["error"], d["led"], d.get("rej", EMPTY)
     if not (isinstance(proc, str) and isinstance(e, int) and isinstance(t, int)
             and (wake is None or isinstance(wake, int)) and (error is None or isinstance(error, str))
             and (sent == EMPTY or _int_map(sent))
             and (stats == EMPTY or _stats(stats)) and (rt == EMPTY or _times(rt)) and (fl == EMPTY or _flights(fl))
-            and (obs == EMPTY or _observations(obs)) and (rejected is EMPTY or _counts(rejected))):
+            and (obs == EMPTY or _observations(obs)) and (ledger == EMPTY or _ledger(ledger))
+            and (rejected is EMPTY or _counts(rejected))):
         _diagnose(d, "done", DONE_FIELDS)
     return Done(proc, e, t, sent, stats, rt, fl, wake, {k: Observation.from_wire(o) for k, o in obs.items()},
-                error, rejected)
+                error, rejected, {k: [tuple(x) for x in v] for k, v in ledger.items()})
 
 
 def _dones(d: dict[str, Any]) -> Dones:

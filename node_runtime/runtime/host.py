@@ -82,6 +82,7 @@ class Host:
         """Start episode ``episode``: fresh roles' state and empty mailboxes."""
         self.episode = episode
         self.external = set(external) & set(self.by_id)
+        self.ledger_on = bool(external)  # an agent drives the episode, here or elsewhere: its credit needs the ledger
         for role in self.roles:
             if role.id in self.drivable:
                 role.reset(seed, external=role.id in self.external, policy=policy)
@@ -217,6 +218,7 @@ class Host:
         that did not run this tick cannot have changed."""
         stats: dict[int, tuple] = {}
         rts: dict[int, list[float]] = {}
+        ledger: dict[int, list[tuple[int, int, float]]] = {}
         obs: dict[int, Observation] = {}
         reported = self.reported
         index = self.plan.role_index
@@ -229,6 +231,10 @@ class Host:
             if st.response_times:
                 rts[index[rid]] = st.response_times
                 st.response_times = []
+            if st.ledger:
+                if self.ledger_on:
+                    ledger[index[rid]] = st.ledger
+                st.ledger = []
             if rid in self.external and role.last is not None and role.last.tick == t:
                 obs[index[rid]] = role.last
-        return Done(self.proc, self.episode, t, sent, stats, rts, flights, self.wake(), obs)
+        return Done(self.proc, self.episode, t, sent, stats, rts, flights, self.wake(), obs, ledger=ledger)

@@ -25,7 +25,7 @@ from typing import Any, Literal
 from node_runtime.model.messages import Envelope
 from node_runtime.model.view import Observation
 
-SCHEMA_VERSION = 6
+SCHEMA_VERSION = 7
 # A tick carries the episode's seed as a msgpack integer (64 bits at most); launch adds the episode to it
 MAX_SEED = 2**62 - 1
 Command = Literal["run", "reset", "stop"]
@@ -67,6 +67,8 @@ class Done:
     error: str | None = None  # set when the process failed; it exits after sending this
     rejected: dict[str, int] = field(default_factory=dict)  # reason -> messages this process refused so far;
     # only in the first Done after the counts changed (docs/bus.md, "Rejected messages")
+    ledger: dict[int, list[tuple[int, int, float]]] = field(default_factory=dict)  # role index -> this tick's
+    # (task id, kind, value) entries (``role.Counters.ledger``); only while an agent drives the episode
 
 
 @dataclass(slots=True)

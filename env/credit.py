@@ -1,0 +1,85 @@
+"""Per-task credit: the outcome of each task and the congestion it caused, credited to the step that placed it.
+
+A step reward arrives when its events happen, not when the decision that caused them was taken: on a
+link where a transfer takes a minute, the charge for a queue a task joined reaches its agent 50-60 steps
+after the decision, where a discount of 0.99 and GAE's lambda of 0.95 leave a weight of about 0.03 on it
+(docs/agents.md, "Why not on the wired links"). The nodes' ledger (``role.Counters.ledger``) names the task
+of every completion, loss and charge, so the environment can credit each task's whole account to the
+decisions that placed it, once it is known:
+
+    credit(task) = [completed] (1 - response / P) - c * (waiting it imposed on others, in their deadlines)
+
+the ``marginal`` reward's two terms for that one task (``reward.timeliness``, c = ``CONGESTION_PRICE``,
+P the headline score's penalty). It reaches the agent as ``infos[agent]["credits"]``: (step, credit) pairs,
+``step`` counting the episode's steps from 0, one pair per decision whose every task has settled. A decision
+whose tasks are still in the network when the episode ends gets no credit: the episode was cut short, and
+crediting those tasks as lost (as the headline score counts them) would teach that whatever is slow near the
+end is bad, as a truncated return taken for a terminal one would. A decision on a task that had already
+settled (it expired while the agent looked at it) is credited 0 at once: nothing it chose changed anything.
+A charge that reaches a task after it settled (a lost transfer keeps its link busy) is not credited.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterable
+
+from env.reward import CONGESTION_PRICE
+from node_runtime.model.role import CHARGED, COMPLETED
+
+Credits = dict[str, list[tuple[int, float]]]  # agent -> [(step of the decision, credit)]
+
+
+class TaskCredit:
+    """Which decisions placed each task, and what each task has cost so far."""
+
+    def __init__(self, penalty: float, price: float = CONGESTION_PRICE) -> None:
+        self.penalty = penalty
+        self.price = price
+        self.reset()
+
+    def reset(self) -> None:
+        self._tasks: dict[int, tuple[list[float], list[tuple[str, int]]]] = {}  # id -> ([charges], decisions)
+        self._open: dict[tuple[str, int], list[float]] = {}  # (agent, step) -> [tasks unsettled, credit so far]
+        self._settled: set[int] = set()  # tasks that settled before any decision placed them
+
+    def place(self, agent: str, step: int, tasks: Iterable[int]) -> Credits:
+        """Record a decision; returns its credit at once if all its tasks had settled already."""
+        key = (agent, step)
+        count = 0
+        for task in tasks:
+            if task in self._settled:
+                continue
+            self._tasks.setdefault(task, ([0.0], []))[1].append(key)
+            count += 1
+        if not count:
+            return {agent: [(step, 0.0)]}
+        self._open[key] = [count, 0.0]
+        return {}
+
+    def settle(self, ledger: Iterable[tuple[int, int, float]]) -> Credits:
+        """Apply one tick's ledger; returns the decisions whose every task has now settled."""
+        out: Credits = {}
+        for task, kind, value in ledger:
+            entry = self._tasks.get(task)
+            if entry is None:  # a task no agent placed (yet): remember that it is gone
+                if kind != CHARGED:
+                    self._settled.add(task)
+                continue
+            if kind == CHARGED:
+                entry[0][0] += value
+                continue
+            timely = 1.0 - value / self.penalty if kind == COMPLETED else 0.0
+            self._close(task, timely, out)
+        return out
+
+    def _close(self, task: int, timely: float, out: Credits) -> None:
+        charges, decisions = self._tasks.pop(task)
+        credit = timely - self.price * charges[0]
+        self._settled.add(task)
+        for key in decisions:
+            left = self._open[key]
+            left[0] -= 1
+            left[1] += credit
+            if left[0] == 0:
+                del self._open[key]
+                out.setdefault(key[0], []).append((key[1], left[1]))
