@@ -132,8 +132,9 @@ def coerce(text: str, default: Any) -> Any:
 
 
 # what an on-policy learner trained on the marginal reward uses unless told otherwise: each decision is learnt
-# from its own tasks' credit, which prices every wait it causes, so nothing after it is added (gamma 0)
-TASK_CREDIT: dict[str, Any] = {"credit": "task", "gamma": 0.0}
+# from its own tasks' credit, which prices every wait it causes, so nothing after it is added (gamma 0); the
+# credits are normalised, since reward_scale is tuned for the paper reward's magnitudes
+TASK_CREDIT: dict[str, Any] = {"credit": "task", "gamma": 0.0, "normalize_reward": True}
 
 
 def learner_config(algo: str, *, seed: int, reward: str, hidden: Sequence[int] | None = None,

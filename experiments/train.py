@@ -2,6 +2,7 @@
 
     python -m experiments.train ddqn --scenario aot2 --lam 0.17 --episodes 50 --out runs/ddqn-aot2
     python -m experiments.train ppo --episodes 100 --set ppo.centralised_critic=true --out runs/mappo
+    python -m experiments.train ppo --scenario aot3_wired --lam 0.2 --max-steps 400 --episodes 100
 """
 
 from __future__ import annotations
@@ -35,7 +36,9 @@ def main(argv: Sequence[str] | None = None) -> None:
     p.add_argument("--episodes", type=positive_int, default=50, help="training episodes (default 50)")
     p.add_argument("--out", type=Path, default=None, help="output directory (default runs/<algo>-<scenario>)")
     per_learner = ", ".join(f"{reward} for {algo}" for algo, reward in DEFAULT_REWARD.items())
-    add_env_arguments(p, reward=None, reward_default_help=f"{per_learner}, paper for the others (docs/agents.md)")
+    add_env_arguments(p, reward=None, reward_default_help=f"{per_learner}, paper for the others; on marginal, ppo and "
+                      "a2c learn from each decision's own credit (credit=task, gamma=0; --set credit=step "
+                      "for the steps' rewards; docs/agents.md)")
     add_learner_arguments(p)
     args = p.parse_args(argv)
     args.reward = args.reward or DEFAULT_REWARD.get(args.algo, "paper")

@@ -247,7 +247,7 @@ def test_overrides_that_reach_no_learner_are_errors(algo, chosen, item, message)
 def test_on_the_marginal_reward_the_on_policy_learners_take_credit_per_task():
     for algo in ("ppo", "a2c"):
         config = learner_config(algo, seed=0, reward="marginal")
-        assert (config.credit, config.gamma) == ("task", 0.0)
+        assert (config.credit, config.gamma, config.normalize_reward) == ("task", 0.0, True)
         config = learner_config(algo, seed=0, reward="marginal", overrides=["credit=step", "gamma=0.99"])
         assert (config.credit, config.gamma) == ("step", 0.99)
         assert learner_config(algo, seed=0, reward="paper").credit == "step"
