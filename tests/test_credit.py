@@ -3,6 +3,8 @@ that wait for it."""
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 import pytest
 
@@ -182,3 +184,13 @@ def test_a_chain_ends_where_a_decision_without_credit_is_removed():
     rs = [record("a", 1.0), record("a", None), record("b", 2.0), record("a", 3.0)]
     kept = uncredited_removed(rs)
     assert kept == [rs[0], rs[2], rs[3]] and rs[0].last and not rs[2].last and not rs[3].last
+
+
+def test_the_example_of_docs_env_md_runs_and_prints_credits(capsys):
+    text = (Path(__file__).resolve().parents[1] / "docs" / "env.md").read_text()
+    section = text[text.index("## Credit per task"):]
+    block = section[section.index("```python\n") + len("```python\n"):]
+    block = block[:block.index("```")]
+    exec(compile(block.replace("max_steps=400", "max_steps=150"), "docs/env.md", "exec"), {})
+    lines = capsys.readouterr().out.splitlines()
+    assert lines and all("'s decision at step " in line for line in lines)
