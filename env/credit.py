@@ -3,9 +3,9 @@
 A step reward arrives when its events happen, not when the decision that caused them was taken: on a
 link where a transfer takes a minute, the charge for a queue a task joined reaches its agent 50-60 steps
 after the decision, where a discount of 0.99 and GAE's lambda of 0.95 leave a weight of about 0.03 on it
-(docs/agents.md, "Why not on the wired links"). The nodes' ledger (``role.Counters.ledger``) names the task
-of every completion, loss and charge, so the environment can credit each task's whole account to the
-decisions that placed it, once it is known:
+(docs/agents.md, "Why the wired links needed credit per task"). The nodes' ledger
+(``role.Counters.ledger``) names the task of every completion, loss and charge, so the environment can
+credit each task's whole account to the decisions that placed it, once it is known:
 
     credit(task) = [completed] (1 - response / P) - c * (waiting it imposed on others, in their deadlines)
 

@@ -65,7 +65,6 @@ class Client(Role):
             else:
                 response = (t - task.created) * dt
                 st.completed += 1
-                st.response_times.append(response)
                 st.ledger.append((task.id, COMPLETED, response))
                 out.emit("completed", self.node.id, task=task.id, response_time=response,
                          executor=env.body.executor)

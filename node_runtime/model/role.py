@@ -73,14 +73,13 @@ class Counters:
     queue: int = 0
     undecided: int = 0
     overloaded: int = 0  # 1 if the buffer was full at the start of this tick
-    # completions this tick: response times in seconds (drained by the host every tick)
-    response_times: list[float] = field(default_factory=list)
     # this tick's entries per task, (task id, COMPLETED | LOST | CHARGED, value), drained by the host every
-    # tick: what follows a task to the decision that placed it (the environment's per-task credit)
+    # tick: the response times of the tick's completions, and what follows a task to the decision that placed
+    # it (the environment's per-task credit)
     ledger: list[tuple[int, int, float]] = field(default_factory=list)
 
 
-STAT_FIELDS: tuple[str, ...] = tuple(f.name for f in fields(Counters) if f.name not in ("response_times", "ledger"))
+STAT_FIELDS: tuple[str, ...] = tuple(f.name for f in fields(Counters) if f.name != "ledger")
 read_stats = attrgetter(*STAT_FIELDS)  # Counters -> tuple of STAT_FIELDS, in one C call
 
 
@@ -183,8 +182,9 @@ class Role:
         if ahead:
             urgency = self.urgency(task)
             for other, waited in ahead:
-                st.delay_imposed += waited * urgency
-                st.ledger.append((other, CHARGED, waited * urgency))
+                charge = waited * urgency
+                st.delay_imposed += charge
+                st.ledger.append((other, CHARGED, charge))
         out.send(kind, dst_role, body, arrive)
 
     def tick(self, t: int, inbox: list[Envelope], out: Outbox) -> None:

@@ -16,7 +16,7 @@ from dataclasses import dataclass
 from node_runtime.model.controller import Action, Controller
 from node_runtime.model.messages import Envelope, Kind
 from node_runtime.model.plugins import load
-from node_runtime.model.role import Outbox, Role, read_stats, role_id, role_node
+from node_runtime.model.role import COMPLETED, Outbox, Role, read_stats, role_id, role_node
 from node_runtime.model.view import Observation
 from node_runtime.runtime.layout import ProcessLayout
 from node_runtime.runtime.protocol import Done
@@ -228,10 +228,10 @@ class Host:
             values = read_stats(st)
             if reported.get(rid) != values:
                 reported[rid] = stats[index[rid]] = values
-            if st.response_times:
-                rts[index[rid]] = st.response_times
-                st.response_times = []
             if st.ledger:
+                times = [value for _, kind, value in st.ledger if kind == COMPLETED]
+                if times:
+                    rts[index[rid]] = times
                 if self.ledger_on:
                     ledger[index[rid]] = st.ledger
                 st.ledger = []
