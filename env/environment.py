@@ -219,6 +219,7 @@ class ZenohEdgeEnv(ParallelEnv):
         self._invalid = dict.fromkeys(self.possible_agents, 0)
         self._last_actions = {}
         self.credit.reset()
+        self.sim.open_next()
         self._observe()
         nodes = _by_node(output_values(Out.ENV, report.nodes, report.node_delta, self.sim.metrics.capacity))
         infos = {a: self._info(a, nodes, ()) for a in self.agents}
@@ -251,10 +252,12 @@ class ZenohEdgeEnv(ParallelEnv):
         reports = [self.sim.step(controller_actions)]
         for _ in range(self.scenario.decision_interval - 1):
             reports.append(self.sim.step())
-        before = dict(self._raw)
-        self._observe()
         self._steps += 1
         truncated = self._steps >= self.max_steps
+        if not truncated:
+            self.sim.open_next()
+        before = dict(self._raw)
+        self._observe()
         for report in reports:
             _extend(credits, self.credit.settle(report.ledger))
 

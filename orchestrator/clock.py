@@ -7,6 +7,10 @@ or said in their last ``Done`` that they have work at t: the others sleep, and t
 stand. A reset opens tick 0 for all. A process that reports an error, dies, or stays silent past the
 timeout ends the run with an error that names it and the nodes it hosted.
 
+A driver that gives actions (the environment) may open the next tick ahead (``open_next``) for the
+processes that cannot get any, so that they run while its agents decide; ``step`` then opens it for the
+rest and collects every report. A reset first collects the reports of a tick opened ahead.
+
 A host that runs several processes (``zenohedge-node``) may forward their reports of a tick together,
 as one ``Dones`` message on ``…/clock/dones/<group>``; each report in it is checked as if it had come alone
 on its process's key, and only processes placed in that group may report there.
@@ -21,7 +25,7 @@ that passes every check is indistinguishable from the process's own report.
 
 from __future__ import annotations
 
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Collection, Sequence
 from typing import Any
 
 from node_runtime.runtime.keys import Keys
@@ -69,6 +73,7 @@ class Clock:
         self.tick_keys = [keys.tick(p) for p in self.procs]  # process index -> its own tick key
         self.dones: dict[str, Done] = {}
         self.opened: frozenset[int] = frozenset()  # the processes the current tick was opened for
+        self.early: frozenset[int] = frozenset()  # the processes the next tick was opened for ahead (open_next)
         # what each process may report on: its done key, its roles, the processes it sends to
         self.done_keys = {keys.done(p): i for i, p in enumerate(self.procs)}
         self.hosted = [frozenset(plan.role_index[r] for r in plan.roles_of[p]) for p in self.procs]
@@ -133,8 +138,8 @@ class Clock:
 
     def untrusted(self, i: int, done: Done) -> tuple[str, str] | None:
         """Why a done of the current episode from process ``i`` cannot be its report (reason, detail), or None."""
-        t = self.tick
-        if done.tick != t or i not in self.opened:
+        t, expected = (self.tick + 1, self.early) if self.early else (self.tick, self.opened)
+        if done.tick != t or i not in expected:
             return WRONG_TICK, f"tick {done.tick}; the clock waits for tick {t} from other processes"
         if done.proc in self.dones:
             return WRONG_TICK, f"a second done for tick {t}"
@@ -162,6 +167,10 @@ class Clock:
 
     def reset(self, seed: int, external: list[str] | None = None, policy: str | None = None) -> list[Done]:
         """Start a new episode: every process resets its roles, then runs tick 0."""
+        if self.early:  # a tick opened ahead is abandoned: its reports come first, then nothing is left behind
+            self.tick += 1
+            self.opened, self.early = self.early, frozenset()
+            self._collect(sorted(self.opened))
         self.episode = max(self.episode, self.latest) + 1
         self.latest = self.episode
         self.tick = 0
@@ -178,18 +187,43 @@ class Clock:
         mine: dict[int, dict[str, Any]] = {}  # process index -> actions for its controllers
         for role, action in (actions or {}).items():
             mine.setdefault(self.actors[role], {})[role] = action
-        expect = self.expect
-        opened = [i for i, wake in enumerate(self.wake)
-                  if i in expect or i in mine or (wake is not None and wake <= t)]
-        self.dones = {}
+        early, self.early = self.early, frozenset()
+        if not early.isdisjoint(mine):
+            raise ClockError(f"tick {t}: actions for controllers of processes whose tick opened ahead without them "
+                             f"({', '.join(self.procs[i] for i in sorted(early & mine.keys()))})")
+        opened = self._due(t, mine)
+        if not early:
+            self.dones = {}
         self.opened = frozenset(opened)
-        if len(opened) == len(self.procs):  # one publication reaches them all
-            self.transport.publish(self.keys.tick(), Tick(self.episode, t, "run", expect, actions or {}))
-        else:
-            for i in opened:
-                self.transport.publish(self.tick_keys[i], Tick(
-                    self.episode, t, "run", {i: expect[i]} if i in expect else {}, mine.get(i, {})))
+        self._open(t, [i for i in opened if i not in early], mine)
         return self._collect(opened)
+
+    def open_next(self, hold: Collection[str] = ()) -> None:
+        """Open the next tick now for the processes due in it, except those hosting a controller in ``hold``
+        (the ones that may still get actions for it): they run it while the caller is busy with this one,
+        and ``step`` opens the rest. Their tick is the one ``step`` would have sent them, so nothing changes
+        but when it runs."""
+        t = self.tick + 1
+        held = {self.actors[role] for role in hold}
+        early = [i for i in self._due(t, {}) if i not in held]
+        self.dones = {}
+        self.early = frozenset(early)
+        self._open(t, early, {})
+
+    def _due(self, t: int, mine: Collection[int]) -> list[int]:
+        """The processes tick ``t`` must be opened for: mail announced, actions, or work due."""
+        expect = self.expect
+        return [i for i, wake in enumerate(self.wake) if i in expect or i in mine or (wake is not None and wake <= t)]
+
+    def _open(self, t: int, procs: list[int], mine: dict[int, dict[str, Any]]) -> None:
+        expect = self.expect
+        if len(procs) == len(self.procs):  # one publication reaches them all
+            actions = {role: action for acts in mine.values() for role, action in acts.items()}
+            self.transport.publish(self.keys.tick(), Tick(self.episode, t, "run", expect, actions))
+            return
+        for i in procs:
+            self.transport.publish(self.tick_keys[i], Tick(
+                self.episode, t, "run", {i: expect[i]} if i in expect else {}, mine.get(i, {})))
 
     def catch_up(self, episode: int) -> None:
         """Another driver ran episodes up to ``episode``: number ours after them."""

@@ -251,6 +251,14 @@ class Simulation:
         self._ticks_run += 1
         return self._publish(self.metrics.add(self.clock.tick, self.last))
 
+    def open_next(self) -> None:
+        """Let the node processes that cannot get actions run the next tick now, while the caller (an agent)
+        decides: only a controller with tasks to place can be given an action, so only the processes of
+        those wait for ``step`` (``Clock.open_next``). In-process the hosts run inside the publication, in
+        this thread: opening ahead would only run them sooner, so it is left to ``step``."""
+        if self.transport_name == "zenoh":
+            self.clock.open_next(hold=[role for role, obs in self.seen.items() if obs.tasks])
+
     def _publish(self, report: TickReport) -> TickReport:
         """Per-tick metrics for monitors, built only when someone listens."""
         if self.live is not None and self.live.listened:
