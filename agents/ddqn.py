@@ -5,6 +5,10 @@ the online network picks the next action among the valid ones, the target networ
 removes the max operator's overestimation. ``double=False`` gives the vanilla max-target of DQN for
 comparison. Each independent learner has its own network, target network, optimiser and replay buffer;
 with ``shared=True`` there is one of each and the agent id is part of the input.
+
+With ``credit="task"`` r is the decision's own credit (env.credit), which comes when its tasks have
+settled, often after the transition closed: a closed transition waits for it before it enters the replay
+buffer, and one whose credit never comes (its tasks outlived the episode) is never stored.
 """
 
 from __future__ import annotations
@@ -19,7 +23,7 @@ import torch.nn.functional as F
 from torch import nn
 
 from agents.common import AgentSpec, Observation, masked_argmax, mlp, polyak
-from agents.learner import Closed, Learner, LearnerConfig
+from agents.learner import Closed, Learner, LearnerConfig, Pending
 
 
 @dataclass
@@ -97,10 +101,12 @@ class DDQN(Learner):
     name = "ddqn"
     Config = DDQNConfig
     config: DDQNConfig
+    task_credit = True
 
     def __init__(self, specs: Mapping[str, AgentSpec], config: DDQNConfig | None = None, device: str = "cpu") -> None:
         super().__init__(specs, config, device)
         self.nets = {g: QLearner(self.input_dim(g), self.n_actions(g), self.config, self.device) for g in self.groups()}
+        self.uncredited_closed: list[tuple[Closed, np.ndarray, np.ndarray]] = []  # credit="task": closed, awaiting
         self.last_loss = float("nan")
         self.last_q = float("nan")
 
@@ -124,10 +130,13 @@ class DDQN(Learner):
                     greedy[i] = self.rng.choice(np.flatnonzero(mask))
         return greedy, {}
 
+    def reset(self, seed: int | None = None) -> None:
+        super().reset(seed)
+        self.uncredited_closed.clear()  # their credit will never come (Learner.reset counted them)
+
     def learn(self, closed: list[Closed], next_observations: Mapping[str, Observation]) -> None:
-        c = self.config
+        ready = []
         for t in closed:
-            net = self.nets[self.group[t.agent]]
             p = t.pending
             if t.next_obs is None:  # terminal: the next state is never valued (discount 0)
                 next_feats, next_mask = np.zeros_like(p.features), np.zeros_like(p.mask)
@@ -135,10 +144,24 @@ class DDQN(Learner):
             else:
                 next_feats = self.features(t.agent, t.next_obs)
                 next_mask = np.asarray(t.next_obs["action_mask"], dtype=bool)
-            net.buffer.add(p.features, p.mask, p.action, p.reward, t.discount, next_feats, next_mask)
-            if len(net.buffer) >= c.learning_starts and net.buffer.added % c.train_freq == 0:
-                for _ in range(c.gradient_steps):
-                    self.update(net)
+            ready.append((t, next_feats, next_mask))
+        if self.config.credit == "task":
+            waiting = self.uncredited_closed + ready
+            ready = [w for w in waiting if w[0].pending.credit is not None]
+            self.uncredited_closed = [w for w in waiting if w[0].pending.credit is None]
+        for t, next_feats, next_mask in ready:
+            p = t.pending
+            reward = p.reward if p.credit is None else p.credit
+            self.store(self.nets[self.group[t.agent]], p, reward, t.discount, next_feats, next_mask)
+
+    def store(self, net: QLearner, p: Pending, reward: float, discount: float, next_feats: np.ndarray,
+              next_mask: np.ndarray) -> None:
+        """Add a transition to the replay buffer, then learn when the schedule says so."""
+        c = self.config
+        net.buffer.add(p.features, p.mask, p.action, reward, discount, next_feats, next_mask)
+        if len(net.buffer) >= c.learning_starts and net.buffer.added % c.train_freq == 0:
+            for _ in range(c.gradient_steps):
+                self.update(net)
 
     def update(self, net: QLearner) -> None:
         """One gradient step on a minibatch of the learner's replay buffer, then the target schedule."""

@@ -110,7 +110,8 @@ class Learner(ABC):
                              "create the environment with uniform_spaces=True")
         self.group = {a: SHARED if self.config.shared else a for a in self.agents}
         if self.config.credit == "task" and not self.task_credit:
-            raise ValueError(f"{self.name} learns from step rewards only: credit='task' is for ppo and a2c")
+            raise ValueError(f"{self.name} learns from step rewards only: credit='task' needs a learner that "
+                             "waits for each decision's credit (ppo, a2c, ddqn)")
         self.pending: dict[str, Pending] = {}
         self.step = 0  # of the episode
         self.awaiting: dict[tuple[str, int], Pending] = {}  # credit="task": decisions whose credit has not come

@@ -125,11 +125,43 @@ def specs(n_agents=2, slots=2):
     return {f"ctrl_{i}": AgentSpec(slots, slots + 1) for i in range(n_agents)}
 
 
-def test_only_the_on_policy_learners_take_task_credit():
+class StepOnly(DDQN):
+    """A user's learner that does not wait for credits."""
+
+    name = "step_only"
+    task_credit = False
+
+
+def test_a_learner_that_does_not_wait_for_credits_refuses_task_credit():
     with pytest.raises(ValueError, match="credit must be one of step, task"):
         LearnerConfig(credit="tasks")
-    with pytest.raises(ValueError, match="credit='task' is for ppo and a2c"):
-        DDQN(specs(), DDQNConfig(credit="task"))
+    with pytest.raises(ValueError, match="step_only learns from step rewards only"):
+        StepOnly(specs(), DDQNConfig(credit="task"))
+
+
+def test_ddqn_stores_a_transition_once_its_credit_comes_and_never_one_without():
+    env = ZenohEdgeEnv("aot1_wired", transport="inproc", reward="marginal", max_steps=60)
+    ddqn = DDQN.for_env(env, DDQNConfig(credit="task", gamma=0.0, reward_scale=1.0, learning_starts=10**6))
+    ddqn.start_training(120)
+    obs, _ = env.reset(seed=2)
+    credits, late = {}, 0
+    while env.agents:
+        obs, rewards, term, trunc, infos = env.step(ddqn.explore(obs))
+        waiting = {(w[0].agent, w[0].pending.step) for w in ddqn.uncredited_closed}
+        ddqn.observe(rewards, obs, term, trunc, {a: i["credits"] for a, i in infos.items()})
+        for agent, info in infos.items():
+            for step, value in info["credits"]:
+                credits[(agent, step)] = value
+                late += (agent, step) in waiting  # closed before its credit came: it waited for it
+    stored = sorted(float(r) for net in ddqn.nets.values() for r in net.buffer.reward[:len(net.buffer)])
+    assert late > 0
+    assert stored == pytest.approx(sorted(credits.values()), abs=1e-6)  # the credits, each once, and nothing else
+    assert any(v < 0 for v in stored) and any(v > 0.5 for v in stored)
+    left = len(ddqn.uncredited_closed)  # every decision closed at the end; these tasks outlive the episode
+    assert left and all(w[0].pending.credit is None for w in ddqn.uncredited_closed)
+    ddqn.reset(3)
+    assert not ddqn.uncredited_closed and ddqn.uncredited == left
+    env.close()
 
 
 def record(agent, credit):
