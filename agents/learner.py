@@ -9,7 +9,7 @@ is closed as terminal when the agent terminated, or bootstraps from the final ob
 truncated with a task in it; truncated without a task there is no decision state to bootstrap from,
 and it is closed as terminal too.
 
-With ``credit="task"`` (on-policy learners) a decision's reward is not what the steps after it bring, but
+With ``credit="task"`` a decision's reward is not what the steps after it bring, but
 its tasks' own account as the environment credits it once they settle (``env.credit``,
 ``infos[agent]["credits"]``): a transition is learnt from only once its credit has come.
 

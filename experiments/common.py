@@ -131,7 +131,7 @@ def coerce(text: str, default: Any) -> Any:
     return text
 
 
-# what an on-policy learner trained on the marginal reward uses unless told otherwise: each decision is learnt
+# what a learner trained on the marginal reward uses unless told otherwise: each decision is learnt
 # from its own tasks' credit, which prices every wait it causes, so nothing after it is added (gamma 0); the
 # credits are normalised, since reward_scale is tuned for the paper reward's magnitudes
 TASK_CREDIT: dict[str, Any] = {"credit": "task", "gamma": 0.0, "normalize_reward": True}
@@ -142,7 +142,7 @@ def learner_config(algo: str, *, seed: int, reward: str, hidden: Sequence[int] |
                    chosen: Collection[str] = ()) -> LearnerConfig:
     """``algo``'s config: its defaults, then ``base`` (e.g. quick mode's), hidden sizes, seed, then ``--set``s.
 
-    On the ``marginal`` reward a learner that can (PPO, A2C) learns from each decision's own credit
+    On the ``marginal`` reward a learner that can (PPO, A2C, DDQN) learns from each decision's own credit
     (``TASK_CREDIT``: env.credit, docs/agents.md "Credit per task"), which is that reward's per-task account.
 
     ``chosen`` are the algorithms this run trains (default: ``algo`` alone). An ``--set`` must reach one of them:

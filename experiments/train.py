@@ -36,8 +36,8 @@ def main(argv: Sequence[str] | None = None) -> None:
     p.add_argument("--episodes", type=positive_int, default=50, help="training episodes (default 50)")
     p.add_argument("--out", type=Path, default=None, help="output directory (default runs/<algo>-<scenario>)")
     per_learner = ", ".join(f"{reward} for {algo}" for algo, reward in DEFAULT_REWARD.items())
-    add_env_arguments(p, reward=None, reward_default_help=f"{per_learner}, paper for the others; on marginal, ppo and "
-                      "a2c learn from each decision's own credit (credit=task, gamma=0; --set credit=step "
+    add_env_arguments(p, reward=None, reward_default_help=f"{per_learner}, paper for the others; on marginal, the built-in "
+                      "learners learn from each decision's own credit (credit=task, gamma=0; --set credit=step "
                       "for the steps' rewards; docs/agents.md)")
     add_learner_arguments(p)
     args = p.parse_args(argv)

@@ -244,14 +244,13 @@ def test_overrides_that_reach_no_learner_are_errors(algo, chosen, item, message)
     assert message in str(e.value)
 
 
-def test_on_the_marginal_reward_the_on_policy_learners_take_credit_per_task():
-    for algo in ("ppo", "a2c"):
+def test_on_the_marginal_reward_the_learners_take_credit_per_task():
+    for algo in ("ppo", "a2c", "ddqn"):
         config = learner_config(algo, seed=0, reward="marginal")
         assert (config.credit, config.gamma, config.normalize_reward) == ("task", 0.0, True)
         config = learner_config(algo, seed=0, reward="marginal", overrides=["credit=step", "gamma=0.99"])
         assert (config.credit, config.gamma) == ("step", 0.99)
         assert learner_config(algo, seed=0, reward="paper").credit == "step"
-    assert learner_config("ddqn", seed=0, reward="marginal").credit == "step"
     with pytest.raises(ValueError, match="ppo: credit=task learns from the marginal reward's credits per task, not "
                                          "from 'paper'"):
         learner_config("ppo", seed=0, reward="paper", overrides=["credit=task"])
