@@ -14,6 +14,7 @@ from orchestrator.clock import ClockError
 from orchestrator.session import Simulation
 from tests.conftest import model_part, same
 from tests.test_env import masked_random
+from tests.test_sleeping import tricky
 
 EPISODE = 150
 
@@ -87,5 +88,26 @@ def test_over_zenoh_a_reset_mid_episode_leaves_nothing_behind():
         env.close()
     (ref, ref_summary, _), (got, got_summary, rejected) = episodes
     assert rejected == {"orchestrator": {}, "nodes": {}}
+    assert same(ref_summary, got_summary)
+    assert all(same(a, b) for a, b in zip(ref, got, strict=True))
+
+
+@pytest.mark.zenoh
+def test_over_zenoh_epochs_and_batches_give_the_in_process_episode(tmp_path):
+    """Decision epochs of 3 ticks (ticks without actions between two steps), batch mode, sparse broadcasts:
+    the ticks opened ahead still give, step for step, the episode of the in-process run."""
+    scenario = tricky(tmp_path)
+    episodes = []
+    for transport, layout in (("inproc", "single"), ("zenoh", "per-node")):
+        env = ZenohEdgeEnv(scenario, transport=transport, layout=layout, max_steps=60)
+        rng = np.random.default_rng(1)
+        obs, _ = env.reset(seed=3)
+        trace = [obs]
+        while env.agents:
+            obs, rewards, _, _, infos = env.step(masked_random(env, obs, rng))
+            trace.append((obs, rewards, {a: i["credits"] for a, i in infos.items()}))
+        episodes.append((trace, model_part(env.summary())))
+        env.close()
+    (ref, ref_summary), (got, got_summary) = episodes
     assert same(ref_summary, got_summary)
     assert all(same(a, b) for a, b in zip(ref, got, strict=True))
