@@ -14,7 +14,7 @@ from orchestrator.clock import ClockError
 from orchestrator.session import Simulation
 from tests.conftest import model_part, same
 from tests.test_env import masked_random
-from tests.test_sleeping import tricky
+from tests.test_sleeping import driven_scenarios
 
 EPISODE = 150
 
@@ -93,10 +93,12 @@ def test_over_zenoh_a_reset_mid_episode_leaves_nothing_behind():
 
 
 @pytest.mark.zenoh
-def test_over_zenoh_epochs_and_batches_give_the_in_process_episode(tmp_path):
-    """Decision epochs of 3 ticks (ticks without actions between two steps), batch mode, sparse broadcasts:
-    the ticks opened ahead still give, step for step, the episode of the in-process run."""
-    scenario = tricky(tmp_path)
+@pytest.mark.parametrize("name", ["tricky", "failures", "co-located"])
+def test_over_zenoh_epochs_failures_and_colocated_control_give_the_in_process_episode(tmp_path, name):
+    """Decision epochs of 3 ticks (ticks without actions between two steps), batch mode, sparse broadcasts;
+    failures of neighbours and of the agent's own node; control latency 0: the ticks opened ahead still
+    give, step for step, the episode of the in-process run."""
+    scenario = driven_scenarios(tmp_path)[name]
     episodes = []
     for transport, layout in (("inproc", "single"), ("zenoh", "per-node")):
         env = ZenohEdgeEnv(scenario, transport=transport, layout=layout, max_steps=60)
