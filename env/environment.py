@@ -17,8 +17,9 @@ action is ruled in ``env.actions``; penalties and shaping are wrappers (``env.wr
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
-from numbers import Integral
+from numbers import Integral, Real
 from pathlib import Path
 from typing import Any, ClassVar
 
@@ -30,7 +31,16 @@ from env.actions import ActionRules
 from env.credit import TaskCredit
 from env.observations import DictObservation, FlatObservation, ObservationBuilder, ObservationLayout
 from env.overrides import ScenarioOverrides
-from env.reward import PaperWeights, RewardContext, RewardFn, RewardTerms, nominal_arrivals, resolve_reward, terms_for
+from env.reward import (
+    CONGESTION_PRICE,
+    PaperWeights,
+    RewardContext,
+    RewardFn,
+    RewardTerms,
+    nominal_arrivals,
+    resolve_reward,
+    terms_for,
+)
 from node_runtime.model.plugins import load
 from node_runtime.model.role import role_id
 from node_runtime.model.spec import Scenario
@@ -89,6 +99,8 @@ class ZenohEdgeEnv(ParallelEnv):
             starting one (give the endpoint it printed, e.g. "tcp/10.0.0.5:7447", and its id).
         security: with ``connect`` to a router that requires TLS and logins (``launch --security``), the
             directory of the ``driver`` identity written by deploy/make-certs.sh (deploy/README.md).
+        congestion_price: the price c that the ``marginal`` reward and the credits per task charge for a
+            deadline's worth of waiting imposed on another task (default 3; docs/reward.md).
     """
 
     metadata: ClassVar[dict[str, Any]] = {
@@ -103,7 +115,7 @@ class ZenohEdgeEnv(ParallelEnv):
                  max_steps: int | None = None, agents: Sequence[str] | None = None, uniform_spaces: bool = False,
                  invalid_action: str = "local", render_mode: str | None = None, info_numbers: bool = True,
                  connect: str | None = None, sim_id: str | None = None, timeout: float = 30.0,
-                 security: str | Path | None = None) -> None:
+                 security: str | Path | None = None, congestion_price: float = CONGESTION_PRICE) -> None:
         if overrides is not None and not isinstance(overrides, ScenarioOverrides):
             raise TypeError(f"overrides must be a ScenarioOverrides, not a {type(overrides).__name__}")
         if connect is not None:  # the served simulation fixes the scenario
@@ -127,6 +139,9 @@ class ZenohEdgeEnv(ParallelEnv):
             raise ValueError(f"transport must be 'zenoh' or 'inproc', not {transport!r}")
         if layout is not None:
             layout = check_layout(layout)
+        if isinstance(congestion_price, bool) or not isinstance(congestion_price, Real) or not (
+                0 <= congestion_price < math.inf):
+            raise ValueError(f"congestion_price must be a finite number >= 0, not {congestion_price!r}")
         if render_mode is not None and render_mode not in self.metadata["render_modes"]:
             raise ValueError(f"render_mode must be one of {self.metadata['render_modes']} or None")
         self.scenario = sc
@@ -137,7 +152,8 @@ class ZenohEdgeEnv(ParallelEnv):
         self.weights = reward_weights or PaperWeights()
         self.arrivals = nominal_arrivals(sc)
         self.penalty = penalty_s(sc)  # what the headline score charges a task that does not complete
-        self.credit = TaskCredit(self.penalty)  # infos[agent]["credits"]
+        self.price = float(congestion_price)
+        self.credit = TaskCredit(self.penalty, self.price)  # infos[agent]["credits"]
         self.max_steps = max_steps or sc.episode_ticks // sc.decision_interval
         self.render_mode = render_mode
         self.connect = connect
@@ -273,7 +289,8 @@ class ZenohEdgeEnv(ParallelEnv):
             delta = deltas[row]
             agent_terms = terms.get(agent, ())
             ctx = RewardContext(agent, self.node_of[agent], before[agent], resolved.actions[agent], self._raw[agent],
-                                agent_terms, delta, dt, self.weights, self.arrivals, network_delta, self.penalty)
+                                agent_terms, delta, dt, self.weights, self.arrivals, network_delta, self.penalty,
+                                self.price)
             rewards[agent] = float(self.reward_fn(ctx))
             infos[agent] = {"tick": tick, "node": nodes[row],
                             "reward_terms": [t.as_dict() for t in agent_terms], "credits": credits.get(agent, []),

@@ -125,6 +125,10 @@ def nominal_arrivals(sc: Scenario) -> dict[str, float]:
     return out
 
 
+CONGESTION_PRICE = 3.0  # what marginal_reward charges for a deadline's worth of delay imposed, in completions
+# (the default of ZenohEdgeEnv(congestion_price=...) and of the experiments' --price)
+
+
 @dataclass(slots=True)
 class RewardContext:
     """Everything a reward function may look at for one agent and one step."""
@@ -141,6 +145,7 @@ class RewardContext:
     arrivals: Mapping[str, float]  # each node's nominal task arrival rate, tasks/s (``nominal_arrivals``)
     network_delta: dict[str, float]  # the same changes as node_delta, network-wide
     penalty: float  # seconds the headline score charges a task that does not complete (its P)
+    price: float = CONGESTION_PRICE  # ``marginal``'s congestion price c (the environment's ``congestion_price``)
 
 
 RewardFn = Callable[[RewardContext], float]
@@ -186,20 +191,17 @@ def score_reward(ctx: RewardContext) -> float:
     return timeliness(ctx.node_delta, ctx.penalty)
 
 
-CONGESTION_PRICE = 3.0  # what marginal_reward charges for a deadline's worth of delay imposed, in completions
-
-
 def marginal_reward(ctx: RewardContext) -> float:
     """``score`` minus the congestion the agent's decisions caused: the waiting they imposed on other tasks
     (in CPU queues, and on the links they offloaded over), each wait in deadlines of the task that waited,
-    times ``CONGESTION_PRICE``.
+    times the price c (``ctx.price``: ``CONGESTION_PRICE`` unless the environment sets another).
 
     A difference reward (Wolpert and Tumer 2002; marginal-cost pricing in congestion games): a decision is
     charged what it takes from the others, so that agents each maximising their own reward maximise the
     team's score, without ``team_score``'s credit assignment over every agent. Counting a wait in the
     waiting task's deadlines prices it by what it risks: a task delayed by its whole deadline is lost, and
     2 s cost an alert due in 10 s ten times what they cost batch work due in 100 s (docs/reward.md)."""
-    return timeliness(ctx.node_delta, ctx.penalty) - CONGESTION_PRICE * ctx.node_delta["delay_imposed"]
+    return timeliness(ctx.node_delta, ctx.penalty) - ctx.price * ctx.node_delta["delay_imposed"]
 
 
 def team_score_reward(ctx: RewardContext) -> float:

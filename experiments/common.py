@@ -16,7 +16,7 @@ import torch
 
 from agents import LEARNERS, LearnerConfig
 from env import ScenarioOverrides, ZenohEdgeEnv
-from env.reward import REWARDS
+from env.reward import CONGESTION_PRICE, REWARDS
 from node_runtime.runtime.protocol import MAX_SEED
 from orchestrator.scenario.errors import ScenarioError
 
@@ -60,6 +60,10 @@ def rate(text: str) -> float:
     return _number(text, float, lambda v: 0 <= v < float("inf"), "an arrival rate >= 0 (tasks/s per source)")
 
 
+def price(text: str) -> float:
+    return _number(text, float, lambda v: 0 <= v < float("inf"), "a congestion price >= 0")
+
+
 def add_env_arguments(parser: argparse.ArgumentParser, scenario: bool = True, reward: str | None = "paper",
                       reward_default_help: str | None = None) -> None:
     """``reward``: the command's default reward (the studies reproduce the paper's); ``reward_default_help``
@@ -81,6 +85,10 @@ def add_env_arguments(parser: argparse.ArgumentParser, scenario: bool = True, re
                         "credited to the origin), team_score (the same, network-wide) or marginal (score minus "
                         "the delay the agent's decisions imposed on other tasks, priced: a difference reward); "
                         "docs/reward.md")
+    g.add_argument("--price", type=price, default=CONGESTION_PRICE,
+                   help=f"the congestion price c of the marginal reward and of the credits per task: what a "
+                        f"deadline's worth of waiting imposed on another task costs, in completions (default "
+                        f"{CONGESTION_PRICE:g}; docs/reward.md)")
     g.add_argument("--transport", default="inproc", choices=["inproc", "zenoh"],
                    help="inproc (default: one process, same results as zenoh) or zenoh (node processes)")
 
@@ -105,10 +113,10 @@ def add_learner_arguments(parser: argparse.ArgumentParser, seeds: bool = False) 
 
 
 def make_env(scenario: str, lam: float | None, max_steps: int | None, reward: str = "paper",
-             transport: str = "inproc", seed: int = 0) -> ZenohEdgeEnv:
+             transport: str = "inproc", seed: int = 0, price: float = CONGESTION_PRICE) -> ZenohEdgeEnv:
     """The environment every agent of a study runs in: padded spaces, so one network can serve all agents."""
     return ZenohEdgeEnv(scenario, transport=transport, overrides=ScenarioOverrides(arrival_rate=lam),
-                        max_steps=max_steps, reward=reward, uniform_spaces=True, seed=seed)
+                        max_steps=max_steps, reward=reward, uniform_spaces=True, seed=seed, congestion_price=price)
 
 
 def coerce(text: str, default: Any) -> Any:

@@ -36,9 +36,9 @@ def main(argv: Sequence[str] | None = None) -> None:
     p.add_argument("--episodes", type=positive_int, default=50, help="training episodes (default 50)")
     p.add_argument("--out", type=Path, default=None, help="output directory (default runs/<algo>-<scenario>)")
     per_learner = ", ".join(f"{reward} for {algo}" for algo, reward in DEFAULT_REWARD.items())
-    add_env_arguments(p, reward=None, reward_default_help=f"{per_learner}, paper for the others; on marginal, the built-in "
-                      "learners learn from each decision's own credit (credit=task, gamma=0; --set credit=step "
-                      "for the steps' rewards; docs/agents.md)")
+    add_env_arguments(p, reward=None, reward_default_help=f"{per_learner}, paper for the others; on marginal, the "
+                      "built-in learners learn from each decision's own credit (credit=task, gamma=0; --set "
+                      "credit=step for the steps' rewards; docs/agents.md)")
     add_learner_arguments(p)
     args = p.parse_args(argv)
     args.reward = args.reward or DEFAULT_REWARD.get(args.algo, "paper")
@@ -51,10 +51,10 @@ def main(argv: Sequence[str] | None = None) -> None:
     set_threads(args.threads)
     out = args.out or Path("runs") / f"{args.algo}-{Path(args.scenario).stem}"
     out.mkdir(parents=True, exist_ok=True)
-    env = make_env(args.scenario, args.lam, args.max_steps, args.reward, args.transport, args.seed)
+    env = make_env(args.scenario, args.lam, args.max_steps, args.reward, args.transport, args.seed, args.price)
     learner = LEARNERS[args.algo].for_env(env, config, args.device)
     (out / "config.json").write_text(json.dumps({"algo": args.algo, "scenario": args.scenario, "lambda": args.lam,
-                                                 "max_steps": env.max_steps, "reward": args.reward,
+                                                 "max_steps": env.max_steps, "reward": args.reward, "price": env.price,
                                                  "episodes": args.episodes, "config": dataclasses.asdict(config)},
                                                 indent=1))
     progress = progress_bar() if args.progress else None

@@ -124,8 +124,12 @@ def test_train_then_evaluate_command_lines(tmp_path, capsys):
     # the default reward is the learner's: the paper's for the learners tuned on it, marginal for PPO
     assert json.loads((tmp_path / "config.json").read_text())["reward"] == "paper"
     train.main(["ppo", "--scenario", "aot1", "--episodes", "1", "--max-steps", "20", "--out", str(tmp_path / "ppo"),
-                "--no-progress"])
-    assert json.loads((tmp_path / "ppo" / "config.json").read_text())["reward"] == "marginal"
+                "--no-progress", "--price", "1.5"])
+    config = json.loads((tmp_path / "ppo" / "config.json").read_text())
+    assert (config["reward"], config["price"]) == ("marginal", 1.5)
+    with pytest.raises(SystemExit):
+        train.main(["ppo", "--price", "-1"])
+    assert "--price: expected a congestion price >= 0, not '-1'" in capsys.readouterr().err
 
 
 def test_evaluate_takes_a_rule_of_your_own_by_import_path(tmp_path, monkeypatch, capsys):

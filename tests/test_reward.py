@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import math
 
+import numpy as np
 import pytest
 
 from env.reward import PaperWeights, nominal_arrivals, paper_terms, reference_terms, shaped
@@ -213,6 +214,35 @@ def test_the_marginal_reward_charges_the_delay_imposed_at_the_congestion_price()
                         {"completed": 2, "response_time_total": 40.0, "delay_imposed": 0.2}, 1.0, PaperWeights(),
                         {}, {"completed": 3, "response_time_total": 90.0, "delay_imposed": 0.5}, penalty=100.0)
     assert marginal_reward(ctx) == pytest.approx(1.6 - 0.6)
+    ctx.price = 1.0  # the environment's congestion_price
+    assert marginal_reward(ctx) == pytest.approx(1.6 - 0.2)
+
+
+def test_at_price_zero_marginal_is_the_score_reward_and_credits_are_timeliness_alone():
+    """The environment's congestion_price reaches both the marginal reward and the credits per task."""
+    from env import ZenohEdgeEnv
+
+    runs = {}
+    for reward, price in (("score", 3.0), ("marginal", 0.0), ("marginal", 3.0)):
+        env = ZenohEdgeEnv("aot1_wired", transport="inproc", reward=reward, congestion_price=price, max_steps=120)
+        obs, _ = env.reset(seed=6)
+        rng = np.random.default_rng(6)
+        rewards, credits = [], []
+        while env.agents:
+            obs, r, _, _, infos = env.step({a: int(rng.choice(np.flatnonzero(obs[a]["action_mask"])))
+                                            for a in env.agents})
+            rewards.append(r)
+            credits.append({a: i["credits"] for a, i in infos.items()})
+        runs[(reward, price)] = rewards, credits
+        env.close()
+    assert runs[("score", 3.0)][0] == runs[("marginal", 0.0)][0]
+    assert runs[("marginal", 3.0)][0] != runs[("marginal", 0.0)][0]
+    free, priced = runs[("marginal", 0.0)][1], runs[("marginal", 3.0)][1]
+    pairs = [(c0, c3) for s0, s3 in zip(free, priced, strict=True) for a in s0
+             for (_, c0), (_, c3) in zip(s0[a], s3[a], strict=True)]
+    assert pairs and all(0.0 <= c0 <= 1.0 and c3 <= c0 for c0, c3 in pairs) and any(c3 < c0 for c0, c3 in pairs)
+    with pytest.raises(ValueError, match="congestion_price must be a finite number >= 0"):
+        ZenohEdgeEnv("aot1", transport="inproc", congestion_price=-1.0)
 
 
 @pytest.mark.parametrize("scenario", ["aot1", "aot3_compute"])
