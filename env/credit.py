@@ -27,6 +27,10 @@ from env.reward import CONGESTION_PRICE
 from node_runtime.model.role import CHARGED, COMPLETED
 
 Credits = dict[str, list[tuple[int, float]]]  # agent -> [(step of the decision, credit)]
+# A decision comes at most a few epochs after its task settled (it was in the agent's last observation), so
+# only the latest settled tasks need remembering: between this many and twice as many, whatever the
+# episode's length, so that memory stays flat in it
+SETTLED_MEMORY = 100_000
 
 
 class TaskCredit:
@@ -40,14 +44,15 @@ class TaskCredit:
     def reset(self) -> None:
         self._tasks: dict[int, tuple[list[float], list[tuple[str, int]]]] = {}  # id -> ([charges], decisions)
         self._open: dict[tuple[str, int], list[float]] = {}  # (agent, step) -> [tasks unsettled, credit so far]
-        self._settled: set[int] = set()  # tasks that settled before any decision placed them
+        self._settled: set[int] = set()  # tasks that settled: the latest ones ...
+        self._settled_before: set[int] = set()  # ... and the generation before them
 
     def place(self, agent: str, step: int, tasks: Iterable[int]) -> Credits:
         """Record a decision; returns its credit at once if all its tasks had settled already."""
         key = (agent, step)
         count = 0
         for task in tasks:
-            if task in self._settled:
+            if task in self._settled or task in self._settled_before:
                 continue
             self._tasks.setdefault(task, ([0.0], []))[1].append(key)
             count += 1
@@ -63,7 +68,7 @@ class TaskCredit:
             entry = self._tasks.get(task)
             if entry is None:  # a task no agent placed (yet): remember that it is gone
                 if kind != CHARGED:
-                    self._settled.add(task)
+                    self._forget_after(task)
                 continue
             if kind == CHARGED:
                 entry[0][0] += value
@@ -75,7 +80,7 @@ class TaskCredit:
     def _close(self, task: int, timely: float, out: Credits) -> None:
         charges, decisions = self._tasks.pop(task)
         credit = timely - self.price * charges[0]
-        self._settled.add(task)
+        self._forget_after(task)
         for key in decisions:
             left = self._open[key]
             left[0] -= 1
@@ -83,3 +88,9 @@ class TaskCredit:
             if left[0] == 0:
                 del self._open[key]
                 out.setdefault(key[0], []).append((key[1], left[1]))
+
+    def _forget_after(self, task: int) -> None:
+        """Remember that ``task`` settled, forgetting the oldest generation of settled tasks when full."""
+        self._settled.add(task)
+        if len(self._settled) >= SETTLED_MEMORY:
+            self._settled_before, self._settled = self._settled, set()

@@ -282,7 +282,6 @@ class ZenohEdgeEnv(ParallelEnv):
         deltas = _by_node(output_values(Out.ENV_DELTA, reports[-1].nodes, node_delta, capacity))
         network_delta = output_values(Out.ENV_DELTA, reports[-1].totals, sum(r.delta for r in reports), capacity.sum())
         nodes = _by_node(output_values(Out.ENV, reports[-1].nodes, node_delta, capacity))
-        tick = self.sim.tick
         rewards, infos = {}, {}
         for agent in self.agents:
             row = self._row[agent]
@@ -292,8 +291,7 @@ class ZenohEdgeEnv(ParallelEnv):
                                 agent_terms, delta, dt, self.weights, self.arrivals, network_delta, self.penalty,
                                 self.price)
             rewards[agent] = float(self.reward_fn(ctx))
-            infos[agent] = {"tick": tick, "node": nodes[row],
-                            "reward_terms": [t.as_dict() for t in agent_terms], "credits": credits.get(agent, []),
+            infos[agent] = {**self._info(agent, nodes, agent_terms, credits.get(agent, [])),
                             "invalid_action": agent in resolved.invalid, "invalid_action_count": self._invalid[agent]}
         terminations = dict.fromkeys(self.agents, False)
         truncations = dict.fromkeys(self.agents, truncated)
@@ -363,9 +361,10 @@ class ZenohEdgeEnv(ParallelEnv):
             self._raw[agent] = raw
             self._obs[agent] = self.builders[agent].encode(raw)
 
-    def _info(self, agent: str, nodes: list[dict[str, Any]], terms: tuple[RewardTerms, ...]) -> dict[str, Any]:
+    def _info(self, agent: str, nodes: list[dict[str, Any]], terms: tuple[RewardTerms, ...],
+              credits: list[tuple[int, float]] | None = None) -> dict[str, Any]:
         return {"tick": self.sim.tick, "node": nodes[self._row[agent]], "reward_terms": [t.as_dict() for t in terms],
-                "credits": []}
+                "credits": credits or []}
 
     def _numbers(self, infos: dict[str, dict[str, Any]]) -> dict[str, dict[str, float]]:
         """Flat mode's infos: the same keys at every reset and step, each a number (libraries stack them);

@@ -195,7 +195,7 @@ class Clock:
         if not early:
             self.dones = {}
         self.opened = frozenset(opened)
-        self._open(t, [i for i in opened if i not in early], mine)
+        self._open(t, [i for i in opened if i not in early], mine, actions or {})
         return self._collect(opened)
 
     def open_next(self, hold: Collection[str] = ()) -> None:
@@ -208,17 +208,17 @@ class Clock:
         early = [i for i in self._due(t, {}) if i not in held]
         self.dones = {}
         self.early = frozenset(early)
-        self._open(t, early, {})
+        self._open(t, early, {}, {})
 
     def _due(self, t: int, mine: Collection[int]) -> list[int]:
         """The processes tick ``t`` must be opened for: mail announced, actions, or work due."""
         expect = self.expect
         return [i for i, wake in enumerate(self.wake) if i in expect or i in mine or (wake is not None and wake <= t)]
 
-    def _open(self, t: int, procs: list[int], mine: dict[int, dict[str, Any]]) -> None:
+    def _open(self, t: int, procs: list[int], mine: dict[int, dict[str, Any]], actions: dict[str, Any]) -> None:
+        """Publish tick ``t`` to ``procs``: each its own expected count and ``mine``, its share of ``actions``."""
         expect = self.expect
         if len(procs) == len(self.procs):  # one publication reaches them all
-            actions = {role: action for acts in mine.values() for role, action in acts.items()}
             self.transport.publish(self.keys.tick(), Tick(self.episode, t, "run", expect, actions))
             return
         for i in procs:

@@ -54,6 +54,15 @@ def test_a_decision_on_a_task_already_gone_is_credited_zero_at_once():
     assert credit.settle([(8, CHARGED, 1.0)]) == {}  # after it settled: not credited
 
 
+def test_memory_of_settled_tasks_stays_flat_and_keeps_the_latest(monkeypatch):
+    monkeypatch.setattr("env.credit.SETTLED_MEMORY", 4)
+    credit = TaskCredit(penalty=100.0)
+    credit.settle([(task, LOST, 0.0) for task in range(1, 11)])
+    assert len(credit._settled) + len(credit._settled_before) <= 2 * 4
+    assert credit.place("a", 0, [10]) == {"a": [(0, 0.0)]}  # among the latest: gone, credited 0 at once
+    assert credit.place("a", 1, [1]) == {}  # long forgotten: it waits for a credit that never comes
+
+
 class Recording(TaskCredit):
     """Keeps every decision placed and every ledger entry applied, for an oracle to recompute the credits."""
 

@@ -73,7 +73,8 @@ class Worker(Role):
         self._reported_version = -1
         self._links_changed = False  # since the last report
         self._divertible: list[list] = []  # queue_first: the queue entries a decision may still divert
-        self._head: list = [-1, 0.0]  # the task in service and the delay its service imposed so far
+        self._serving = -1  # the id of the task in service (the queue's head) ...
+        self._imposed = 0.0  # ... and the delay its service has imposed so far
 
     # ----- helpers -----
 
@@ -291,18 +292,18 @@ class Worker(Role):
         while queue and budget > 0.0:
             entry = queue[0]
             task = entry[0]
-            if task.id != self._head[0]:  # a new head (the last one finished, or left the queue)
-                self._head = [task.id, 0.0]
+            if task.id != self._serving:  # a new head (the last one finished, or left the queue)
+                self._serving, self._imposed = task.id, 0.0
             remaining = entry[1]
             finishes = remaining <= budget + EPS_CYCLES
             if len(queue) > 1:
                 spent = remaining if finishes else budget
-                self._head[1] += spent / capacity * sum(urgency(e[0]) for e in islice(queue, 1, None))
+                self._imposed += spent / capacity * sum(urgency(e[0]) for e in islice(queue, 1, None))
             if finishes:
                 budget -= remaining
                 used += remaining
                 queue.popleft()
-                self.route_result(t, Result(task, self.node.id, t, len(task.path) - 1, self._head[1]), out)
+                self.route_result(t, Result(task, self.node.id, t, len(task.path) - 1, self._imposed), out)
             else:
                 entry[1] = remaining - budget
                 used += budget
