@@ -9,12 +9,15 @@ from __future__ import annotations
 
 import os
 import signal
+import subprocess
+import sys
 import time
 from pathlib import Path
 
 import pytest
 
 from node_runtime.runtime.forkserver import ForkServer
+from tests.conftest import ROOT
 from tests.launcher import TIMEOUT
 
 NEXT_PID = Path("/proc/sys/kernel/ns_last_pid")
@@ -60,3 +63,20 @@ def test_a_child_given_a_former_childs_pid_runs():
         os.kill(second, signal.SIGKILL)
     assert forks.wait([second], TIMEOUT) == []
     assert forks.exit_status(second) == -signal.SIGKILL
+
+
+def test_the_server_runs_the_code_its_caller_runs_whatever_the_working_directory_holds(tmp_path):
+    """Started from a directory with another checkout in it (here a decoy that cannot be imported), the server
+    still imports the caller's tree: node processes run the very code of the orchestrator that starts them."""
+    decoy = tmp_path / "node_runtime"
+    decoy.mkdir()
+    (decoy / "__init__.py").write_text('raise ImportError("the decoy in the working directory")\n')
+    script = ("from node_runtime.runtime.forkserver import ForkServer\n"
+              "from tests.test_forkserver import exit_at_once\n"
+              "forks = ForkServer.shared()\n"
+              f"pid = forks.start('child', exit_at_once)\n"
+              f"assert forks.wait([pid], {TIMEOUT}) == []\n"
+              "print(forks.exit_status(pid))\n")
+    done = subprocess.run([sys.executable, "-P", "-c", script], cwd=tmp_path, capture_output=True, text=True,
+                          env={**os.environ, "PYTHONPATH": str(ROOT)}, timeout=2 * TIMEOUT)
+    assert (done.returncode, done.stdout.strip()) == (0, "0"), done.stderr

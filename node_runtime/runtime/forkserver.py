@@ -34,6 +34,7 @@ import sys
 import threading
 import traceback
 from collections.abc import Callable
+from pathlib import Path
 from typing import Any
 
 HEADER = struct.Struct(">I")
@@ -150,6 +151,13 @@ def serve() -> None:
 
 # ----- the orchestrator's handle -----
 
+def same_code_environment() -> dict[str, str]:
+    """The environment of a server that runs the very code this process imported: this package's tree
+    first on its path, and (``python -P``) not the working directory, which may hold another checkout."""
+    tree = str(Path(__file__).resolve().parents[2])
+    return {**os.environ, "PYTHONPATH": os.pathsep.join([tree, *filter(None, [os.environ.get("PYTHONPATH")])])}
+
+
 class ForkServer:
     """Starts node processes through one long-lived server process (shared by this interpreter)."""
 
@@ -157,8 +165,9 @@ class ForkServer:
     _lock = threading.Lock()
 
     def __init__(self) -> None:
-        self.server = subprocess.Popen([sys.executable, "-m", "node_runtime.runtime.forkserver"],
-                                       stdin=subprocess.PIPE, stdout=subprocess.PIPE, close_fds=True)
+        self.server = subprocess.Popen([sys.executable, "-P", "-m", "node_runtime.runtime.forkserver"],
+                                       stdin=subprocess.PIPE, stdout=subprocess.PIPE, close_fds=True,
+                                       env=same_code_environment())
         self.exits: dict[int, int] = {}  # pid -> exit status
         self.accounts: dict[int, str] = {}  # pid -> what it said when it failed ("" if nothing)
         self._started: dict[str, list[int]] = {}
