@@ -145,13 +145,13 @@ class Clock:
             return WRONG_TICK, f"a second done for tick {t}"
         hosted = self.hosted[i]
         stats, flights, times, obs, sent = done.stats, done.flights, done.response_times, done.obs, done.sent
-        ledger = done.ledger
+        ledger, drift = done.ledger, done.drift
         if not ((not stats or hosted.issuperset(stats)) and (not flights or hosted.issuperset(flights))
                 and (not times or hosted.issuperset(times)) and (not obs or hosted.issuperset(obs))
-                and (not ledger or hosted.issuperset(ledger))
+                and (not ledger or hosted.issuperset(ledger)) and (not drift or stats.keys() >= drift.keys())
                 and (not sent or self.receivers[i].issuperset(sent))):
-            return UNKNOWN_SENDER, (f"a report on roles {done.proc} does not host, or on mail to processes it "
-                                    "never sends to")
+            return UNKNOWN_SENDER, (f"a report on roles {done.proc} does not host, on mail to processes it "
+                                    "never sends to, or a drift without its stats")
         for arrivals in flights.values():
             if min(arrivals, default=t + 1) <= t:
                 return WRONG_TICK, f"tasks on links that arrive at tick {min(arrivals)}, sent in tick {t}"

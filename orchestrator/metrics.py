@@ -237,6 +237,7 @@ class Metrics:
         self.rt_by_node: dict[str, list[float]] = {}
         self._matrix = np.zeros((len(self.roles), len(FIELDS)))
         self._landing: dict[int, list[tuple[int, int]]] = {}  # arrival tick -> [(role, tasks and results)]
+        self._drift: dict[int, np.ndarray] = {}  # coasting role -> what each tick adds to its stats (Done.drift)
         if self._stream_to is not None:
             self._open_tables(self._stream_to)
 
@@ -279,13 +280,20 @@ class Metrics:
         m = self._matrix
         rts: list[float] = []
         landing = self._landing
+        drift = self._drift
         for d in dones:  # roles are named by their canonical index, which is their row
             for role, values in d.stats.items():
                 m[role, :N_STATS] = values
+                drift.pop(role, None)  # a drift ends, or starts anew, with a report
             for role, arrivals in d.flights.items():
                 for arrive, n in arrivals.items():
                     m[role, IN_FLIGHT] += n
                     landing.setdefault(arrive, []).append((role, n))
+        for role, step in drift.items():  # roles coasting through this tick: as their own replay counts it
+            m[role, :N_STATS] += step
+        for d in dones:
+            for role, step in d.drift.items():  # from the next tick
+                drift[role] = np.array(step, dtype=float)
         for role, n in landing.pop(tick, ()):  # delivered in this tick: held or accounted by the receiver
             m[role, IN_FLIGHT] -= n
         ledgers: dict[int, list[tuple[int, int, float]]] = {}

@@ -49,8 +49,18 @@ def test_tick_and_done_roundtrip():
                       [NodeView("b", 0, 0, 26, 4e6, 1, 3e7, 1, True, 2.5)])
     stats = [1, 0, 0, 0, 0, 0, 0, 0, 0, 0, 2.5, 0.0, 0.0, 0.0, 0.0, 1, 0, 0]
     done = Done("node-a", 2, 17, {1: 1}, {0: stats}, {1: [7.0]}, {0: {19: 2, 21: 1}}, 18, {2: obs},
-                ledger={1: [(7, 0, 7.0), (9, 2, 0.25)], 0: [(12, 1, 0.0)]})
+                ledger={1: [(7, 0, 7.0), (9, 2, 0.25)], 0: [(12, 1, 0.0)]}, drift={0: [0.0] * 10 + [4e6] + [0.0] * 7})
     assert codec.decode(codec.encode(done)) == done
+
+
+@pytest.mark.parametrize("row", [[0.0] * 17 + [-1.0], [0.0] * 17 + [float("nan")], [0.0] * 17 + [float("inf")],
+                                 [0.0] * 17, [0.0] * 17 + ["1"]])
+def test_a_drift_is_a_row_of_stats_that_only_ever_adds(row):
+    """A drift moves a sleeping role's counters every tick: a forged one must not take from them or poison them."""
+    wire = codec.to_wire(Done("node-a", 2, 17, {}, {0: [0] * 18}, drift={0: [0.0] * 18}))
+    wire["dr"] = {0: row}
+    with pytest.raises(codec.CodecError, match="field 'dr'"):
+        codec.decode(msgpack.packb({**wire, "v": SCHEMA_VERSION}))
 
 
 @pytest.mark.parametrize("entry", [[7, 3, 1.0], [7, -1, 0.0], [7, 1.0, 0.0], [7, 2, -0.5], [7, 2, float("nan")],

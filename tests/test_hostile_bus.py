@@ -69,6 +69,7 @@ def test_every_refusal_in_process_leaves_the_results_alone(aot1):
     keys, plan = sim.keys, sim.plan
     victim = next(d for d in sim.drivers if d.proc == "worker-rpi3_0")
     hosted_elsewhere = plan.role_index["worker:rpi3_5"]
+    own = plan.role_index["worker:rpi3_0"]
 
     def attack(out, e):
         t = AT
@@ -105,12 +106,17 @@ def test_every_refusal_in_process_leaves_the_results_alone(aot1):
     sim.transport.bus.endpoint().subscribe(keys.inbox("*"), replay)
     publish = victim.transport.publish
 
-    def racing(key: str, msg) -> None:  # reports that overtake the victim's own Done of tick AT, and one after it
-        if key == victim.done_key and msg.tick == AT:
-            publish(key, Done(victim.proc, msg.episode, AT, {}, {hosted_elsewhere: STATS}))
-            publish(key, Done(victim.proc, msg.episode, AT, {plan.proc_index["worker-rpi3_7"]: 1}, {}))
+    raced = []
+
+    def racing(key: str, msg) -> None:  # reports that overtake the victim's own first Done from tick AT on, and one
+        if key == victim.done_key and msg.tick >= AT and not raced:  # after it
+            raced.append(msg.tick)
+            t = msg.tick
+            publish(key, Done(victim.proc, msg.episode, t, {}, {hosted_elsewhere: STATS}))
+            publish(key, Done(victim.proc, msg.episode, t, {plan.proc_index["worker-rpi3_7"]: 1}, {}))
+            publish(key, Done(victim.proc, msg.episode, t, {}, {}, drift={own: STATS}))  # a drift without stats
             publish(key, msg)
-            publish(key, Done(victim.proc, msg.episode, AT, {}, {}, error="forged failure"))
+            publish(key, Done(victim.proc, msg.episode, t, {}, {}, error="forged failure"))
         else:
             publish(key, msg)
 
@@ -118,11 +124,12 @@ def test_every_refusal_in_process_leaves_the_results_alone(aot1):
     summary = sim.run(TICKS, seed=SEED, policy="least_queue")
     sim.close()
     assert replayed, "no genuine batch was seen to replay"
+    assert raced, "the victim reported nothing from tick AT on"
     assert model_part(summary) == clean
-    assert sim.transport.rejections.counts == {"wrong_shape": 1, "unknown_sender": 4, "wrong_tick": 2}
+    assert sim.transport.rejections.counts == {"wrong_shape": 1, "unknown_sender": 5, "wrong_tick": 2}
     expected = {"unknown_sender": 3 + len(plan.listeners["worker-rpi3_0"]), "wrong_shape": 1, "wrong_tick": 6}
     assert node_counts(sim) == expected
-    assert summary["run"]["rejected_messages"] == {"orchestrator": {"unknown_sender": 4, "wrong_shape": 1,
+    assert summary["run"]["rejected_messages"] == {"orchestrator": {"unknown_sender": 5, "wrong_shape": 1,
                                                                     "wrong_tick": 2}, "nodes": expected}
 
 

@@ -10,7 +10,8 @@ import pytest
 
 from env import ZenohEdgeEnv
 from node_runtime.model.controller import Controller
-from node_runtime.model.role import Role
+from node_runtime.model.messages import Envelope, Kind, Task
+from node_runtime.model.role import STAT_FIELDS, Outbox, Role
 from node_runtime.model.spec import Scenario
 from node_runtime.model.worker import Worker
 from node_runtime.model.workload import TaskSource
@@ -121,6 +122,75 @@ def test_a_class_that_redefines_tick_runs_every_tick():
     assert FasterServe.wake is Worker.wake  # serve only runs when Worker.wake says so
     assert DiurnalSource.next_arrival is TaskSource.next_arrival  # a rate schedule is looked ahead
     assert Replay.next_arrival(None, 7) == 8
+
+
+class ServesLikeAnyWorker(Worker):
+    """Serves as the built-in worker does; but a class that redefines ``serve`` might not, so it never coasts."""
+
+    def serve(self, t, out):
+        super().serve(t, out)
+
+
+def never_coasting(sc: Scenario) -> Scenario:
+    data = sc.to_dict()
+    for node in data["nodes"]:
+        if "worker" in node["roles"]:
+            node["impls"] = [*node["impls"], ["worker", "tests.test_sleeping:ServesLikeAnyWorker"]]
+    return Scenario.from_dict(data)
+
+
+def with_idle_power(sc: Scenario) -> Scenario:
+    data = sc.to_dict()
+    for node in data["nodes"]:
+        node["idle_power_w"] = 1.5
+    return Scenario.from_dict(data)
+
+
+@pytest.mark.parametrize("name", ["aot2", "tricky", "idle power", "failures", "co-located queue_first"])
+def test_a_coasting_worker_changes_what_a_worker_that_runs_every_tick_changes(tmp_path, monkeypatch, name):
+    """A busy worker sleeps until its head task finishes (``Worker.wake``), its counters moved on by its drift,
+    both where it replays the skipped ticks and in the orchestrator's tables: bit for bit the same tables as a
+    worker that serves every tick, with fewer worker ticks."""
+    scenario = {"aot2": lambda: load_scenario("aot2"), "tricky": lambda: tricky(tmp_path),
+                "idle power": lambda: with_idle_power(tricky(tmp_path)),
+                "failures": lambda: everything(tmp_path, 2), "co-located queue_first": lambda: everything(tmp_path, 0),
+                }[name]()
+    ran = {"ticks": 0}
+    tick = Worker.tick
+
+    def counted(self, t, inbox, out):
+        ran["ticks"] += 1
+        tick(self, t, inbox, out)
+
+    monkeypatch.setattr(Worker, "tick", counted)
+    coasting = outputs(tmp_path, scenario, "coasting", ticks=300, seed=3, policy="random", layout="per-node")
+    coasted = ran["ticks"]
+    ran["ticks"] = 0
+    every = outputs(tmp_path, never_coasting(scenario), "every", ticks=300, seed=3, policy="random", layout="per-node")
+    assert coasting[1:] == every[1:]  # ticks.csv, nodes.csv
+    assert coasting[0]["totals"] == every[0]["totals"] and coasting[0]["totals"]["completed"] > 0
+    assert coasted < ran["ticks"]
+
+
+def test_a_worker_coasts_to_the_tick_its_head_task_finishes(tmp_path):
+    """By hand: 1 Mcycle/s, a 3.5 Mcycle task admitted at tick 1 and served from then, alone in the queue."""
+    (tmp_path / "trace.csv").write_text(HEADER + "1,a,3.5e6,1000,1000,1,100\n")
+    scenario = load_scenario(write_scenario(tmp_path, {
+        "simulation": {"steps": 10},
+        "workload": {"trace": "trace.csv"},
+        "topology": {"nodes": [{"id": "a", "frequency": 1e6, "buffer": 4, "client": True}], "links": []},
+    }))
+    worker = Worker(scenario.node["a"], scenario)
+    out = Outbox(worker.id)
+    task = Task(1, "a", 1, 3.5e6, 1000, 1000, 1.0, 100.0)
+    out.tick = 1
+    worker.tick(1, [Envelope(Kind.TASK, "client:a", worker.id, 1, 0, 1, task)], out)
+    assert worker.wake(1) == 4  # 2.5 Mcycles left after tick 1: 1 in tick 2, 1 in tick 3, the last 0.5 in tick 4
+    assert worker.drift[STAT_FIELDS.index("busy_cycles")] == 1e6 and sum(worker.drift) > 1e6  # and its energy
+    out.tick = 4
+    worker.tick(4, [], out)  # replays ticks 2 and 3, then finishes the task
+    assert worker.stats.busy_cycles == 3.5e6 and not worker.queue and worker.drift is None
+    assert [e.kind for e in out.envelopes] == [Kind.RESULT]
 
 
 def test_the_battery_example_agrees_across_layouts(tmp_path):

@@ -130,6 +130,9 @@ class Role:
 
     kind: ClassVar[str]
     radio: Radio | None = None  # set by the role that owns the node's links
+    # set by ``wake`` when the role coasts through the ticks it skips: what each of them adds to its
+    # counters (STAT_FIELDS order); None when they change nothing
+    drift: tuple[float, ...] | None = None
 
     def __init_subclass__(cls, **kwargs: object) -> None:
         """A class that redefines ``tick`` but not ``wake`` may act in ticks its parent's ``wake``
@@ -193,6 +196,7 @@ class Role:
     def wake(self, t: int) -> float:
         """After tick ``t``: the next tick at which this role must run even if no mail arrives for it
         (``math.inf``: only mail wakes it). Its ``tick`` with an empty inbox at any tick before that
-        must change nothing, so a process may skip it (docs/protocol.md, "Sleeping through idle ticks");
+        must change nothing, so a process may skip it (docs/protocol.md, "Sleeping through idle ticks"),
+        or nothing but its counters, by the same ``drift`` each tick, which its next ``tick`` replays;
         the default runs every tick."""
         return t + 1

@@ -33,10 +33,13 @@ from node_runtime.model.messages import Decision, Envelope, Kind, NodeState, Pen
 from node_runtime.model.radio import Radio
 from node_runtime.model.registry import RoleKind, register
 from node_runtime.model.rng import stream
-from node_runtime.model.role import Outbox, Role, role_id, state_topic
+from node_runtime.model.role import STAT_FIELDS, Outbox, Role, role_id, state_topic
 from node_runtime.model.spec import NodeSpec, Scenario
 
 EPS_CYCLES = 1e-6  # a task with fewer cycles left than this is done (float rounding of budgets)
+# the counters a coasting worker changes each tick (``Worker.wake``), in the order of STAT_FIELDS
+OVERLOADED_TICKS, BUSY_CYCLES, ENERGY_COMPUTE, ENERGY_IDLE = (
+    STAT_FIELDS.index(name) for name in ("overloaded_ticks", "busy_cycles", "energy_compute", "energy_idle"))
 
 
 class Worker(Role):
@@ -56,6 +59,8 @@ class Worker(Role):
         self.topic = state_topic(node.id)
         self.budget = node.capacity * scenario.dt
         self.idle_w = node.idle_power_w
+        # a class that serves or publishes otherwise may act in every tick of a service: it never coasts
+        self.coasts = type(self).serve is Worker.serve and type(self).publish is Worker.publish
         self.reset(scenario.seed)
 
     def reset(self, seed: int) -> None:
@@ -75,6 +80,8 @@ class Worker(Role):
         self._divertible: list[list] = []  # queue_first: the queue entries a decision may still divert
         self._serving = -1  # the id of the task in service (the queue's head) ...
         self._imposed = 0.0  # ... and the delay its service has imposed so far
+        self.drift = None
+        self._coasting = -1  # while ``drift`` is set: the last tick this worker ran
 
     # ----- helpers -----
 
@@ -137,6 +144,8 @@ class Worker(Role):
 
     def tick(self, t: int, inbox: list[Envelope], out: Outbox) -> None:
         st = self.stats
+        if self.drift is not None:
+            self.catch_up(t, out)
         if not inbox and not self.queue and not self.undecided and not self.outages and not self.idle_w:
             # idle: nothing held, nothing arriving, nothing that can fail; only the levels are refreshed
             if st.overloaded:
@@ -193,16 +202,59 @@ class Worker(Role):
         self.publish(t, out)
 
     def wake(self, t: int) -> float:
-        """Every tick while the CPU works, the buffer is (or just stopped being) full, or anything
-        can change without mail (failures, idle power); otherwise at the next expiry of an undecided
-        task, or the next broadcast slot of a state that changed in between."""
-        if self.queue or self.outages or self.idle_w or self.stats.overloaded or self.occupancy >= self.node.buffer:
+        """The next tick in which something may change without mail: a task finishes or expires, the buffer's
+        level changes (full or not), a changed state reaches its broadcast slot; every tick while the node can
+        fail. Until then only counters move, by the same amounts each tick (the CPU's full budget, idle power,
+        one overloaded tick): the worker *coasts*. ``drift`` then holds those amounts, for whoever accounts
+        for this worker while it sleeps, and its next tick first replays the skipped ones (``catch_up``)."""
+        self.drift = None
+        full = int(self.occupancy >= self.node.buffer)
+        if self.outages or self.stats.overloaded != full:
             return t + 1
-        wake = self.next_expiry if self.undecided else math.inf
+        wake = self.next_expiry if self.queue or self.undecided else math.inf
         if (self.stats.queue, self.occupancy) != self._last_state:
             interval = self.scenario.state_interval
             wake = min(wake, t + interval - t % interval)
+        if self.queue:
+            wake = min(wake, t + self._service_ticks())
+        if not (self.queue or self.idle_w or full):
+            return wake  # nothing moves: a plain sleep
+        if wake <= t + 1 or not self.coasts:
+            return t + 1
+        drift = [0.0] * len(STAT_FIELDS)
+        drift[OVERLOADED_TICKS] = full
+        if self.queue:
+            drift[BUSY_CYCLES] = self.budget
+            drift[ENERGY_COMPUTE] = compute_energy(self.node.kappa, self.budget, self.node.frequency)
+        if self.idle_w:
+            drift[ENERGY_IDLE] = idle_energy(self.idle_w, self.dt)
+        self.drift = tuple(drift)
+        self._coasting = t
         return wake
+
+    def _service_ticks(self) -> int:
+        """In how many ticks the head of the queue finishes: 1 if it has not started (a task that starts
+        changes what the controller may divert), else by the same float steps ``serve`` takes."""
+        task, remaining = self.queue[0][0], self.queue[0][1]
+        if task.id != self._serving or remaining == task.cycles:
+            return 1
+        budget, ticks = self.budget, 1
+        while remaining > budget + EPS_CYCLES:
+            remaining -= budget
+            ticks += 1
+        return ticks
+
+    def catch_up(self, t: int, out: Outbox) -> None:
+        """Replay the ticks skipped while coasting, each exactly as ``tick`` would have run it with no mail:
+        by ``wake``'s choice of tick, no task finishes or expires and no level or state changes in them."""
+        st = self.stats
+        for skipped in range(self._coasting + 1, t):
+            st.overloaded_ticks += st.overloaded
+            if self.queue:
+                self.serve(skipped, out)
+            if self.idle_w:
+                st.energy_idle += idle_energy(self.idle_w, self.dt)
+        self.drift = None
 
     def expire(self, t: int, out: Outbox) -> None:
         """Drop every held task past its deadline; then find when the next one expires."""

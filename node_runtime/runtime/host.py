@@ -91,6 +91,7 @@ class Host:
         self.mail: dict[str, defaultdict[int, list[Envelope]]] = {r.id: defaultdict(list) for r in self.roles}
         self.due: dict[str, float] = dict.fromkeys(self.by_id, 0)  # the next tick each role must run
         self.reported: dict[str, tuple] = {}  # what each role's stats were at the last report
+        self.coasting: set[str] = set()  # roles whose last report gave a drift (Role.drift)
         for out in self.outboxes.values():
             out.reset()
 
@@ -214,20 +215,28 @@ class Host:
 
     def report(self, t: int, ran: list[Role], sent: dict[int, int], flights: dict[int, dict[int, int]]) -> Done:
         """The Done of tick t. Its stats hold only the roles whose counters changed since the last
-        report (all of them after a reset): the orchestrator keeps the others' last values. Roles
-        that did not run this tick cannot have changed."""
+        report (all of them after a reset): the orchestrator keeps the others' last values, moved on
+        by their drift while they coast. Roles that did not run this tick cannot have changed but by it."""
         stats: dict[int, tuple] = {}
         rts: dict[int, list[float]] = {}
         ledger: dict[int, list[tuple[int, int, float]]] = {}
         obs: dict[int, Observation] = {}
+        drift: dict[int, tuple] = {}
         reported = self.reported
+        coasting = self.coasting
         index = self.plan.role_index
         for role in ran:
             rid = role.id
             st = role.stats
             values = read_stats(st)
-            if reported.get(rid) != values:
-                reported[rid] = stats[index[rid]] = values
+            if role.drift is not None:
+                drift[index[rid]] = role.drift
+            if reported.get(rid) != values or rid in coasting or role.drift is not None:
+                reported[rid] = stats[index[rid]] = values  # a drift starts or ends from exact values
+                if role.drift is None:
+                    coasting.discard(rid)
+                else:
+                    coasting.add(rid)
             if st.ledger:
                 times = [value for _, kind, value in st.ledger if kind == COMPLETED]
                 if times:
@@ -237,4 +246,5 @@ class Host:
                 st.ledger = []
             if rid in self.external and role.last is not None and role.last.tick == t:
                 obs[index[rid]] = role.last
-        return Done(self.proc, self.episode, t, sent, stats, rts, flights, self.wake(), obs, ledger=ledger)
+        return Done(self.proc, self.episode, t, sent, stats, rts, flights, self.wake(), obs, ledger=ledger,
+                    drift=drift)

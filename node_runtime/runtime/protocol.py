@@ -25,7 +25,7 @@ from typing import Any, Literal
 from node_runtime.model.messages import Envelope
 from node_runtime.model.view import Observation
 
-SCHEMA_VERSION = 7
+SCHEMA_VERSION = 8
 # A tick carries the episode's seed as a msgpack integer (64 bits at most); launch adds the episode to it
 MAX_SEED = 2**62 - 1
 Command = Literal["run", "reset", "stop"]
@@ -69,6 +69,8 @@ class Done:
     # only in the first Done after the counts changed (docs/bus.md, "Rejected messages")
     ledger: dict[int, list[tuple[int, int, float]]] = field(default_factory=dict)  # role index -> this tick's
     # (task id, kind, value) entries (``role.Counters.ledger``); only while an agent drives the episode
+    drift: dict[int, tuple] = field(default_factory=dict)  # role index -> what each tick it sleeps through adds
+    # to its stats (``Role.drift``), from the next tick until it reports again; given with its stats
 
 
 @dataclass(slots=True)
