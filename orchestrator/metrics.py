@@ -237,7 +237,7 @@ class Metrics:
         self.rt_by_node: dict[str, list[float]] = {}
         self._matrix = np.zeros((len(self.roles), len(FIELDS)))
         self._landing: dict[int, list[tuple[int, int]]] = {}  # arrival tick -> [(role, tasks and results)]
-        self._drift: dict[int, np.ndarray] = {}  # coasting role -> what each tick adds to its stats (Done.drift)
+        self._drift: dict[int, tuple] = {}  # coasting role -> what each tick adds to its stats (Done.drift)
         if self._stream_to is not None:
             self._open_tables(self._stream_to)
 
@@ -281,19 +281,25 @@ class Metrics:
         rts: list[float] = []
         landing = self._landing
         drift = self._drift
+        reported: list[int] = []
+        values: list[tuple] = []
         for d in dones:  # roles are named by their canonical index, which is their row
-            for role, values in d.stats.items():
-                m[role, :N_STATS] = values
-                drift.pop(role, None)  # a drift ends, or starts anew, with a report
+            if d.stats:
+                reported.extend(d.stats)
+                values.extend(d.stats.values())
             for role, arrivals in d.flights.items():
                 for arrive, n in arrivals.items():
                     m[role, IN_FLIGHT] += n
                     landing.setdefault(arrive, []).append((role, n))
-        for role, step in drift.items():  # roles coasting through this tick: as their own replay counts it
-            m[role, :N_STATS] += step
+        if reported:  # each role at most once: one process hosts it
+            m[reported, :N_STATS] = values
+            for role in reported if drift else ():
+                drift.pop(role, None)  # a drift ends, or starts anew, with a report
+        if drift:  # roles coasting through this tick: each row moves on as the role's own replay counts it
+            m[list(drift), :N_STATS] += list(drift.values())
         for d in dones:
-            for role, step in d.drift.items():  # from the next tick
-                drift[role] = np.array(step, dtype=float)
+            if d.drift:
+                drift.update(d.drift)  # from the next tick
         for role, n in landing.pop(tick, ()):  # delivered in this tick: held or accounted by the receiver
             m[role, IN_FLIGHT] -= n
         ledgers: dict[int, list[tuple[int, int, float]]] = {}
