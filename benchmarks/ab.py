@@ -75,9 +75,11 @@ class Version:
     """A worker process stepping one version's environment."""
 
     def __init__(self, tree: Path, args: argparse.Namespace) -> None:
+        # run from the tree itself: a version whose fork server puts the working directory first on its
+        # path (before 0d1ec76) then still starts its own node code, not the code of where ab.py was run
         self.proc = subprocess.Popen(
-            [sys.executable, __file__, "--worker", args.scenario, args.transport, args.layout],
-            stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True,
+            [sys.executable, str(Path(__file__).resolve()), "--worker", args.scenario, args.transport, args.layout],
+            stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True, cwd=tree,
             env={**os.environ, "PYTHONPATH": os.pathsep.join([str(tree), os.environ.get("PYTHONPATH", "")])})
         self.rates: list[float] = []
         ready, _, used = self._line().partition(" ")

@@ -125,8 +125,8 @@ def nominal_arrivals(sc: Scenario) -> dict[str, float]:
     return out
 
 
-CONGESTION_PRICE = 3.0  # what marginal_reward charges for a deadline's worth of delay imposed, in completions
-# (the default of ZenohEdgeEnv(congestion_price=...) and of the experiments' --price)
+CONGESTION_PRICE = 2.0  # what marginal_reward charges for a deadline's worth of delay imposed, in completions
+# (the default of ZenohEdgeEnv(congestion_price=...) and of the experiments' --price; docs/reward.md says why 2)
 
 
 @dataclass(slots=True)

@@ -21,7 +21,7 @@ from node_runtime.model.role import CHARGED, COMPLETED, LOST
 
 
 def test_a_completed_task_is_credited_its_timeliness_less_its_charges():
-    credit = TaskCredit(penalty=100.0)
+    credit = TaskCredit(penalty=100.0, price=3.0)
     assert credit.place("a", 3, [11]) == {}
     assert credit.place("b", 4, [12]) == {}
     # 11 imposed 0.1 + 0.05 deadlines of waiting; it completes in 20 s: 1 - 20/100 - 3 * 0.15 = 0.35

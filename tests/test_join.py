@@ -83,7 +83,9 @@ def test_hosts_join_with_the_printed_commands_and_get_the_orchestrators_timing(t
     assert model_part(placed) == model_part(alone)
     reports = placed["run"]["reports"]
     assert reports["alone"] > 0  # cluster-b's and the orchestrator's own process (the server)
-    assert reports["from_hosts"] >= 2 * reports["host_messages"] > 0, reports  # several reports a message
+    # messages that carry several reports (one each, without forwarding): about two a message here, where most of
+    # cluster-a's processes sleep or coast through most ticks
+    assert reports["from_hosts"] > 1.5 * reports["host_messages"] > 0, reports
 
 
 def test_a_paused_process_on_another_host_is_reported_hung_after_the_timeout(tmp_path):

@@ -206,14 +206,14 @@ def test_the_score_reward_weighs_each_completion_by_its_timeliness():
 
 
 def test_the_marginal_reward_charges_the_delay_imposed_at_the_congestion_price():
-    """The score reward of the node's completions (1.6, above) minus 3 x 0.2 deadlines of delay imposed."""
+    """The score reward of the node's completions (1.6, above) minus 2 x 0.2 deadlines of delay imposed."""
     from env.reward import CONGESTION_PRICE, RewardContext, marginal_reward
 
-    assert CONGESTION_PRICE == 3.0
+    assert CONGESTION_PRICE == 2.0
     ctx = RewardContext("ctrl_a", "a", OBS, 0, OBS, (),
                         {"completed": 2, "response_time_total": 40.0, "delay_imposed": 0.2}, 1.0, PaperWeights(),
                         {}, {"completed": 3, "response_time_total": 90.0, "delay_imposed": 0.5}, penalty=100.0)
-    assert marginal_reward(ctx) == pytest.approx(1.6 - 0.6)
+    assert marginal_reward(ctx) == pytest.approx(1.6 - 0.4)
     ctx.price = 1.0  # the environment's congestion_price
     assert marginal_reward(ctx) == pytest.approx(1.6 - 0.2)
 
