@@ -6,10 +6,14 @@ from __future__ import annotations
 
 import os
 import signal
+import subprocess
+import sys
 import time
 
+import psutil
 import pytest
 
+from tests.conftest import ROOT
 from tests.launcher import Launch, assert_all_gone, paused_run
 
 pytestmark = pytest.mark.zenoh
@@ -59,6 +63,34 @@ def test_killed_orchestrator_takes_its_processes_with_it(tmp_path):
     run.proc.kill()
     run.finish(10)
     assert_all_gone(children)
+
+
+SCRIPT = """
+import psutil
+from env import ZenohEdgeEnv
+env = ZenohEdgeEnv("aot1", transport="zenoh", layout="per-node", max_steps=5)
+env.reset(seed=0)
+print(" ".join(str(p.pid) for p in psutil.Process().children(recursive=True)), flush=True)
+"""
+
+
+@pytest.mark.parametrize("ending", ["raises", "never closes"])
+def test_a_script_that_leaves_its_environment_open_still_exits_and_takes_its_processes(tmp_path, ending):
+    """zenoh-python's callback threads are not daemons: an open session once kept the interpreter from exiting,
+    forever, after a user's script raised or simply ended without ``env.close()``."""
+    script = tmp_path / "script.py"
+    script.write_text(SCRIPT + ('raise RuntimeError("a bug in the user\'s script")\n' if ending == "raises" else ""))
+    done = subprocess.run([sys.executable, str(script)], cwd=ROOT, capture_output=True, text=True, timeout=60)
+    assert done.returncode == (1 if ending == "raises" else 0), done.stderr
+    pids = [int(pid) for pid in done.stdout.split()]
+    assert len(pids) > 12  # the fork server and the node processes
+    procs = []
+    for pid in pids:
+        try:
+            procs.append(psutil.Process(pid))
+        except psutil.NoSuchProcess:
+            continue
+    assert_all_gone(procs)
 
 
 def _shm_descriptors() -> list[str]:

@@ -16,6 +16,7 @@ import re
 import socket
 import threading
 import time
+import weakref
 from collections.abc import Callable
 from typing import Any, Literal
 
@@ -82,9 +83,26 @@ def close_session(session: zenoh.Session, grace: float = 5.0) -> None:
         raise TransportError(f"zenoh session did not close within {grace:.0f} s")
 
 
+_OPEN: weakref.WeakSet[ZenohTransport] = weakref.WeakSet()  # sessions not closed yet
+
+
+def _close_open_sessions() -> None:
+    """zenoh-python runs callbacks in threads that are not daemons, so a session left open (a script that
+    raised, or never closed its environment) would keep the interpreter from exiting, forever. This runs as
+    the interpreter begins to exit, before it waits for those threads."""
+    for transport in list(_OPEN):
+        with contextlib.suppress(Exception):
+            transport.close()
+
+
+# the hook concurrent.futures uses for its own worker threads: atexit would run only after the wait
+getattr(threading, "_register_atexit", lambda f: None)(_close_open_sessions)
+
+
 class ZenohTransport(Transport):
     def __init__(self, config: zenoh.Config) -> None:
         self.session = zenoh.open(config)
+        _OPEN.add(self)
         self._queue: queue.SimpleQueue[tuple[Callable[..., None], str, Any]] = queue.SimpleQueue()
         self._pubs: dict[str, zenoh.Publisher] = {}
         self._entities: list[Any] = []
