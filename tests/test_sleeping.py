@@ -13,7 +13,7 @@ from node_runtime.model.controller import Controller
 from node_runtime.model.messages import Envelope, Kind, Task
 from node_runtime.model.role import STAT_FIELDS, Outbox, Role
 from node_runtime.model.spec import Scenario
-from node_runtime.model.worker import Worker
+from node_runtime.model.worker import COAST_TICKS, Worker
 from node_runtime.model.workload import TaskSource
 from orchestrator.scenario import load_scenario
 from orchestrator.session import Simulation
@@ -191,6 +191,25 @@ def test_a_worker_coasts_to_the_tick_its_head_task_finishes(tmp_path):
     worker.tick(4, [], out)  # replays ticks 2 and 3, then finishes the task
     assert worker.stats.busy_cycles == 3.5e6 and not worker.queue and worker.drift is None
     assert [e.kind for e in out.envelopes] == [Kind.RESULT]
+
+
+def test_a_long_task_coasts_in_stretches_of_at_most_coast_ticks(tmp_path):
+    """Finding the finish tick takes a step per tick ahead, so a worker coasts COAST_TICKS at most, then runs a
+    tick and coasts on: a 1,000-second task costs a few wake-ups, never a loop as long as the task each time."""
+    (tmp_path / "trace.csv").write_text(HEADER + "1,a,1e9,1000,1000,1,5000\n")
+    scenario = load_scenario(write_scenario(tmp_path, {
+        "simulation": {"steps": 10},
+        "workload": {"trace": "trace.csv"},
+        "topology": {"nodes": [{"id": "a", "frequency": 1e6, "buffer": 4, "client": True}], "links": []},
+    }))
+    worker = Worker(scenario.node["a"], scenario)
+    out = Outbox(worker.id)
+    out.tick = 1
+    worker.tick(1, [Envelope(Kind.TASK, "client:a", worker.id, 1, 0, 1, Task(1, "a", 1, 1e9, 1e3, 1e3, 1.0, 5e3))], out)
+    assert worker.wake(1) == 1 + COAST_TICKS
+    out.tick = 1 + COAST_TICKS
+    worker.tick(1 + COAST_TICKS, [], out)
+    assert worker.stats.busy_cycles == (1 + COAST_TICKS) * 1e6 and worker.wake(1 + COAST_TICKS) == 1 + 2 * COAST_TICKS
 
 
 def test_the_battery_example_agrees_across_layouts(tmp_path):

@@ -37,6 +37,7 @@ from node_runtime.model.role import STAT_FIELDS, Outbox, Role, role_id, state_to
 from node_runtime.model.spec import NodeSpec, Scenario
 
 EPS_CYCLES = 1e-6  # a task with fewer cycles left than this is done (float rounding of budgets)
+COAST_TICKS = 256  # the longest a worker coasts at once: finding a finish tick costs a step per tick ahead
 # the counters a coasting worker changes each tick (``Worker.wake``), in the order of STAT_FIELDS
 OVERLOADED_TICKS, BUSY_CYCLES, ENERGY_COMPUTE, ENERGY_IDLE = (
     STAT_FIELDS.index(name) for name in ("overloaded_ticks", "busy_cycles", "energy_compute", "energy_idle"))
@@ -233,13 +234,14 @@ class Worker(Role):
         return wake
 
     def _service_ticks(self) -> int:
-        """In how many ticks the head of the queue finishes: 1 if it has not started (a task that starts
-        changes what the controller may divert), else by the same float steps ``serve`` takes."""
+        """In how many ticks the head of the queue finishes (at most COAST_TICKS: waking before is always
+        right), by the same float steps ``serve`` takes; 1 if it has not started (a task that starts changes
+        what the controller may divert)."""
         task, remaining = self.queue[0][0], self.queue[0][1]
         if task.id != self._serving or remaining == task.cycles:
             return 1
         budget, ticks = self.budget, 1
-        while remaining > budget + EPS_CYCLES:
+        while remaining > budget + EPS_CYCLES and ticks < COAST_TICKS:
             remaining -= budget
             ticks += 1
         return ticks
