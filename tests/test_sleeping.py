@@ -172,9 +172,9 @@ def test_a_coasting_worker_changes_what_a_worker_that_runs_every_tick_changes(tm
     assert coasted < ran["ticks"]
 
 
-def test_a_worker_coasts_to_the_tick_its_head_task_finishes(tmp_path):
-    """By hand: 1 Mcycle/s, a 3.5 Mcycle task admitted at tick 1 and served from then, alone in the queue."""
-    (tmp_path / "trace.csv").write_text(HEADER + "1,a,3.5e6,1000,1000,1,100\n")
+def served_alone(tmp_path, cycles: float) -> tuple[Worker, Outbox]:
+    """A 1 Mcycle/s worker that admitted a task of ``cycles`` at tick 1 and served it from then, alone."""
+    (tmp_path / "trace.csv").write_text(HEADER + f"1,a,{cycles},1000,1000,1,5000\n")
     scenario = load_scenario(write_scenario(tmp_path, {
         "simulation": {"steps": 10},
         "workload": {"trace": "trace.csv"},
@@ -182,9 +182,15 @@ def test_a_worker_coasts_to_the_tick_its_head_task_finishes(tmp_path):
     }))
     worker = Worker(scenario.node["a"], scenario)
     out = Outbox(worker.id)
-    task = Task(1, "a", 1, 3.5e6, 1000, 1000, 1.0, 100.0)
     out.tick = 1
+    task = Task(1, "a", 1, cycles, 1e3, 1e3, 1.0, 5e3)
     worker.tick(1, [Envelope(Kind.TASK, "client:a", worker.id, 1, 0, 1, task)], out)
+    return worker, out
+
+
+def test_a_worker_coasts_to_the_tick_its_head_task_finishes(tmp_path):
+    """By hand: a 3.5 Mcycle task."""
+    worker, out = served_alone(tmp_path, 3.5e6)
     assert worker.wake(1) == 4  # 2.5 Mcycles left after tick 1: 1 in tick 2, 1 in tick 3, the last 0.5 in tick 4
     assert worker.drift[STAT_FIELDS.index("busy_cycles")] == 1e6 and sum(worker.drift) > 1e6  # and its energy
     out.tick = 4
@@ -196,16 +202,7 @@ def test_a_worker_coasts_to_the_tick_its_head_task_finishes(tmp_path):
 def test_a_long_task_coasts_in_stretches_of_at_most_coast_ticks(tmp_path):
     """Finding the finish tick takes a step per tick ahead, so a worker coasts COAST_TICKS at most, then runs a
     tick and coasts on: a 1,000-second task costs a few wake-ups, never a loop as long as the task each time."""
-    (tmp_path / "trace.csv").write_text(HEADER + "1,a,1e9,1000,1000,1,5000\n")
-    scenario = load_scenario(write_scenario(tmp_path, {
-        "simulation": {"steps": 10},
-        "workload": {"trace": "trace.csv"},
-        "topology": {"nodes": [{"id": "a", "frequency": 1e6, "buffer": 4, "client": True}], "links": []},
-    }))
-    worker = Worker(scenario.node["a"], scenario)
-    out = Outbox(worker.id)
-    out.tick = 1
-    worker.tick(1, [Envelope(Kind.TASK, "client:a", worker.id, 1, 0, 1, Task(1, "a", 1, 1e9, 1e3, 1e3, 1.0, 5e3))], out)
+    worker, out = served_alone(tmp_path, 1e9)
     assert worker.wake(1) == 1 + COAST_TICKS
     out.tick = 1 + COAST_TICKS
     worker.tick(1 + COAST_TICKS, [], out)
