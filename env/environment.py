@@ -100,7 +100,7 @@ class ZenohEdgeEnv(ParallelEnv):
         security: with ``connect`` to a router that requires TLS and logins (``launch --security``), the
             directory of the ``driver`` identity written by deploy/make-certs.sh (deploy/README.md).
         congestion_price: the price c that the ``marginal`` reward and the credits per task charge for a
-            deadline's worth of waiting imposed on another task (default 3; docs/reward.md).
+            deadline's worth of waiting imposed on another task (default ``CONGESTION_PRICE``, 2; docs/reward.md).
     """
 
     metadata: ClassVar[dict[str, Any]] = {

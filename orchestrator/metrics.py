@@ -283,23 +283,24 @@ class Metrics:
         drift = self._drift
         reported: list[int] = []
         values: list[tuple] = []
+        starting: dict[int, tuple] = {}  # drifts given this tick: they count from the next one
         for d in dones:  # roles are named by their canonical index, which is their row
             if d.stats:
                 reported.extend(d.stats)
                 values.extend(d.stats.values())
+            starting.update(d.drift)
             for role, arrivals in d.flights.items():
                 for arrive, n in arrivals.items():
                     m[role, IN_FLIGHT] += n
                     landing.setdefault(arrive, []).append((role, n))
         if reported:  # each role at most once: one process hosts it
             m[reported, :N_STATS] = values
-            for role in reported if drift else ():
-                drift.pop(role, None)  # a drift ends, or starts anew, with a report
+            if drift:
+                for role in reported:
+                    drift.pop(role, None)  # a drift ends, or starts anew, with a report
         if drift:  # roles coasting through this tick: each row moves on as the role's own replay counts it
             m[list(drift), :N_STATS] += list(drift.values())
-        for d in dones:
-            if d.drift:
-                drift.update(d.drift)  # from the next tick
+        drift.update(starting)
         for role, n in landing.pop(tick, ()):  # delivered in this tick: held or accounted by the receiver
             m[role, IN_FLIGHT] -= n
         ledgers: dict[int, list[tuple[int, int, float]]] = {}
