@@ -4,8 +4,10 @@
 the processes reported sending to ``p`` in tick t - 1, and returns once every process it opened the
 tick for has reported ``Done(t)``. It opens it only for the processes that have mail from tick t - 1
 or said in their last ``Done`` that they have work at t: the others sleep, and their last reports
-stand. A reset opens tick 0 for all. A process that reports an error, dies, or stays silent past the
-timeout ends the run with an error that names it and the nodes it hosted.
+stand. Broadcasts a process may hold (``Done.held``) wake nobody: they are added to the count of the
+next tick their listener runs, or wake it once ``HOLD_LIMIT`` of them wait. A reset opens tick 0 for
+all. A process that reports an error, dies, or stays silent past the timeout ends the run with an error
+that names it and the nodes it hosted.
 
 A driver that gives actions (the environment) may open the next tick ahead (``open_next``) for the
 processes that cannot get any, so that they run while its agents decide; ``step`` then opens it for the
@@ -33,6 +35,8 @@ from node_runtime.runtime.layout import ProcessLayout
 from node_runtime.runtime.protocol import Done, Dones, Tick
 from node_runtime.runtime.rejections import UNKNOWN_SENDER, WRONG_SHAPE, WRONG_TICK
 from node_runtime.runtime.transport import Transport
+
+HOLD_LIMIT = 64  # held publications that wake their process anyway: its buffer stays small however long it sleeps
 
 
 class ClockError(RuntimeError):
@@ -68,6 +72,7 @@ class Clock:
         self.latest = -1  # the highest episode run or seen on the bus (another driver may have run some)
         self.tick = -1
         self.expect: dict[int, int] = {}  # process index -> publications to wait for
+        self.held = [0] * len(self.procs)  # process index -> publications held for it since it last ran
         self.wake: list[int | None] = [None] * len(self.procs)  # process index -> next tick with work of its own
         self.actors = {role: plan.proc_index[plan.proc_of[role]] for role in plan.roles}
         self.tick_keys = [keys.tick(p) for p in self.procs]  # process index -> its own tick key
@@ -145,11 +150,13 @@ class Clock:
             return WRONG_TICK, f"a second done for tick {t}"
         hosted = self.hosted[i]
         stats, flights, times, obs, sent = done.stats, done.flights, done.response_times, done.obs, done.sent
-        ledger, drift = done.ledger, done.drift
+        ledger, drift, held, states = done.ledger, done.drift, done.held, done.states
         if not ((not stats or hosted.issuperset(stats)) and (not flights or hosted.issuperset(flights))
                 and (not times or hosted.issuperset(times)) and (not obs or hosted.issuperset(obs))
                 and (not ledger or hosted.issuperset(ledger)) and (not drift or stats.keys() >= drift.keys())
-                and (not sent or self.receivers[i].issuperset(sent))):
+                and (not states or hosted.issuperset(states))
+                and (not sent or self.receivers[i].issuperset(sent))
+                and (not held or self.receivers[i].issuperset(held))):
             return UNKNOWN_SENDER, (f"a report on roles {done.proc} does not host, on mail to processes it "
                                     "never sends to, or a drift without its stats")
         for arrivals in flights.values():
@@ -175,6 +182,7 @@ class Clock:
         self.latest = self.episode
         self.tick = 0
         self.dones = {}
+        self.held = [0] * len(self.procs)  # what was held in the last episode was dropped with it
         self.opened = frozenset(range(len(self.procs)))
         self.transport.publish(self.keys.tick(), Tick(self.episode, 0, "reset", seed=seed,
                                                       external=list(external or ()), policy=policy))
@@ -192,7 +200,9 @@ class Clock:
             raise ClockError(f"tick {t}: actions for controllers of processes whose tick opened ahead without them "
                              f"({', '.join(self.procs[i] for i in sorted(early & mine.keys()))})")
         opened = self._due(t, mine)
-        if not early:
+        if early:  # open_next already took what was held for them
+            opened = sorted(early.union(opened))
+        else:
             self.dones = {}
         self.opened = frozenset(opened)
         self._open(t, [i for i in opened if i not in early], mine, actions or {})
@@ -211,19 +221,27 @@ class Clock:
         self._open(t, early, {}, {})
 
     def _due(self, t: int, mine: Collection[int]) -> list[int]:
-        """The processes tick ``t`` must be opened for: mail announced, actions, or work due."""
-        expect = self.expect
-        return [i for i, wake in enumerate(self.wake) if i in expect or i in mine or (wake is not None and wake <= t)]
+        """The processes tick ``t`` must be opened for: mail announced, actions, work due, or too much held."""
+        expect, held = self.expect, self.held
+        return [i for i, wake in enumerate(self.wake) if i in expect or i in mine or (wake is not None and wake <= t)
+                or held[i] >= HOLD_LIMIT]
 
     def _open(self, t: int, procs: list[int], mine: dict[int, dict[str, Any]], actions: dict[str, Any]) -> None:
-        """Publish tick ``t`` to ``procs``: each its own expected count and ``mine``, its share of ``actions``."""
-        expect = self.expect
+        """Publish tick ``t`` to ``procs``: each its own expected count (with what was held for it) and ``mine``,
+        its share of ``actions``."""
+        held = self.held
+        counts = {}
+        for i in procs:
+            n = self.expect.get(i, 0) + held[i]
+            held[i] = 0
+            if n:
+                counts[i] = n
         if len(procs) == len(self.procs):  # one publication reaches them all
-            self.transport.publish(self.keys.tick(), Tick(self.episode, t, "run", expect, actions))
+            self.transport.publish(self.keys.tick(), Tick(self.episode, t, "run", counts, actions))
             return
         for i in procs:
             self.transport.publish(self.tick_keys[i], Tick(
-                self.episode, t, "run", {i: expect[i]} if i in expect else {}, mine.get(i, {})))
+                self.episode, t, "run", {i: counts[i]} if i in counts else {}, mine.get(i, {})))
 
     def catch_up(self, episode: int) -> None:
         """Another driver ran episodes up to ``episode``: number ours after them."""
@@ -248,9 +266,12 @@ class Clock:
                              + (f"; refused from them: {'; '.join(refused[:3])}" if refused else "")) from None
         dones = [self.dones[self.procs[i]] for i in opened]
         expect: dict[int, int] = {}
+        held = self.held
         for i, d in zip(opened, dones, strict=True):
             self.wake[i] = d.wake
             for p, count in d.sent.items():
                 expect[p] = expect.get(p, 0) + count
+            for p, count in d.held.items():
+                held[p] += count
         self.expect = expect
         return dones

@@ -24,6 +24,7 @@ from collections.abc import Callable
 from typing import Any, Literal
 
 from node_runtime.model.controller import Action, observation_at
+from node_runtime.model.role import role_node
 from node_runtime.model.spec import Scenario
 from node_runtime.model.view import Observation
 from node_runtime.runtime.access import access_control
@@ -182,6 +183,9 @@ class Simulation:
         self.policy: str | None = None
         self.last: list[Done] = []
         self.seen: dict[str, Observation] = {}  # driven controller -> its latest observation, any tick
+        # node -> the (queue, occupancy) it last broadcast: before the current tick (heard by its end), in it
+        self.heard: dict[str, tuple[int, int]] = {}
+        self.fresh: dict[str, tuple[int, int]] = {}
         self.retimed: set[str] = set()  # driven controllers whose class observation_at can re-time
         self._closed = False
         self._run_started = 0.0
@@ -238,7 +242,7 @@ class Simulation:
         self.policy = policy
         self.metrics.reset()
         self.last = self.clock.reset(self.seed, external, policy)
-        self.seen = {}
+        self.seen, self.heard, self.fresh = {}, {}, {}
         self.retimed = {r for r in external or () if getattr(role_class(r, self.plan), "retimed", False)}
         self._remember()
         self._run_started = time.perf_counter()
@@ -272,19 +276,25 @@ class Simulation:
     def observations(self) -> dict[str, Observation]:
         """What each externally driven controller observes at the current tick, by role: the observations
         of the last tick, and for a controller that slept through it, its latest one re-timed
-        (``observation_at``: it heard nothing since and has nothing to place). A controller whose node
+        (``observation_at``: it has nothing to place, and heard only states, which it holds; they are those
+        the processes reported broadcasting). A controller whose node
         has scheduled failures never sleeps, so it has one only while its node is up."""
         t, sc = self.clock.tick, self.scenario
         if t % sc.decision_interval:  # controllers observe at decision epochs only
             return {role: obs for role, obs in self.seen.items() if obs.tick == t}
-        return {role: obs if obs.tick == t else observation_at(obs, t, sc) for role, obs in self.seen.items()
+        heard = self.heard
+        return {role: obs if obs.tick == t else observation_at(obs, t, sc, heard) for role, obs in self.seen.items()
                 if obs.tick == t or (role in self.retimed and not sc.failure_windows.get(obs.node))}
 
     def _remember(self) -> None:
         roles = self.plan.roles
+        self.heard.update(self.fresh)  # broadcasts arrive one tick after they leave
+        self.fresh = {}
         for d in self.last:
             for i, obs in d.obs.items():
                 self.seen[roles[i]] = obs
+            for i, state in d.states.items():
+                self.fresh[role_node(roles[i])] = state
 
     def run(self, ticks: int | None = None, seed: int | None = None, policy: str | None = None,
             on_tick: Any = None) -> dict[str, Any]:

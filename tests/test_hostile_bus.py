@@ -115,6 +115,8 @@ def test_every_refusal_in_process_leaves_the_results_alone(aot1):
             publish(key, Done(victim.proc, msg.episode, t, {}, {hosted_elsewhere: STATS}))
             publish(key, Done(victim.proc, msg.episode, t, {plan.proc_index["worker-rpi3_7"]: 1}, {}))
             publish(key, Done(victim.proc, msg.episode, t, {}, {}, drift={own: STATS}))  # a drift without stats
+            publish(key, Done(victim.proc, msg.episode, t, {}, {}, held={plan.proc_index["worker-rpi3_7"]: 1}))
+            publish(key, Done(victim.proc, msg.episode, t, {}, {}, states={hosted_elsewhere: (0, 1)}))
             publish(key, msg)
             publish(key, Done(victim.proc, msg.episode, t, {}, {}, error="forged failure"))
         else:
@@ -126,10 +128,10 @@ def test_every_refusal_in_process_leaves_the_results_alone(aot1):
     assert replayed, "no genuine batch was seen to replay"
     assert raced, "the victim reported nothing from tick AT on"
     assert model_part(summary) == clean
-    assert sim.transport.rejections.counts == {"wrong_shape": 1, "unknown_sender": 5, "wrong_tick": 2}
+    assert sim.transport.rejections.counts == {"wrong_shape": 1, "unknown_sender": 7, "wrong_tick": 2}
     expected = {"unknown_sender": 3 + len(plan.listeners["worker-rpi3_0"]), "wrong_shape": 1, "wrong_tick": 6}
     assert node_counts(sim) == expected
-    assert summary["run"]["rejected_messages"] == {"orchestrator": {"unknown_sender": 5, "wrong_shape": 1,
+    assert summary["run"]["rejected_messages"] == {"orchestrator": {"unknown_sender": 7, "wrong_shape": 1,
                                                                     "wrong_tick": 2}, "nodes": expected}
 
 

@@ -15,6 +15,8 @@ from node_runtime.model.role import STAT_FIELDS, Outbox, Role
 from node_runtime.model.spec import Scenario
 from node_runtime.model.worker import COAST_TICKS, Worker
 from node_runtime.model.workload import TaskSource
+from orchestrator import clock as clock_module
+from orchestrator.clock import HOLD_LIMIT
 from orchestrator.scenario import load_scenario
 from orchestrator.session import Simulation
 from tests.conftest import ROOT, model_part, run_summary, same, write_scenario
@@ -139,6 +141,21 @@ def never_coasting(sc: Scenario) -> Scenario:
     return Scenario.from_dict(data)
 
 
+class HearsEveryState(Controller):
+    """Reads each state the tick it arrives, as every controller did before they held them
+    (``holds_broadcasts``): its process wakes for every state its neighbours broadcast."""
+
+    holds_broadcasts = False
+
+
+def hearing_every_state(sc: Scenario) -> Scenario:
+    data = sc.to_dict()
+    for node in data["nodes"]:
+        if "controller" in node["roles"]:
+            node["impls"] = [*node["impls"], ["controller", "tests.test_sleeping:HearsEveryState"]]
+    return Scenario.from_dict(data)
+
+
 def with_idle_power(sc: Scenario) -> Scenario:
     data = sc.to_dict()
     for node in data["nodes"]:
@@ -231,11 +248,12 @@ def driven_scenarios(tmp_path):
 
 @pytest.mark.parametrize("name", ["aot2", "tricky", "failures", "co-located"])
 def test_a_driven_controller_that_sleeps_observes_exactly_what_it_would_have(tmp_path, name):
-    """An agent's controller with nothing heard and nothing to place sleeps; the environment re-times its last
-    observation instead (``observation_at``). At every step, every agent's observation equals what its
-    controller object would observe at that tick: epochs of 3 ticks, broadcasts every 4, batches, failures of
-    neighbours and of the node itself, co-located control."""
-    scenario = driven_scenarios(tmp_path)[name]
+    """An agent's controller with nothing heard but states and nothing to place sleeps; the environment
+    re-times its last observation instead (``observation_at``), with the states broadcast since. At every step,
+    every agent's observation equals what its controller object would observe at that tick (one that reads
+    every state as it arrives, so that the object is up to date): epochs of 3 ticks, broadcasts every 4,
+    batches, failures of neighbours and of the node itself, co-located control."""
+    scenario = hearing_every_state(driven_scenarios(tmp_path)[name])
     env = ZenohEdgeEnv(scenario, transport="inproc", layout="per-role", max_steps=120)
     obs, _ = env.reset(seed=3)
     controllers = {r.id: r for d in env.sim.drivers for r in d.host.roles if isinstance(r, Controller)}
@@ -300,3 +318,46 @@ def test_zenoh_agrees_on_re_timed_observations(tmp_path, name):
         env.close()
     for i, (a, b) in enumerate(zip(*traces, strict=True)):
         assert same(a, b), f"step {i} differs"
+
+
+@pytest.mark.parametrize("limit", [HOLD_LIMIT, 2])
+@pytest.mark.parametrize("name", ["aot2", "tricky", "failures", "co-located"])
+def test_states_held_until_the_next_run_change_nothing_an_agent_sees(tmp_path, monkeypatch, name, limit):
+    """A sleeping controller's process holds the states its neighbours broadcast (``Done.held``) instead of
+    waking for them, and the environment re-times its observations with them: observations, rewards and infos
+    are those of controllers that read every state as it arrives, step for step, with fewer process runs. A
+    limit of 2 wakes the processes after two held broadcasts, as ``HOLD_LIMIT`` does after many."""
+    monkeypatch.setattr(clock_module, "HOLD_LIMIT", limit)
+    scenario = driven_scenarios(tmp_path)[name]
+    runs = {}
+    for label, sc in (("held", scenario), ("every", hearing_every_state(scenario))):
+        env = ZenohEdgeEnv(sc, transport="inproc", layout="per-node", max_steps=150)
+        obs, infos = env.reset(seed=4)
+        rng = np.random.default_rng(1)
+        steps, opened = [], 0
+        while env.agents:
+            actions = {a: int(rng.choice(np.flatnonzero(obs[a]["action_mask"]))) if env.layouts[a].batch is None
+                       else [int(rng.choice(np.flatnonzero(m))) for m in obs[a]["action_mask"]] for a in env.agents}
+            obs, rewards, _, _, infos = env.step(actions)
+            opened += len(env.sim.clock.opened)
+            for info in infos.values():  # the scenarios differ in the controllers' class, hence in their hash
+                info.get("episode", {}).pop("scenario_hash", None)
+            steps.append(({a: {k: np.asarray(v).tolist() for k, v in o.items()} for a, o in obs.items()},
+                          rewards, infos))
+        runs[label] = steps, opened
+        env.close()
+    assert runs["held"][0] == runs["every"][0]
+    assert runs["held"][1] < runs["every"][1]
+
+
+@pytest.mark.parametrize("name", ["aot2", "tricky", "failures", "co-located queue_first"])
+def test_held_states_change_no_result(tmp_path, name):
+    """With node-side policies too: the tables are those of controllers that read every state as it arrives."""
+    scenario = {"aot2": lambda: load_scenario("aot2"), "tricky": lambda: tricky(tmp_path),
+                "failures": lambda: everything(tmp_path, 2), "co-located queue_first": lambda: everything(tmp_path, 0),
+                }[name]()
+    held = outputs(tmp_path, scenario, "held", ticks=300, seed=3, policy="random", layout="per-node")
+    every = outputs(tmp_path, hearing_every_state(scenario), "every", ticks=300, seed=3, policy="random",
+                    layout="per-node")
+    assert held[1:] == every[1:]  # ticks.csv, nodes.csv
+    assert held[0]["totals"] == every[0]["totals"] and held[0]["totals"]["completed"] > 0

@@ -20,7 +20,8 @@ undecided tasks, oldest first.
 from __future__ import annotations
 
 import math
-from collections.abc import Iterable, Sequence
+from collections.abc import Iterable, Mapping, Sequence
+from types import MappingProxyType
 from typing import TYPE_CHECKING, ClassVar
 
 from node_runtime.model.messages import Decision, Envelope, Kind, NodeState, Pending
@@ -46,10 +47,15 @@ class Controller(Role):
     # ``observation_at`` re-times what this class observes. A subclass that observes otherwise (``observe``,
     # ``view``, ``own_view`` or ``tick`` redefined) runs every tick while an agent drives it, as all did before.
     retimed: ClassVar[bool] = True
+    # A state heard while it is not due only overwrites what it knew of that node (ages come from the
+    # scenario, not from when a state was read), so the state can wait for its next run; a subclass with
+    # a ``tick`` of its own wakes for every state, as all did before.
+    holds_broadcasts: ClassVar[bool] = True
 
     def __init_subclass__(cls, **kwargs: object) -> None:
         super().__init_subclass__(**kwargs)
         cls.retimed = cls.retimed and not any(name in cls.__dict__ for name in ("observe", "view", "own_view", "tick"))
+        cls.holds_broadcasts = cls.holds_broadcasts and "tick" not in cls.__dict__
 
     def __init__(self, node: NodeSpec, scenario: Scenario) -> None:
         super().__init__(node, scenario)
@@ -241,10 +247,13 @@ def backlog(busy: float, t: int, dt: float) -> float:
     return (busy - end) * dt if busy > end else 0.0
 
 
-def observation_at(obs: Observation, t: int, scenario: Scenario) -> Observation:
+def observation_at(obs: Observation, t: int, scenario: Scenario,
+                   states: Mapping[str, tuple[int, int]] = MappingProxyType({})) -> Observation:
     """What the driven controller that made ``obs`` observes at tick ``t`` if it has neither run since
-    nor anything to place: the same, re-timed (its states' ages, its links' backlogs). The environment
-    calls this for a controller that slept through the epoch, rather than wake its process for it."""
+    nor anything to place: the same, re-timed (its states' ages, its links' backlogs), with the states it
+    heard meanwhile (``states``: node -> the (queue, occupancy) it last broadcast before tick ``t``; a
+    controller holds them unread, ``holds_broadcasts``). The environment calls this for a controller that
+    slept through the epoch, rather than wake its process for it."""
     if obs.tasks:
         raise ValueError(f"controller:{obs.node}: an observation with tasks to place is never re-timed")
     fresh = always_fresh(scenario, [obs.node, *(n.node for n in obs.neighbours)])
@@ -252,10 +261,11 @@ def observation_at(obs: Observation, t: int, scenario: Scenario) -> Observation:
 
     def at(view: NodeView, queued: float) -> NodeView:  # the same view when nothing changed: most of them
         age = 1 if fresh else t - heard_at(scenario, view.node, t)
-        if age == view.age and queued == view.backlog_s:
+        queue, occupancy = states.get(view.node, (view.queue, view.occupancy))
+        if age == view.age and queued == view.backlog_s and queue == view.queue and occupancy == view.occupancy:
             return view
-        return NodeView(view.node, view.queue, view.occupancy, view.buffer, view.capacity, view.tier,
-                        view.rate_bps, age, view.worker, queued)
+        return NodeView(view.node, queue, occupancy, view.buffer, view.capacity, view.tier, view.rate_bps, age,
+                        view.worker, queued)
 
     own = obs.own if scenario.colocated_control else at(obs.own, obs.own.backlog_s)
     return Observation(t, obs.node, own, obs.undecided, [],

@@ -133,6 +133,10 @@ class Role:
     # set by ``wake`` when the role coasts through the ticks it skips: what each of them adds to its
     # counters (STAT_FIELDS order); None when they change nothing
     drift: tuple[float, ...] | None = None
+    # True when its tick, at a tick it is not due (``wake``) and with only broadcasts in its inbox, would do
+    # nothing but record them for later: its process may then take them at its next run rather than wake
+    # for them (docs/protocol.md, "Broadcasts that wait")
+    holds_broadcasts: ClassVar[bool] = False
 
     def __init_subclass__(cls, **kwargs: object) -> None:
         """A class that redefines ``tick`` but not ``wake`` may act in ticks its parent's ``wake``

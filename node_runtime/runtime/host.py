@@ -58,6 +58,10 @@ class Host:
         self.heard_elsewhere = {topic for r in self.roles for topic in plan.publications[r.id]
                                 if any(plan.proc_of[s] != proc for s in plan.subscribers.get(topic, ()))}
         self.listeners = plan.listeners[proc]
+        # the listeners whose every subscribing role holds broadcasts (``Role.holds_broadcasts``): they take
+        # this process's broadcasts at their next run instead of waking for them (``Done.held``)
+        self.holders = frozenset(p for p in self.listeners if all(
+            role_class(r, plan).holds_broadcasts for r in plan.roles_of[p] if plan.subscriptions[r]))
         # Co-located control (control_latency 0; the layout keeps a node's controller with its worker):
         # controllers answer before the other roles run and observe after them (``run``).
         self.colocated: list[tuple[Controller, str]] = []  # (controller, its worker's role id)
@@ -82,7 +86,9 @@ class Host:
         """Start episode ``episode``: fresh roles' state and empty mailboxes."""
         self.episode = episode
         self.external = set(external) & set(self.by_id)
-        self.ledger_on = bool(external)  # an agent drives the episode, here or elsewhere: its credit needs the ledger
+        # an agent drives the episode, here or elsewhere: its credit needs the ledger, and the observations the
+        # environment re-times need the states broadcast
+        self.driven = bool(external)
         for role in self.roles:
             if role.id in self.drivable:
                 role.reset(seed, external=role.id in self.external, policy=policy)
@@ -92,6 +98,7 @@ class Host:
         self.due: dict[str, float] = dict.fromkeys(self.by_id, 0)  # the next tick each role must run
         self.reported: dict[str, tuple] = {}  # what each role's stats were at the last report
         self.coasting: set[str] = set()  # roles whose last report gave a drift (Role.drift)
+        self.earliest = math.inf  # the earliest arrival tick of the mail delivered and not yet taken
         for out in self.outboxes.values():
             out.reset()
 
@@ -104,6 +111,18 @@ class Host:
                     mail[r][env.arrive].append(env)
             else:
                 mail[env.dst][env.arrive].append(env)
+            if env.arrive < self.earliest:
+                self.earliest = env.arrive
+
+    def take_held(self, t: int) -> None:
+        """Broadcasts held for this process arrived at ticks it slept through: they join tick t's mail, still
+        in canonical order (``_tick`` sorts by arrival first), as if each had been read when it arrived."""
+        for box in self.mail.values():
+            late = [a for a in box if a < t]
+            if late:
+                inbox = box[t]
+                for a in sorted(late):
+                    inbox.extend(box.pop(a))
 
     def run(self, t: int, actions: dict[str, Action] | None = None) -> Outgoing:
         """One tick of every role with mail or work due, in canonical order; mail out; the report.
@@ -113,6 +132,9 @@ class Host:
         workers in this tick, and run after every other role.
         """
         actions = actions or {}
+        if self.earliest < t:
+            self.take_held(t)
+        self.earliest = math.inf
         mail = self.mail
         due = self.due
         events: list[tuple[str, str, dict]] = []
@@ -184,6 +206,8 @@ class Host:
         batches: dict[str, list[Envelope]] = {}
         broadcasts: list[Envelope] = []
         sent: dict[int, int] = {}
+        held: dict[int, int] = {}
+        states: dict[int, tuple[int, int]] = {}
         flights: dict[int, dict[int, int]] = {}
         for role in ran:
             out = self.outboxes[role.id]
@@ -203,6 +227,8 @@ class Host:
                     self.mail[r][env.arrive].append(env)
                 if env.dst in self.heard_elsewhere:
                     broadcasts.append(env)
+                if self.driven and env.kind == Kind.STATE:
+                    states[role_index[role.id]] = (env.body.queue, env.body.occupancy)
             out.envelopes.clear()
             out.broadcasts.clear()
         index = self.plan.proc_index
@@ -210,10 +236,14 @@ class Host:
             sent[index[p]] = 1
         if broadcasts:  # one batch reaches every listener, whichever topics it carries
             for p in self.listeners:
-                sent[index[p]] = sent.get(index[p], 0) + 1
-        return Outgoing(batches, broadcasts, self.report(t, ran, sent, flights), events)
+                if p in self.holders:
+                    held[index[p]] = 1
+                else:
+                    sent[index[p]] = sent.get(index[p], 0) + 1
+        return Outgoing(batches, broadcasts, self.report(t, ran, sent, flights, held, states), events)
 
-    def report(self, t: int, ran: list[Role], sent: dict[int, int], flights: dict[int, dict[int, int]]) -> Done:
+    def report(self, t: int, ran: list[Role], sent: dict[int, int], flights: dict[int, dict[int, int]],
+               held: dict[int, int], states: dict[int, tuple[int, int]]) -> Done:
         """The Done of tick t. Its stats hold only the roles whose counters changed since the last
         report (all of them after a reset): the orchestrator keeps the others' last values, moved on
         by their drift while they coast. Roles that did not run this tick cannot have changed but by it."""
@@ -241,10 +271,10 @@ class Host:
                 times = [value for _, kind, value in st.ledger if kind == COMPLETED]
                 if times:
                     rts[index[rid]] = times
-                if self.ledger_on:
+                if self.driven:
                     ledger[index[rid]] = st.ledger
                 st.ledger = []
             if rid in self.external and role.last is not None and role.last.tick == t:
                 obs[index[rid]] = role.last
         return Done(self.proc, self.episode, t, sent, stats, rts, flights, self.wake(), obs, ledger=ledger,
-                    drift=drift)
+                    drift=drift, held=held, states=states)

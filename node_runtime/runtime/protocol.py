@@ -25,7 +25,7 @@ from typing import Any, Literal
 from node_runtime.model.messages import Envelope
 from node_runtime.model.view import Observation
 
-SCHEMA_VERSION = 8
+SCHEMA_VERSION = 9
 # A tick carries the episode's seed as a msgpack integer (64 bits at most); launch adds the episode to it
 MAX_SEED = 2**62 - 1
 Command = Literal["run", "reset", "stop"]
@@ -36,7 +36,8 @@ class Tick:
     episode: int
     tick: int
     command: Command = "run"
-    expect: dict[int, int] = field(default_factory=dict)  # process index -> publications sent in tick - 1
+    expect: dict[int, int] = field(default_factory=dict)  # process index -> publications to take: sent in
+    # tick - 1, and the broadcasts held for it since it last ran (``Done.held``)
     actions: dict[str, Any] = field(default_factory=dict)  # controller role -> action
     seed: int = 0  # reset only
     external: list[str] = field(default_factory=list)  # reset only: controllers an agent drives
@@ -71,6 +72,10 @@ class Done:
     # (task id, kind, value) entries (``role.Counters.ledger``); only while an agent drives the episode
     drift: dict[int, tuple] = field(default_factory=dict)  # role index -> what each tick it sleeps through adds
     # to its stats (``Role.drift``), from the next tick until it reports again; given with its stats
+    held: dict[int, int] = field(default_factory=dict)  # destination process index -> publications it may take
+    # at its next run rather than wake for (broadcasts to a process whose listeners hold them; docs/protocol.md)
+    states: dict[int, tuple[int, int]] = field(default_factory=dict)  # worker role index -> the (queue, occupancy)
+    # it broadcast this tick; only while an agent drives the episode (the environment's re-timed observations)
 
 
 @dataclass(slots=True)
