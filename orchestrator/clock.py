@@ -4,10 +4,11 @@
 the processes reported sending to ``p`` in tick t - 1, and returns once every process it opened the
 tick for has reported ``Done(t)``. It opens it only for the processes that have mail from tick t - 1
 or said in their last ``Done`` that they have work at t: the others sleep, and their last reports
-stand. Broadcasts a process may hold (``Done.held``) wake nobody: they are added to the count of the
-next tick their listener runs, or wake it once ``HOLD_LIMIT`` of them wait. A reset opens tick 0 for
-all. A process that reports an error, dies, or stays silent past the timeout ends the run with an error
-that names it and the nodes it hosted.
+stand. Mail a process may hold (``Done.held``: it arrives later, or is broadcasts its roles hold) wakes
+nobody before it is due: it is added to the count of the next tick its process runs, which comes at the
+latest when it is due or once ``HOLD_LIMIT`` publications wait. A reset opens tick 0 for all. A process
+that reports an error, dies, or stays silent past the timeout ends the run with an error that names it
+and the nodes it hosted.
 
 A driver that gives actions (the environment) may open the next tick ahead (``open_next``) for the
 processes that cannot get any, so that they run while its agents decide; ``step`` then opens it for the
@@ -27,6 +28,7 @@ that passes every check is indistinguishable from the process's own report.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable, Collection, Sequence
 from typing import Any
 
@@ -36,7 +38,8 @@ from node_runtime.runtime.protocol import Done, Dones, Tick
 from node_runtime.runtime.rejections import UNKNOWN_SENDER, WRONG_SHAPE, WRONG_TICK
 from node_runtime.runtime.transport import Transport
 
-HOLD_LIMIT = 64  # held publications that wake their process anyway: its buffer stays small however long it sleeps
+HOLD_LIMIT = 256  # held publications that wake their process anyway: what waits for it stays small (each is
+# a few hundred bytes) however long it sleeps
 
 
 class ClockError(RuntimeError):
@@ -73,6 +76,7 @@ class Clock:
         self.tick = -1
         self.expect: dict[int, int] = {}  # process index -> publications to wait for
         self.held = [0] * len(self.procs)  # process index -> publications held for it since it last ran
+        self.held_due = [math.inf] * len(self.procs)  # process index -> the tick it must run by to read them
         self.wake: list[int | None] = [None] * len(self.procs)  # process index -> next tick with work of its own
         self.actors = {role: plan.proc_index[plan.proc_of[role]] for role in plan.roles}
         self.tick_keys = [keys.tick(p) for p in self.procs]  # process index -> its own tick key
@@ -162,6 +166,9 @@ class Clock:
         for arrivals in flights.values():
             if min(arrivals, default=t + 1) <= t:
                 return WRONG_TICK, f"tasks on links that arrive at tick {min(arrivals)}, sent in tick {t}"
+        for _, due in held.values():
+            if due is not None and due <= t + 1:
+                return WRONG_TICK, f"mail held until tick {due}, sent in tick {t}: it is read next tick"
         return None
 
     def node_rejected(self) -> dict[str, int]:
@@ -183,6 +190,7 @@ class Clock:
         self.tick = 0
         self.dones = {}
         self.held = [0] * len(self.procs)  # what was held in the last episode was dropped with it
+        self.held_due = [math.inf] * len(self.procs)
         self.opened = frozenset(range(len(self.procs)))
         self.transport.publish(self.keys.tick(), Tick(self.episode, 0, "reset", seed=seed,
                                                       external=list(external or ()), policy=policy))
@@ -222,9 +230,9 @@ class Clock:
 
     def _due(self, t: int, mine: Collection[int]) -> list[int]:
         """The processes tick ``t`` must be opened for: mail announced, actions, work due, or too much held."""
-        expect, held = self.expect, self.held
+        expect, held, due = self.expect, self.held, self.held_due
         return [i for i, wake in enumerate(self.wake) if i in expect or i in mine or (wake is not None and wake <= t)
-                or held[i] >= HOLD_LIMIT]
+                or due[i] <= t or held[i] >= HOLD_LIMIT]
 
     def _open(self, t: int, procs: list[int], mine: dict[int, dict[str, Any]], actions: dict[str, Any]) -> None:
         """Publish tick ``t`` to ``procs``: each its own expected count (with what was held for it) and ``mine``,
@@ -234,6 +242,7 @@ class Clock:
         for i in procs:
             n = self.expect.get(i, 0) + held[i]
             held[i] = 0
+            self.held_due[i] = math.inf
             if n:
                 counts[i] = n
         if len(procs) == len(self.procs):  # one publication reaches them all
@@ -266,12 +275,14 @@ class Clock:
                              + (f"; refused from them: {'; '.join(refused[:3])}" if refused else "")) from None
         dones = [self.dones[self.procs[i]] for i in opened]
         expect: dict[int, int] = {}
-        held = self.held
+        held, held_due = self.held, self.held_due
         for i, d in zip(opened, dones, strict=True):
             self.wake[i] = d.wake
             for p, count in d.sent.items():
                 expect[p] = expect.get(p, 0) + count
-            for p, count in d.held.items():
+            for p, (count, due) in d.held.items():
                 held[p] += count
+                if due is not None and due < held_due[p]:
+                    held_due[p] = due
         self.expect = expect
         return dones

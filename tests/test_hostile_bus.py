@@ -70,6 +70,7 @@ def test_every_refusal_in_process_leaves_the_results_alone(aot1):
     victim = next(d for d in sim.drivers if d.proc == "worker-rpi3_0")
     hosted_elsewhere = plan.role_index["worker:rpi3_5"]
     own = plan.role_index["worker:rpi3_0"]
+    receiver = plan.proc_index[min(plan.recipients["worker-rpi3_0"])]
 
     def attack(out, e):
         t = AT
@@ -115,7 +116,8 @@ def test_every_refusal_in_process_leaves_the_results_alone(aot1):
             publish(key, Done(victim.proc, msg.episode, t, {}, {hosted_elsewhere: STATS}))
             publish(key, Done(victim.proc, msg.episode, t, {plan.proc_index["worker-rpi3_7"]: 1}, {}))
             publish(key, Done(victim.proc, msg.episode, t, {}, {}, drift={own: STATS}))  # a drift without stats
-            publish(key, Done(victim.proc, msg.episode, t, {}, {}, held={plan.proc_index["worker-rpi3_7"]: 1}))
+            publish(key, Done(victim.proc, msg.episode, t, {}, {}, held={plan.proc_index["worker-rpi3_7"]: (1, None)}))
+            publish(key, Done(victim.proc, msg.episode, t, {}, {}, held={receiver: (1, t + 1)}))  # read next tick
             publish(key, Done(victim.proc, msg.episode, t, {}, {}, states={hosted_elsewhere: (0, 1)}))
             publish(key, msg)
             publish(key, Done(victim.proc, msg.episode, t, {}, {}, error="forged failure"))
@@ -128,11 +130,11 @@ def test_every_refusal_in_process_leaves_the_results_alone(aot1):
     assert replayed, "no genuine batch was seen to replay"
     assert raced, "the victim reported nothing from tick AT on"
     assert model_part(summary) == clean
-    assert sim.transport.rejections.counts == {"wrong_shape": 1, "unknown_sender": 7, "wrong_tick": 2}
+    assert sim.transport.rejections.counts == {"wrong_shape": 1, "unknown_sender": 7, "wrong_tick": 3}
     expected = {"unknown_sender": 3 + len(plan.listeners["worker-rpi3_0"]), "wrong_shape": 1, "wrong_tick": 6}
     assert node_counts(sim) == expected
     assert summary["run"]["rejected_messages"] == {"orchestrator": {"unknown_sender": 7, "wrong_shape": 1,
-                                                                    "wrong_tick": 2}, "nodes": expected}
+                                                                    "wrong_tick": 3}, "nodes": expected}
 
 
 def test_mail_beyond_what_the_clock_announced_stops_the_run(aot1):

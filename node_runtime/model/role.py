@@ -135,7 +135,7 @@ class Role:
     drift: tuple[float, ...] | None = None
     # True when its tick, at a tick it is not due (``wake``) and with only broadcasts in its inbox, would do
     # nothing but record them for later: its process may then take them at its next run rather than wake
-    # for them (docs/protocol.md, "Broadcasts that wait")
+    # for them (docs/protocol.md, "Mail that waits")
     holds_broadcasts: ClassVar[bool] = False
 
     def __init_subclass__(cls, **kwargs: object) -> None:

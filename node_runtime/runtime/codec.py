@@ -91,8 +91,10 @@ def _drift(m: Any) -> bool:
 
 
 def _held(m: Any) -> bool:
-    """Process index -> publications held for it: at least one, or it would not be named."""
-    return _int_map(m) and all(n > 0 for n in m.values())
+    """Process index -> [publications held for it (at least one, or it would not be named), tick or nil]."""
+    return type(m) is dict and (not m or (all(map(_is_int, m)) and all(
+        type(v) is list and len(v) == 2 and _is_int(v[0]) and v[0] > 0 and (v[1] is None or _is_int(v[1]))
+        for v in m.values())))
 
 
 def _states(m: Any) -> bool:
@@ -300,7 +302,8 @@ def _done(d: dict[str, Any]) -> Done:
             and (states == EMPTY or _states(states)) and (rejected is EMPTY or _counts(rejected))):
         _diagnose(d, "done", DONE_FIELDS)
     return Done(proc, e, t, sent, stats, rt, fl, wake, {k: Observation.from_wire(o) for k, o in obs.items()},
-                error, rejected, {k: [tuple(x) for x in v] for k, v in ledger.items()}, drift, held,
+                error, rejected, {k: [tuple(x) for x in v] for k, v in ledger.items()}, drift,
+                {k: tuple(v) for k, v in held.items()},
                 {k: tuple(v) for k, v in states.items()})
 
 

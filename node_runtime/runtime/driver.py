@@ -1,7 +1,7 @@
 """A host's side of the clock protocol (docs/protocol.md), over any transport.
 
 Per tick t it takes part in: wait for ``Tick(t)``; wait until the publications sent to this process
-since it last ran (in tick t - 1, and broadcasts held for it in the ticks it slept through) number
+since it last ran (in tick t - 1, and mail held for it in the ticks it slept through) number
 ``expect[self]``; deliver them; run the roles; publish the outgoing batches, then ``Done``. Ticks in which
 it has neither mail nor work due never reach it.
 Publications can overtake the tick that announces them, or belong to an episode this process has

@@ -62,6 +62,7 @@ class Host:
         # this process's broadcasts at their next run instead of waking for them (``Done.held``)
         self.holders = frozenset(p for p in self.listeners if all(
             role_class(r, plan).holds_broadcasts for r in plan.roles_of[p] if plan.subscriptions[r]))
+        self.holding = frozenset(r.id for r in self.roles if r.holds_broadcasts)  # the same, here
         # Co-located control (control_latency 0; the layout keeps a node's controller with its worker):
         # controllers answer before the other roles run and observe after them (``run``).
         self.colocated: list[tuple[Controller, str]] = []  # (controller, its worker's role id)
@@ -99,6 +100,7 @@ class Host:
         self.reported: dict[str, tuple] = {}  # what each role's stats were at the last report
         self.coasting: set[str] = set()  # roles whose last report gave a drift (Role.drift)
         self.earliest = math.inf  # the earliest arrival tick of the mail delivered and not yet taken
+        self.held: list[tuple[str, Envelope]] = []  # broadcasts of roles here to roles here that hold them
         for out in self.outboxes.values():
             out.reset()
 
@@ -115,8 +117,8 @@ class Host:
                 self.earliest = env.arrive
 
     def take_held(self, t: int) -> None:
-        """Broadcasts held for this process arrived at ticks it slept through: they join tick t's mail, still
-        in canonical order (``_tick`` sorts by arrival first), as if each had been read when it arrived."""
+        """Broadcasts held for roles here arrived at ticks the process slept through: they join tick t's mail,
+        still in canonical order (``_tick`` sorts by arrival first), as if each had been read when it arrived."""
         for box in self.mail.values():
             late = [a for a in box if a < t]
             if late:
@@ -132,10 +134,15 @@ class Host:
         workers in this tick, and run after every other role.
         """
         actions = actions or {}
+        mail = self.mail
+        if self.held:
+            for r, env in self.held:
+                mail[r][env.arrive].append(env)
+                self.earliest = min(self.earliest, env.arrive)
+            self.held = []
         if self.earliest < t:
             self.take_held(t)
         self.earliest = math.inf
-        mail = self.mail
         due = self.due
         events: list[tuple[str, str, dict]] = []
         ran: list[Role] = []
@@ -206,7 +213,7 @@ class Host:
         batches: dict[str, list[Envelope]] = {}
         broadcasts: list[Envelope] = []
         sent: dict[int, int] = {}
-        held: dict[int, int] = {}
+        held: dict[int, tuple[int, int | None]] = {}
         states: dict[int, tuple[int, int]] = {}
         flights: dict[int, dict[int, int]] = {}
         for role in ran:
@@ -224,7 +231,10 @@ class Host:
                     batches.setdefault(proc_of[dst], []).append(env)
             for env in out.broadcasts:
                 for r in self.local_subs.get(env.dst, ()):
-                    self.mail[r][env.arrive].append(env)
+                    if r in self.holding:  # they wait for its next run, like those from other processes
+                        self.held.append((r, env))
+                    else:
+                        self.mail[r][env.arrive].append(env)
                 if env.dst in self.heard_elsewhere:
                     broadcasts.append(env)
                 if self.driven and env.kind == Kind.STATE:
@@ -232,18 +242,24 @@ class Host:
             out.envelopes.clear()
             out.broadcasts.clear()
         index = self.plan.proc_index
-        for p in batches:
-            sent[index[p]] = 1
+        for p, envelopes in batches.items():
+            first = min(env.arrive for env in envelopes)
+            if first > t + 1:  # nothing in it is read before then: its process need not wake for it sooner
+                held[index[p]] = (1, first)
+            else:
+                sent[index[p]] = 1
         if broadcasts:  # one batch reaches every listener, whichever topics it carries
             for p in self.listeners:
+                i = index[p]
                 if p in self.holders:
-                    held[index[p]] = 1
+                    count, due = held.get(i, (0, None))
+                    held[i] = (count + 1, due)
                 else:
-                    sent[index[p]] = sent.get(index[p], 0) + 1
+                    sent[i] = sent.get(i, 0) + 1
         return Outgoing(batches, broadcasts, self.report(t, ran, sent, flights, held, states), events)
 
     def report(self, t: int, ran: list[Role], sent: dict[int, int], flights: dict[int, dict[int, int]],
-               held: dict[int, int], states: dict[int, tuple[int, int]]) -> Done:
+               held: dict[int, tuple[int, int | None]], states: dict[int, tuple[int, int]]) -> Done:
         """The Done of tick t. Its stats hold only the roles whose counters changed since the last
         report (all of them after a reset): the orchestrator keeps the others' last values, moved on
         by their drift while they coast. Roles that did not run this tick cannot have changed but by it."""

@@ -37,7 +37,7 @@ class Tick:
     tick: int
     command: Command = "run"
     expect: dict[int, int] = field(default_factory=dict)  # process index -> publications to take: sent in
-    # tick - 1, and the broadcasts held for it since it last ran (``Done.held``)
+    # tick - 1, and those held for it since it last ran (``Done.held``)
     actions: dict[str, Any] = field(default_factory=dict)  # controller role -> action
     seed: int = 0  # reset only
     external: list[str] = field(default_factory=list)  # reset only: controllers an agent drives
@@ -72,8 +72,9 @@ class Done:
     # (task id, kind, value) entries (``role.Counters.ledger``); only while an agent drives the episode
     drift: dict[int, tuple] = field(default_factory=dict)  # role index -> what each tick it sleeps through adds
     # to its stats (``Role.drift``), from the next tick until it reports again; given with its stats
-    held: dict[int, int] = field(default_factory=dict)  # destination process index -> publications it may take
-    # at its next run rather than wake for (broadcasts to a process whose listeners hold them; docs/protocol.md)
+    held: dict[int, tuple[int, int | None]] = field(default_factory=dict)  # destination process index ->
+    # (publications that need not wake it next tick, the tick it must run by to read them in time, or None: at
+    # its next run): mail that arrives later, broadcasts to roles that hold them (docs/protocol.md)
     states: dict[int, tuple[int, int]] = field(default_factory=dict)  # worker role index -> the (queue, occupancy)
     # it broadcast this tick; only while an agent drives the episode (the environment's re-timed observations)
 
