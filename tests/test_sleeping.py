@@ -133,12 +133,17 @@ class ServesLikeAnyWorker(Worker):
         super().serve(t, out)
 
 
-def never_coasting(sc: Scenario) -> Scenario:
+def with_class(sc: Scenario, kind: str, cls: type) -> Scenario:
+    """``sc`` with every role of ``kind`` of this module's class ``cls``."""
     data = sc.to_dict()
     for node in data["nodes"]:
-        if "worker" in node["roles"]:
-            node["impls"] = [*node["impls"], ["worker", "tests.test_sleeping:ServesLikeAnyWorker"]]
+        if kind in node["roles"]:
+            node["impls"] = [*node["impls"], [kind, f"tests.test_sleeping:{cls.__name__}"]]
     return Scenario.from_dict(data)
+
+
+def never_coasting(sc: Scenario) -> Scenario:
+    return with_class(sc, "worker", ServesLikeAnyWorker)
 
 
 class HearsEveryState(Controller):
@@ -149,11 +154,7 @@ class HearsEveryState(Controller):
 
 
 def hearing_every_state(sc: Scenario) -> Scenario:
-    data = sc.to_dict()
-    for node in data["nodes"]:
-        if "controller" in node["roles"]:
-            node["impls"] = [*node["impls"], ["controller", "tests.test_sleeping:HearsEveryState"]]
-    return Scenario.from_dict(data)
+    return with_class(sc, "controller", HearsEveryState)
 
 
 def with_idle_power(sc: Scenario) -> Scenario:
