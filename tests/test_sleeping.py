@@ -321,6 +321,33 @@ def test_zenoh_agrees_on_re_timed_observations(tmp_path, name):
         assert same(a, b), f"step {i} differs"
 
 
+@pytest.mark.zenoh
+@pytest.mark.parametrize(("name", "limit"), [("aot2", HOLD_LIMIT), ("tricky", HOLD_LIMIT), ("tricky", 2)])
+def test_zenoh_agrees_with_mail_that_waits(tmp_path, monkeypatch, name, limit):
+    """Over Zenoh, a process per node: mail held until it is due (tasks on their links, states a sleeping
+    controller holds, a wake once ``limit`` publications wait) gives the episode of one process, where no mail
+    crosses processes at all: the same observations, rewards and infos at every step."""
+    monkeypatch.setattr(clock_module, "HOLD_LIMIT", limit)
+    held = []
+    collect = clock_module.Clock._collect
+
+    def counted(self, opened):
+        dones = collect(self, opened)
+        held.extend(count for d in dones for count, _ in d.held.values())
+        return dones
+
+    monkeypatch.setattr(clock_module.Clock, "_collect", counted)
+    scenario = driven_scenarios(tmp_path)[name]
+    traces = []
+    for transport, layout in (("inproc", "single"), ("zenoh", "per-node")):
+        env = ZenohEdgeEnv(scenario, transport=transport, layout=layout, max_steps=90)
+        traces.append(run_episode(env, seed=2, actions_rng_seed=4, steps=90))
+        env.close()
+    assert sum(held) > 0  # mail did wait
+    for i, (a, b) in enumerate(zip(*traces, strict=True)):
+        assert same(a, b), f"step {i} differs"
+
+
 @pytest.mark.parametrize("limit", [HOLD_LIMIT, 2])
 @pytest.mark.parametrize("name", ["aot2", "tricky", "failures", "co-located"])
 def test_states_held_until_the_next_run_change_nothing_an_agent_sees(tmp_path, monkeypatch, name, limit):
