@@ -154,11 +154,11 @@ class Clock:
             return WRONG_TICK, f"a second done for tick {t}"
         hosted = self.hosted[i]
         stats, flights, times, obs, sent = done.stats, done.flights, done.response_times, done.obs, done.sent
-        ledger, drift, held, states = done.ledger, done.drift, done.held, done.states
+        ledger, drift, held, states, reports = done.ledger, done.drift, done.held, done.states, done.reports
         if not ((not stats or hosted.issuperset(stats)) and (not flights or hosted.issuperset(flights))
                 and (not times or hosted.issuperset(times)) and (not obs or hosted.issuperset(obs))
                 and (not ledger or hosted.issuperset(ledger)) and (not drift or stats.keys() >= drift.keys())
-                and (not states or hosted.issuperset(states))
+                and (not states or hosted.issuperset(states)) and (not reports or hosted.issuperset(reports))
                 and (not sent or self.receivers[i].issuperset(sent))
                 and (not held or self.receivers[i].issuperset(held))):
             return UNKNOWN_SENDER, (f"a report on roles {done.proc} does not host, on mail to processes it "
@@ -169,6 +169,9 @@ class Clock:
         for _, due in held.values():
             if due is not None and due <= t + 1:
                 return WRONG_TICK, f"mail held until tick {due}, sent in tick {t}: it is read next tick"
+        for arrive, _, _ in reports.values():
+            if arrive <= t:
+                return WRONG_TICK, f"a report that arrives at tick {arrive}, sent in tick {t}"
         return None
 
     def node_rejected(self) -> dict[str, int]:

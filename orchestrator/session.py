@@ -186,6 +186,8 @@ class Simulation:
         # node -> the (queue, occupancy) it last broadcast: before the current tick (heard by its end), in it
         self.heard: dict[str, tuple[int, int]] = {}
         self.fresh: dict[str, tuple[int, int]] = {}
+        # driven controller -> the reports it reads later (arrival tick, tasks pending, busy-until), in order
+        self.reports: dict[str, list[tuple[int, int, list[float] | None]]] = {}
         self.retimed: set[str] = set()  # driven controllers whose class observation_at can re-time
         self._closed = False
         self._run_started = 0.0
@@ -242,7 +244,7 @@ class Simulation:
         self.policy = policy
         self.metrics.reset()
         self.last = self.clock.reset(self.seed, external, policy)
-        self.seen, self.heard, self.fresh = {}, {}, {}
+        self.seen, self.heard, self.fresh, self.reports = {}, {}, {}, {}
         self.retimed = {r for r in external or () if getattr(role_class(r, self.plan), "retimed", False)}
         self._remember()
         self._run_started = time.perf_counter()
@@ -276,15 +278,28 @@ class Simulation:
     def observations(self) -> dict[str, Observation]:
         """What each externally driven controller observes at the current tick, by role: the observations
         of the last tick, and for a controller that slept through it, its latest one re-timed
-        (``observation_at``: it has nothing to place, and heard only states, which it holds; they are those
-        the processes reported broadcasting). A controller whose node
-        has scheduled failures never sleeps, so it has one only while its node is up."""
+        (``observation_at``: it has nothing to place, and what it heard since it holds unread: states and
+        reports, as the processes reported them). A controller whose node has scheduled failures never
+        sleeps, so it has one only while its node is up."""
         t, sc = self.clock.tick, self.scenario
         if t % sc.decision_interval:  # controllers observe at decision epochs only
             return {role: obs for role, obs in self.seen.items() if obs.tick == t}
         heard = self.heard
-        return {role: obs if obs.tick == t else observation_at(obs, t, sc, heard) for role, obs in self.seen.items()
+        return {role: obs if obs.tick == t else observation_at(obs, t, sc, heard, self._report(role, obs, t))
+                for role, obs in self.seen.items()
                 if obs.tick == t or (role in self.retimed and not sc.failure_windows.get(obs.node))}
+
+    def _report(self, role: str, obs: Observation, t: int) -> tuple[int, list[float] | None] | None:
+        """What the reports ``role`` holds unread at tick ``t`` tell it (tasks pending, and the latest busy-until
+        ticks given), or None: those that arrived by its last observation are in it already."""
+        held = self.reports.get(role)
+        if not held:
+            return None
+        held[:] = [r for r in held if r[0] > obs.tick]
+        arrived = [r for r in held if r[0] <= t]
+        if not arrived:
+            return None
+        return arrived[-1][1], next((r[2] for r in reversed(arrived) if r[2] is not None), None)
 
     def _remember(self) -> None:
         roles = self.plan.roles
@@ -295,6 +310,8 @@ class Simulation:
                 self.seen[roles[i]] = obs
             for i, state in d.states.items():
                 self.fresh[role_node(roles[i])] = state
+            for i, report in d.reports.items():
+                self.reports.setdefault(roles[i], []).append(report)
 
     def run(self, ticks: int | None = None, seed: int | None = None, policy: str | None = None,
             on_tick: Any = None) -> dict[str, Any]:

@@ -50,7 +50,8 @@ def test_tick_and_done_roundtrip():
     stats = [1, 0, 0, 0, 0, 0, 0, 0, 0, 0, 2.5, 0.0, 0.0, 0.0, 0.0, 1, 0, 0]
     done = Done("node-a", 2, 17, {1: 1}, {0: stats}, {1: [7.0]}, {0: {19: 2, 21: 1}}, 18, {2: obs},
                 ledger={1: [(7, 0, 7.0), (9, 2, 0.25)], 0: [(12, 1, 0.0)]}, drift={0: [0.0] * 10 + [4e6] + [0.0] * 7},
-                held={3: (1, None), 4: (2, 21)}, states={0: (2, 3)})
+                held={3: (1, None), 4: (2, 21)}, states={0: (2, 3)},
+                reports={2: (18, 1, [19.0, 0.0]), 5: (18, 0, None)})
     assert codec.decode(codec.encode(done)) == done
 
 
@@ -58,10 +59,14 @@ def test_tick_and_done_roundtrip():
                                               ("hd", {"3": [1, None]}), ("hd", {3: 1}), ("hd", {3: [1, 2.5]}),
                                               ("hd", {3: [1, None, 2]}),
                                               ("st", {0: [1, -1]}), ("st", {0: [1]}), ("st", {0: [1, 2, 3]}),
-                                              ("st", {0: [1.5, 2]}), ("st", {"0": [1, 2]})])
-def test_held_counts_and_states_broadcast_are_counts(field, value):
-    """Held counts are added to a process's next tick, states to the agents' observations: a forged negative,
-    fractional or misshapen one must reach neither."""
+                                              ("st", {0: [1.5, 2]}), ("st", {"0": [1, 2]}),
+                                              ("rp", {2: [18, -1, None]}), ("rp", {2: [18.0, 1, None]}),
+                                              ("rp", {2: [18, 1, [-1.0]]}), ("rp", {2: [18, 1, [float("nan")]]}),
+                                              ("rp", {2: [18, 1, ["1"]]}), ("rp", {2: [18, 1]}),
+                                              ("rp", {"2": [18, 1, None]})])
+def test_held_counts_states_and_reports_are_of_their_shape(field, value):
+    """Held counts are added to a process's next tick, states and reports to the agents' observations: a
+    forged negative, fractional, infinite or misshapen one must reach neither."""
     wire = codec.to_wire(Done("node-a", 2, 17, {}, {}, held={3: (1, 19)}, states={0: (2, 3)}))
     wire[field] = value
     with pytest.raises(codec.CodecError, match=f"field '{field}'"):

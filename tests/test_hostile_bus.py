@@ -119,6 +119,8 @@ def test_every_refusal_in_process_leaves_the_results_alone(aot1):
             publish(key, Done(victim.proc, msg.episode, t, {}, {}, held={plan.proc_index["worker-rpi3_7"]: (1, None)}))
             publish(key, Done(victim.proc, msg.episode, t, {}, {}, held={receiver: (1, t + 1)}))  # read next tick
             publish(key, Done(victim.proc, msg.episode, t, {}, {}, states={hosted_elsewhere: (0, 1)}))
+            publish(key, Done(victim.proc, msg.episode, t, {}, {}, reports={hosted_elsewhere: (t + 1, 0, None)}))
+            publish(key, Done(victim.proc, msg.episode, t, {}, {}, reports={own: (t, 0, None)}))  # arrived already
             publish(key, msg)
             publish(key, Done(victim.proc, msg.episode, t, {}, {}, error="forged failure"))
         else:
@@ -130,11 +132,11 @@ def test_every_refusal_in_process_leaves_the_results_alone(aot1):
     assert replayed, "no genuine batch was seen to replay"
     assert raced, "the victim reported nothing from tick AT on"
     assert model_part(summary) == clean
-    assert sim.transport.rejections.counts == {"wrong_shape": 1, "unknown_sender": 7, "wrong_tick": 3}
+    assert sim.transport.rejections.counts == {"wrong_shape": 1, "unknown_sender": 8, "wrong_tick": 4}
     expected = {"unknown_sender": 3 + len(plan.listeners["worker-rpi3_0"]), "wrong_shape": 1, "wrong_tick": 6}
     assert node_counts(sim) == expected
-    assert summary["run"]["rejected_messages"] == {"orchestrator": {"unknown_sender": 7, "wrong_shape": 1,
-                                                                    "wrong_tick": 3}, "nodes": expected}
+    assert summary["run"]["rejected_messages"] == {"orchestrator": {"unknown_sender": 8, "wrong_shape": 1,
+                                                                    "wrong_tick": 4}, "nodes": expected}
 
 
 def test_mail_beyond_what_the_clock_announced_stops_the_run(aot1):

@@ -10,7 +10,7 @@ import pytest
 
 from env import ZenohEdgeEnv
 from node_runtime.model.controller import Controller
-from node_runtime.model.messages import Envelope, Kind, Task
+from node_runtime.model.messages import Envelope, Kind, Pending, Report, Task
 from node_runtime.model.role import STAT_FIELDS, Outbox, Role
 from node_runtime.model.spec import Scenario
 from node_runtime.model.worker import COAST_TICKS, Worker
@@ -389,3 +389,20 @@ def test_held_states_change_no_result(tmp_path, name):
                     layout="per-node")
     assert held[1:] == every[1:]  # ticks.csv, nodes.csv
     assert held[0]["totals"] == every[0]["totals"] and held[0]["totals"]["completed"] > 0
+
+
+def test_a_controller_reads_later_only_a_report_that_brings_nothing_to_place(tmp_path):
+    """By hand: a report of tasks it has all placed only updates what the controller would observe, so it may
+    wait unread (``Controller.reads_later``); one with a task it has not placed may not, nor anything for a
+    controller that reads every state and report as it arrives."""
+    scenario = tricky(tmp_path)
+    controller = Controller(scenario.node["a"], scenario)
+    pending = [Pending(7, "a", 1, 3e6, 2e5, 2e5, 1.0, 12.0, 2)]
+    report = Envelope(Kind.REPORT, "worker:a", controller.id, 1, 2, 3, Report(pending, [4.0, 0.0]))
+    assert not controller.reads_later(report)
+    controller.decided.add(7)
+    assert controller.reads_later(report)
+    assert controller.reads_later(Envelope(Kind.REPORT, "worker:a", controller.id, 2, 3, 4, Report([], None)))
+    eager = HearsEveryState(scenario.node["a"], scenario)
+    eager.decided.add(7)
+    assert not eager.reads_later(report)

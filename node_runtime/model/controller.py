@@ -136,6 +136,12 @@ class Controller(Role):
         else:
             self.stale = self.external
 
+    def reads_later(self, env: Envelope) -> bool:
+        """A report whose tasks it has all placed already brings nothing to place: it only updates what the
+        controller would observe (how many tasks wait, its links' backlogs), so it can wait like a state."""
+        return (self.holds_broadcasts and env.kind == Kind.REPORT
+                and all(p.id in self.decided for p in env.body.pending))
+
     def heard(self, pending: list[Pending]) -> None:
         """The worker's tasks to place, as reported (or read, co-located)."""
         self.undecided = pending
@@ -248,11 +254,13 @@ def backlog(busy: float, t: int, dt: float) -> float:
 
 
 def observation_at(obs: Observation, t: int, scenario: Scenario,
-                   states: Mapping[str, tuple[int, int]] = MappingProxyType({})) -> Observation:
+                   states: Mapping[str, tuple[int, int]] = MappingProxyType({}),
+                   report: tuple[int, list[float] | None] | None = None) -> Observation:
     """What the driven controller that made ``obs`` observes at tick ``t`` if it has neither run since
-    nor anything to place: the same, re-timed (its states' ages, its links' backlogs), with the states it
-    heard meanwhile (``states``: node -> the (queue, occupancy) it last broadcast before tick ``t``; a
-    controller holds them unread, ``holds_broadcasts``). The environment calls this for a controller that
+    nor anything to place: the same, re-timed (its states' ages, its links' backlogs), with what it heard
+    meanwhile and holds unread (``reads_later``): ``states``, node -> the (queue, occupancy) it last
+    broadcast before tick ``t``; ``report``, the tasks pending and the links' busy-until ticks (None:
+    unchanged) its worker's reports since told it. The environment calls this for a controller that
     slept through the epoch, rather than wake its process for it."""
     if obs.tasks:
         raise ValueError(f"controller:{obs.node}: an observation with tasks to place is never re-timed")
@@ -267,10 +275,15 @@ def observation_at(obs: Observation, t: int, scenario: Scenario,
         return NodeView(view.node, queue, occupancy, view.buffer, view.capacity, view.tier, view.rate_bps, age,
                         view.worker, queued)
 
+    undecided, busy_until = obs.undecided, obs.busy_until
+    if report is not None:
+        undecided = report[0]
+        if report[1] is not None:
+            busy_until = list(report[1])
     own = obs.own if scenario.colocated_control else at(obs.own, obs.own.backlog_s)
-    return Observation(t, obs.node, own, obs.undecided, [],
-                       [at(n, backlog(busy, t, dt)) for n, busy in zip(obs.neighbours, obs.busy_until, strict=False)],
-                       obs.busy_until)
+    return Observation(t, obs.node, own, undecided, [],
+                       [at(n, backlog(busy, t, dt)) for n, busy in zip(obs.neighbours, busy_until, strict=False)],
+                       busy_until)
 
 
 def heard_states(node: NodeSpec, scenario: Scenario) -> tuple[str, ...]:

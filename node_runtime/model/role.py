@@ -204,3 +204,9 @@ class Role:
         or nothing but its counters, by the same ``drift`` each tick, which its next ``tick`` replays;
         the default runs every tick."""
         return t + 1
+
+    def reads_later(self, env: Envelope) -> bool:
+        """Whether ``env``, mail from a role of the same process, may wait unread until this role next runs:
+        its tick at the envelope's arrival, were it not due then, would only record it (docs/protocol.md,
+        "Mail that waits"). The host then does not wake the process for it. By default nothing waits."""
+        return False

@@ -104,6 +104,16 @@ def _states(m: Any) -> bool:
         for v in m.values())))
 
 
+def _report(v: Any) -> bool:
+    """[arrival tick, tasks pending (>= 0), links' busy-until ticks (finite numbers >= 0) or nil]."""
+    return (type(v) is list and len(v) == 3 and _is_int(v[0]) and _is_int(v[1]) and v[1] >= 0
+            and (v[2] is None or (_number_rows([v[2]]) and all(0.0 <= x < math.inf for x in v[2]))))
+
+
+def _reports(m: Any) -> bool:
+    return type(m) is dict and (not m or (all(map(_is_int, m)) and all(map(_report, m.values()))))
+
+
 def _times(m: Any) -> bool:
     return type(m) is dict and (not m or (all(map(_is_int, m)) and _number_rows(m.values())))
 
@@ -160,7 +170,8 @@ TICK_FIELDS = (("e", _is_int), ("t", _is_int), ("cmd", COMMANDS.__contains__), (
                ("actions", _actions), ("seed", _is_int), ("external", _str_list), ("policy", _maybe_str))
 DONE_FIELDS = (("proc", _is_str), ("e", _is_int), ("t", _is_int), ("sent", _int_map), ("stats", _stats),
                ("rt", _times), ("fl", _flights), ("wake", _maybe_int), ("obs", _observations), ("error", _maybe_str),
-               ("led", _ledger), ("dr", _drift), ("hd", _held), ("st", _states))
+               ("led", _ledger), ("dr", _drift), ("hd", _held), ("st", _states),
+               ("rp", _reports))
 # "rej" (optional) comes last: a done that passes every field above is malformed there
 BATCH_FIELDS = (("e", _is_int), ("t", _is_int), ("src", _is_str), ("msgs", list.__instancecheck__))
 
@@ -260,7 +271,7 @@ def _done_wire(msg: Done) -> dict[str, Any]:
     d = {"type": "done", "proc": msg.proc, "e": msg.episode, "t": msg.tick, "sent": msg.sent,
          "stats": msg.stats, "rt": msg.response_times, "fl": msg.flights, "wake": msg.wake,
          "obs": {k: o.to_wire() for k, o in msg.obs.items()}, "error": msg.error, "led": msg.ledger,
-         "dr": msg.drift, "hd": msg.held, "st": msg.states}
+         "dr": msg.drift, "hd": msg.held, "st": msg.states, "rp": msg.reports}
     if msg.rejected:
         d["rej"] = msg.rejected
     return d
@@ -292,6 +303,7 @@ NONE: list = []
 def _done(d: dict[str, Any]) -> Done:
     proc, e, t, sent, stats, rt, fl = d["proc"], d["e"], d["t"], d["sent"], d["stats"], d["rt"], d["fl"]
     wake, obs, error, ledger, drift, held, states = d["wake"], d["obs"], d["error"], d["led"], d["dr"], d["hd"], d["st"]
+    reports = d["rp"]
     rejected = d.get("rej", EMPTY)
     if not (isinstance(proc, str) and isinstance(e, int) and isinstance(t, int)
             and (wake is None or isinstance(wake, int)) and (error is None or isinstance(error, str))
@@ -299,12 +311,13 @@ def _done(d: dict[str, Any]) -> Done:
             and (stats == EMPTY or _stats(stats)) and (rt == EMPTY or _times(rt)) and (fl == EMPTY or _flights(fl))
             and (obs == EMPTY or _observations(obs)) and (ledger == EMPTY or _ledger(ledger))
             and (drift == EMPTY or _drift(drift)) and (held == EMPTY or _held(held))
-            and (states == EMPTY or _states(states)) and (rejected is EMPTY or _counts(rejected))):
+            and (states == EMPTY or _states(states)) and (reports == EMPTY or _reports(reports))
+            and (rejected is EMPTY or _counts(rejected))):
         _diagnose(d, "done", DONE_FIELDS)
     return Done(proc, e, t, sent, stats, rt, fl, wake, {k: Observation.from_wire(o) for k, o in obs.items()},
                 error, rejected, {k: [tuple(x) for x in v] for k, v in ledger.items()}, drift,
                 {k: tuple(v) for k, v in held.items()},
-                {k: tuple(v) for k, v in states.items()})
+                {k: tuple(v) for k, v in states.items()}, {k: tuple(v) for k, v in reports.items()})
 
 
 def _dones(d: dict[str, Any]) -> Dones:

@@ -88,7 +88,7 @@ class Host:
         self.episode = episode
         self.external = set(external) & set(self.by_id)
         # an agent drives the episode, here or elsewhere: its credit needs the ledger, and the observations the
-        # environment re-times need the states broadcast
+        # environment re-times need the states broadcast and the reports held
         self.driven = bool(external)
         for role in self.roles:
             if role.id in self.drivable:
@@ -100,7 +100,7 @@ class Host:
         self.reported: dict[str, tuple] = {}  # what each role's stats were at the last report
         self.coasting: set[str] = set()  # roles whose last report gave a drift (Role.drift)
         self.earliest = math.inf  # the earliest arrival tick of the mail delivered and not yet taken
-        self.held: list[tuple[str, Envelope]] = []  # broadcasts of roles here to roles here that hold them
+        self.held: list[tuple[str, Envelope]] = []  # mail of roles here to roles here that read it later
         for out in self.outboxes.values():
             out.reset()
 
@@ -215,6 +215,7 @@ class Host:
         sent: dict[int, int] = {}
         held: dict[int, tuple[int, int | None]] = {}
         states: dict[int, tuple[int, int]] = {}
+        reports: dict[int, tuple[int, int, list[float] | None]] = {}
         flights: dict[int, dict[int, int]] = {}
         for role in ran:
             out = self.outboxes[role.id]
@@ -225,10 +226,14 @@ class Host:
                     landing = flights.setdefault(role_index[role.id], {})
                     landing[env.arrive] = landing.get(env.arrive, 0) + 1
                 dst = env.dst
-                if dst in self.mail:
-                    self.mail[dst][env.arrive].append(env)
-                else:
+                if dst not in self.mail:
                     batches.setdefault(proc_of[dst], []).append(env)
+                elif self.by_id[dst].reads_later(env):  # it waits for the role's next run (Role.reads_later)
+                    self.held.append((dst, env))
+                    if self.driven and env.kind == Kind.REPORT:
+                        reports[role_index[dst]] = (env.arrive, len(env.body.pending), env.body.busy_until)
+                else:
+                    self.mail[dst][env.arrive].append(env)
             for env in out.broadcasts:
                 for r in self.local_subs.get(env.dst, ()):
                     if r in self.holding:  # they wait for its next run, like those from other processes
@@ -256,10 +261,11 @@ class Host:
                     held[i] = (count + 1, due)
                 else:
                     sent[i] = sent.get(i, 0) + 1
-        return Outgoing(batches, broadcasts, self.report(t, ran, sent, flights, held, states), events)
+        return Outgoing(batches, broadcasts, self.report(t, ran, sent, flights, held, states, reports), events)
 
     def report(self, t: int, ran: list[Role], sent: dict[int, int], flights: dict[int, dict[int, int]],
-               held: dict[int, tuple[int, int | None]], states: dict[int, tuple[int, int]]) -> Done:
+               held: dict[int, tuple[int, int | None]], states: dict[int, tuple[int, int]],
+               reports: dict[int, tuple[int, int, list[float] | None]]) -> Done:
         """The Done of tick t. Its stats hold only the roles whose counters changed since the last
         report (all of them after a reset): the orchestrator keeps the others' last values, moved on
         by their drift while they coast. Roles that did not run this tick cannot have changed but by it."""
@@ -293,4 +299,4 @@ class Host:
             if rid in self.external and role.last is not None and role.last.tick == t:
                 obs[index[rid]] = role.last
         return Done(self.proc, self.episode, t, sent, stats, rts, flights, self.wake(), obs, ledger=ledger,
-                    drift=drift, held=held, states=states)
+                    drift=drift, held=held, states=states, reports=reports)

@@ -77,6 +77,9 @@ class Done:
     # its next run): mail that arrives later, broadcasts to roles that hold them (docs/protocol.md)
     states: dict[int, tuple[int, int]] = field(default_factory=dict)  # worker role index -> the (queue, occupancy)
     # it broadcast this tick; only while an agent drives the episode (the environment's re-timed observations)
+    reports: dict[int, tuple[int, int, list[float] | None]] = field(default_factory=dict)  # controller role index
+    # -> (arrival tick, tasks pending, links' busy-until ticks or None) of a report its worker sent it this tick
+    # that it reads later (``Role.reads_later``); only while an agent drives the episode, as ``states``
 
 
 @dataclass(slots=True)
