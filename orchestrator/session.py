@@ -285,18 +285,14 @@ class Simulation:
         if t % sc.decision_interval:  # controllers observe at decision epochs only
             return {role: obs for role, obs in self.seen.items() if obs.tick == t}
         heard = self.heard
-        return {role: obs if obs.tick == t else observation_at(obs, t, sc, heard, self._report(role, obs, t))
+        return {role: obs if obs.tick == t else observation_at(obs, t, sc, heard, self._report(role, t))
                 for role, obs in self.seen.items()
                 if obs.tick == t or (role in self.retimed and not sc.failure_windows.get(obs.node))}
 
-    def _report(self, role: str, obs: Observation, t: int) -> tuple[int, list[float] | None] | None:
+    def _report(self, role: str, t: int) -> tuple[int, list[float] | None] | None:
         """What the reports ``role`` holds unread at tick ``t`` tell it (tasks pending, and the latest busy-until
-        ticks given), or None: those that arrived by its last observation are in it already."""
-        held = self.reports.get(role)
-        if not held:
-            return None
-        held[:] = [r for r in held if r[0] > obs.tick]
-        arrived = [r for r in held if r[0] <= t]
+        ticks given), or None (``_remember`` keeps only those that arrive after its last observation)."""
+        arrived = [r for r in self.reports.get(role, ()) if r[0] <= t]
         if not arrived:
             return None
         return arrived[-1][1], next((r[2] for r in reversed(arrived) if r[2] is not None), None)
@@ -308,10 +304,13 @@ class Simulation:
         for d in self.last:
             for i, obs in d.obs.items():
                 self.seen[roles[i]] = obs
+                if roles[i] in self.reports:  # those that arrived by this observation are in it
+                    self.reports[roles[i]] = [r for r in self.reports[roles[i]] if r[0] > obs.tick]
             for i, state in d.states.items():
                 self.fresh[role_node(roles[i])] = state
             for i, report in d.reports.items():
-                self.reports.setdefault(roles[i], []).append(report)
+                if roles[i] in self.retimed:  # only their observations are re-timed: nobody else reads these
+                    self.reports.setdefault(roles[i], []).append(report)
 
     def run(self, ticks: int | None = None, seed: int | None = None, policy: str | None = None,
             on_tick: Any = None) -> dict[str, Any]:

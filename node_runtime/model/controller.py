@@ -137,10 +137,10 @@ class Controller(Role):
             self.stale = self.external
 
     def reads_later(self, env: Envelope) -> bool:
-        """A report whose tasks it has all placed already brings nothing to place: it only updates what the
-        controller would observe (how many tasks wait, its links' backlogs), so it can wait like a state."""
-        return (self.holds_broadcasts and env.kind == Kind.REPORT
-                and all(p.id in self.decided for p in env.body.pending))
+        """A state, and a report whose tasks it has all placed already: that brings nothing to place, it only
+        updates what the controller would observe (how many tasks wait, its links' backlogs)."""
+        return super().reads_later(env) or (self.holds_broadcasts and env.kind == Kind.REPORT
+                                             and all(p.id in self.decided for p in env.body.pending))
 
     def heard(self, pending: list[Pending]) -> None:
         """The worker's tasks to place, as reported (or read, co-located)."""

@@ -208,5 +208,6 @@ class Role:
     def reads_later(self, env: Envelope) -> bool:
         """Whether ``env``, mail from a role of the same process, may wait unread until this role next runs:
         its tick at the envelope's arrival, were it not due then, would only record it (docs/protocol.md,
-        "Mail that waits"). The host then does not wake the process for it. By default nothing waits."""
-        return False
+        "Mail that waits"). The host then does not wake the process for it. By default only broadcasts
+        wait (mail to a topic rather than to this role), and only for a role that ``holds_broadcasts``."""
+        return self.holds_broadcasts and env.dst != self.id

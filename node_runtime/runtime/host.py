@@ -62,7 +62,6 @@ class Host:
         # this process's broadcasts at their next run instead of waking for them (``Done.held``)
         self.holders = frozenset(p for p in self.listeners if all(
             role_class(r, plan).holds_broadcasts for r in plan.roles_of[p] if plan.subscriptions[r]))
-        self.holding = frozenset(r.id for r in self.roles if r.holds_broadcasts)  # the same, here
         # Co-located control (control_latency 0; the layout keeps a node's controller with its worker):
         # controllers answer before the other roles run and observe after them (``run``).
         self.colocated: list[tuple[Controller, str]] = []  # (controller, its worker's role id)
@@ -117,8 +116,8 @@ class Host:
                 self.earliest = env.arrive
 
     def take_held(self, t: int) -> None:
-        """Broadcasts held for roles here arrived at ticks the process slept through: they join tick t's mail,
-        still in canonical order (``_tick`` sorts by arrival first), as if each had been read when it arrived."""
+        """Mail held for roles here arrived at ticks the process slept through: it joins tick t's mail, still
+        in canonical order (``_tick`` sorts by arrival first), as if each envelope had been read when it arrived."""
         for box in self.mail.values():
             late = [a for a in box if a < t]
             if late:
@@ -236,7 +235,7 @@ class Host:
                     self.mail[dst][env.arrive].append(env)
             for env in out.broadcasts:
                 for r in self.local_subs.get(env.dst, ()):
-                    if r in self.holding:  # they wait for its next run, like those from other processes
+                    if self.by_id[r].reads_later(env):  # as the listeners elsewhere hold it
                         self.held.append((r, env))
                     else:
                         self.mail[r][env.arrive].append(env)
