@@ -2,7 +2,7 @@
 
 Node processes open ``client`` sessions to the router the orchestrator runs; multicast scouting is
 off and endpoints are explicit. Publications are reliable with blocking congestion control (the
-emulation must never lose a message to back-pressure) and ``express`` (no batching delay).
+emulation must never lose a message to back-pressure); see ``reliable_publisher``.
 Zenoh callbacks only enqueue raw bytes; decoding and handlers run in the ``dispatch`` thread.
 """
 
@@ -66,6 +66,16 @@ def zenoh_config(mode: Mode, listen: list[str] | None = None, connect: list[str]
     for path, value in {**(security.settings() if security else {}), **(settings or {})}.items():
         cfg.insert_json5(path, json.dumps(value))
     return cfg
+
+
+def reliable_publisher(session: zenoh.Session, key: str) -> zenoh.Publisher:
+    """How every protocol message is published: reliable, and blocking rather than dropping under
+    back-pressure. Not ``express``: Zenoh sends at once when the link is idle either way, but a message that
+    queues behind another (a process's batches, then its ``Done``; replies reaching the router together)
+    then shares its write, where express ones take one write each. Measured on aot2 ``per-node``: ×1.08–1.11
+    env steps/s, and the same bare barrier (whose processes send one message a tick)."""
+    return session.declare_publisher(key, congestion_control=zenoh.CongestionControl.BLOCK, express=False,
+                                     reliability=zenoh.Reliability.RELIABLE)
 
 
 def close_session(session: zenoh.Session, grace: float = 5.0) -> None:
@@ -144,9 +154,7 @@ class ZenohTransport(Transport):
     def put_publisher(self, key: str) -> zenoh.Publisher:
         pub = self._pubs.get(key)
         if pub is None:
-            pub = self._pubs[key] = self.session.declare_publisher(
-                key, congestion_control=zenoh.CongestionControl.BLOCK, express=True,
-                reliability=zenoh.Reliability.RELIABLE)
+            pub = self._pubs[key] = reliable_publisher(self.session, key)
         return pub
 
     def wait_matching(self, keys: list[str], timeout: float) -> None:

@@ -23,7 +23,13 @@ from node_runtime.runtime.access import LOCAL_LINK
 from node_runtime.runtime.forkserver import ForkServer
 from node_runtime.runtime.keys import Keys, new_sim_id
 from node_runtime.runtime.process import PR_SET_NAME, _prctl
-from node_runtime.runtime.zenoh_bus import ZenohTransport, close_session, use_lean_runtime, zenoh_config
+from node_runtime.runtime.zenoh_bus import (
+    ZenohTransport,
+    close_session,
+    reliable_publisher,
+    use_lean_runtime,
+    zenoh_config,
+)
 from orchestrator.scenario import load_scenario
 from orchestrator.session import Simulation, open_router
 
@@ -50,8 +56,7 @@ def barrier_peer(endpoint: str, root: str, index: int) -> None:
     session = zenoh.open(zenoh_config("client", connect=[endpoint]))
     ticks: queue.SimpleQueue[bytes] = queue.SimpleQueue()
     sub = session.declare_subscriber(f"{root}/tick", lambda s: ticks.put(s.payload.to_bytes()))
-    pub = session.declare_publisher(f"{root}/done/{index}", congestion_control=zenoh.CongestionControl.BLOCK,
-                                    express=True)
+    pub = reliable_publisher(session, f"{root}/done/{index}")  # as node processes publish
     token = session.liveliness().declare_token(f"{root}/alive/{index}")
     while (t := ticks.get()) != b"stop":
         pub.put(t)
