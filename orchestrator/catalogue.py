@@ -240,6 +240,16 @@ def _shown(out: Out, catalogue: tuple[Metric, ...]) -> tuple[Metric, ...]:
     return tuple(sorted(metrics, key=_in_rows(out)))
 
 
+def shown_as(out: Out) -> tuple[tuple[Metric, str, Form], ...]:
+    """``shown(out)``, each metric with its key and form in ``out``: what every tick's table of ``out`` reads."""
+    return _shown_as(out, CATALOGUE)
+
+
+@cache
+def _shown_as(out: Out, catalogue: tuple[Metric, ...]) -> tuple[tuple[Metric, str, Form], ...]:
+    return tuple((m, m.key(out), m.form(out)) for m in _shown(out, catalogue))
+
+
 def columns(out: Out) -> list[str]:
     """The metric columns of ticks.csv (``Out.TICKS``) or nodes.csv (``Out.NODES``), in order."""
     return [c for m in shown(out) for c in m.columns(out)]

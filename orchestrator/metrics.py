@@ -30,7 +30,7 @@ from node_runtime.model.role import STAT_FIELDS, role_node
 from node_runtime.model.spec import Scenario
 from node_runtime.runtime.layout import ProcessLayout
 from node_runtime.runtime.protocol import Done
-from orchestrator.catalogue import CATALOGUE, CHANGES, METRIC, Agg, Form, Metric, Out, shown
+from orchestrator.catalogue import CATALOGUE, CHANGES, METRIC, Agg, Form, Metric, Out, shown, shown_as
 
 # in_flight: tasks and results a role sent that have not arrived yet; response_time_sum and penalised_s:
 # seconds, for the penalised response time
@@ -114,16 +114,16 @@ def output_values(out: Out, level: np.ndarray, change: np.ndarray, capacity: Any
     gives a SAMPLES metric's value; without it they are left out."""
     counts = change if out in CHANGES else level
     shown_values: dict[str, Any] = {}
-    for m in shown(out):
+    for m, key, form in shown_as(out):
         if m.agg is Agg.SAMPLES:
             if samples is not None:
-                shown_values[m.key(out)] = samples(m)
+                shown_values[key] = samples(m)
         elif m.agg is Agg.SHARE:
-            shown_values[m.key(out)] = share(change[..., counters(m)[0]], capacity).tolist()
+            shown_values[key] = share(change[..., counters(m)[0]], capacity).tolist()
         elif m.agg is Agg.RATIO:
-            shown_values[m.key(out)] = ratio(m, level)
+            shown_values[key] = ratio(m, level)
         else:
-            put(shown_values, m.key(out), m, m.form(out), counts if m.agg is Agg.COUNT else level)
+            put(shown_values, key, m, form, counts if m.agg is Agg.COUNT else level)
     return shown_values
 
 

@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Iterable, Mapping, Sequence
+from itertools import chain
 from types import MappingProxyType
 from typing import TYPE_CHECKING, ClassVar
 
@@ -244,7 +245,8 @@ def heard_at(scenario: Scenario, node: str, t: int) -> int:
 
 def always_fresh(scenario: Scenario, nodes: Iterable[str]) -> bool:
     """With no failures in view and a broadcast every tick, every state heard is exactly one tick old."""
-    return scenario.state_interval == 1 and not any(scenario.failure_windows.get(n) for n in nodes)
+    windows = scenario.failure_windows  # ``nodes`` is read only when some node has failures
+    return scenario.state_interval == 1 and (not windows or windows.keys().isdisjoint(nodes))
 
 
 def backlog(busy: float, t: int, dt: float) -> float:
@@ -264,7 +266,7 @@ def observation_at(obs: Observation, t: int, scenario: Scenario,
     slept through the epoch, rather than wake its process for it."""
     if obs.tasks:
         raise ValueError(f"controller:{obs.node}: an observation with tasks to place is never re-timed")
-    fresh = always_fresh(scenario, [obs.node, *(n.node for n in obs.neighbours)])
+    fresh = always_fresh(scenario, chain((obs.node,), (n.node for n in obs.neighbours)))
     dt = scenario.dt
 
     def at(view: NodeView, queued: float) -> NodeView:  # the same view when nothing changed: most of them
