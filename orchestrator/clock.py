@@ -32,6 +32,8 @@ import math
 from collections.abc import Callable, Collection, Sequence
 from typing import Any
 
+from node_runtime.model.role import role_node, state_topic
+from node_runtime.runtime.host import states_by_clock
 from node_runtime.runtime.keys import Keys
 from node_runtime.runtime.layout import ProcessLayout
 from node_runtime.runtime.protocol import Done, Dones, Tick
@@ -87,6 +89,13 @@ class Clock:
         self.done_keys = {keys.done(p): i for i, p in enumerate(self.procs)}
         self.hosted = [frozenset(plan.role_index[r] for r in plan.roles_of[p]) for p in self.procs]
         self.receivers = [frozenset(plan.proc_index[q] for q in plan.recipients[p]) for p in self.procs]
+        # workers whose states go through the clock -> the processes that listen to them (host.states_by_clock);
+        # the latest state of each, and what each process has yet to read
+        self.state_listeners = self._state_listeners(plan)
+        self.state_roles = frozenset(plan.role_index[r] for r in plan.roles if plan.publications[r])
+        self.last_states: dict[int, tuple[int, int, int, int]] = {}  # worker role index -> (queue, occupancy,
+        # sent, seq)
+        self.unread: list[set[int]] = [set() for _ in self.procs]  # process index -> workers in ``last_states``
         self.rejections = transport.rejections
         self.node_rejections: dict[int, dict[str, int]] = {}  # process index -> what it refused, by reason
         # reports accepted: on their own, in hosts' messages; and how many such messages brought them
@@ -96,6 +105,19 @@ class Clock:
         transport.subscribe(keys.done(), self.on_done)
         if self.host_keys:
             transport.subscribe(keys.dones(), self.on_dones)
+
+    @staticmethod
+    def _state_listeners(plan: ProcessLayout) -> dict[int, tuple[int, ...]]:
+        out = {}
+        for proc in plan.procs:
+            if not states_by_clock(proc, plan):
+                continue
+            for worker in plan.roles_of[proc]:
+                listening = {plan.proc_of[r] for r in plan.subscribers.get(state_topic(role_node(worker)), ())}
+                listening.discard(proc)
+                if listening and plan.publications[worker]:
+                    out[plan.role_index[worker]] = tuple(sorted(plan.proc_index[p] for p in listening))
+        return out
 
     def on_done(self, key: str, done: Done) -> None:
         if type(done) is not Done:
@@ -158,7 +180,8 @@ class Clock:
         if not ((not stats or hosted.issuperset(stats)) and (not flights or hosted.issuperset(flights))
                 and (not times or hosted.issuperset(times)) and (not obs or hosted.issuperset(obs))
                 and (not ledger or hosted.issuperset(ledger)) and (not drift or stats.keys() >= drift.keys())
-                and (not states or hosted.issuperset(states)) and (not reports or hosted.issuperset(reports))
+                and (not states or (hosted.issuperset(states) and self.state_roles.issuperset(states)))
+                and (not reports or hosted.issuperset(reports))
                 and (not sent or self.receivers[i].issuperset(sent))
                 and (not held or self.receivers[i].issuperset(held))):
             return UNKNOWN_SENDER, (f"a report on roles {done.proc} does not host, on mail to processes it "
@@ -194,6 +217,8 @@ class Clock:
         self.dones = {}
         self.held = [0] * len(self.procs)  # what was held in the last episode was dropped with it
         self.held_due = [math.inf] * len(self.procs)
+        self.last_states = {}
+        self.unread = [set() for _ in self.procs]
         self.opened = frozenset(range(len(self.procs)))
         self.transport.publish(self.keys.tick(), Tick(self.episode, 0, "reset", seed=seed,
                                                       external=list(external or ()), policy=policy))
@@ -248,12 +273,20 @@ class Clock:
             self.held_due[i] = math.inf
             if n:
                 counts[i] = n
-        if len(procs) == len(self.procs):  # one publication reaches them all
-            self.transport.publish(self.keys.tick(), Tick(self.episode, t, "run", counts, actions))
+        latest, unread = self.last_states, self.unread
+        if len(procs) == len(self.procs):  # one publication reaches them all, with every state one has yet to read
+            states = {w: latest[w] for i in procs for w in unread[i]}
+            for i in procs:
+                unread[i].clear()
+            self.transport.publish(self.keys.tick(), Tick(self.episode, t, "run", counts, actions, states=states))
             return
         for i in procs:
+            states = {}
+            if unread[i]:
+                states = {w: latest[w] for w in unread[i]}
+                unread[i].clear()
             self.transport.publish(self.tick_keys[i], Tick(
-                self.episode, t, "run", {i: counts[i]} if i in counts else {}, mine.get(i, {})))
+                self.episode, t, "run", {i: counts[i]} if i in counts else {}, mine.get(i, {}), states=states))
 
     def catch_up(self, episode: int) -> None:
         """Another driver ran episodes up to ``episode``: number ours after them."""
@@ -279,8 +312,15 @@ class Clock:
         dones = [self.dones[self.procs[i]] for i in opened]
         expect: dict[int, int] = {}
         held, held_due = self.held, self.held_due
+        listeners, latest, unread = self.state_listeners, self.last_states, self.unread
         for i, d in zip(opened, dones, strict=True):
             self.wake[i] = d.wake
+            for w, (queue, occupancy, seq) in d.states.items():
+                readers = listeners.get(w)
+                if readers:  # its listeners read it when they next run (Tick.states)
+                    latest[w] = (queue, occupancy, d.tick, seq)
+                    for p in readers:
+                        unread[p].add(w)
             for p, count in d.sent.items():
                 expect[p] = expect.get(p, 0) + count
             for p, (count, due) in d.held.items():

@@ -306,8 +306,8 @@ class Simulation:
                 self.seen[roles[i]] = obs
                 if roles[i] in self.reports:  # those that arrived by this observation are in it
                     self.reports[roles[i]] = [r for r in self.reports[roles[i]] if r[0] > obs.tick]
-            for i, state in d.states.items():
-                self.fresh[role_node(roles[i])] = state
+            for i, (queue, occupancy, _) in d.states.items():
+                self.fresh[role_node(roles[i])] = (queue, occupancy)
             for i, report in d.reports.items():
                 if roles[i] in self.retimed:  # only their observations are re-timed: nobody else reads these
                     self.reports.setdefault(roles[i], []).append(report)

@@ -42,7 +42,8 @@ def test_a_result_must_impose_a_finite_delay_of_at_least_zero(imposed):
 
 
 def test_tick_and_done_roundtrip():
-    tick = Tick(2, 17, "run", {0: 2}, {"controller:a": 1, "controller:b": [0, 2]}, 0, [], None)
+    tick = Tick(2, 17, "run", {0: 2}, {"controller:a": 1, "controller:b": [0, 2]}, 0, [], None,
+                {4: (2, 3, 16, 9), 7: (0, 1, 12, 3)})
     assert codec.decode(codec.encode(tick)) == tick
     obs = Observation(5, "a", NodeView("a", 1, 2, 3, 4e6, 0, 0.0, 1, True), 2,
                       [TaskView(7, 8e7, 1.0, 2.0, 1.0, 100.0, 95.0, 2, "a")],
@@ -50,7 +51,7 @@ def test_tick_and_done_roundtrip():
     stats = [1, 0, 0, 0, 0, 0, 0, 0, 0, 0, 2.5, 0.0, 0.0, 0.0, 0.0, 1, 0, 0]
     done = Done("node-a", 2, 17, {1: 1}, {0: stats}, {1: [7.0]}, {0: {19: 2, 21: 1}}, 18, {2: obs},
                 ledger={1: [(7, 0, 7.0), (9, 2, 0.25)], 0: [(12, 1, 0.0)]}, drift={0: [0.0] * 10 + [4e6] + [0.0] * 7},
-                held={3: (1, None), 4: (2, 21)}, states={0: (2, 3)},
+                held={3: (1, None), 4: (2, 21)}, states={0: (2, 3, 11)},
                 reports={2: (18, 1, [19.0, 0.0]), 5: (18, 0, None)})
     assert codec.decode(codec.encode(done)) == done
 
@@ -58,8 +59,8 @@ def test_tick_and_done_roundtrip():
 @pytest.mark.parametrize(("field", "value"), [("hd", {3: [0, None]}), ("hd", {3: [-1, None]}), ("hd", {3: [1.0, 5]}),
                                               ("hd", {"3": [1, None]}), ("hd", {3: 1}), ("hd", {3: [1, 2.5]}),
                                               ("hd", {3: [1, None, 2]}),
-                                              ("st", {0: [1, -1]}), ("st", {0: [1]}), ("st", {0: [1, 2, 3]}),
-                                              ("st", {0: [1.5, 2]}), ("st", {"0": [1, 2]}),
+                                              ("st", {0: [1, -1, 2]}), ("st", {0: [1]}), ("st", {0: [1, 2, 3, 4]}),
+                                              ("st", {0: [1.5, 2, 3]}), ("st", {"0": [1, 2, 3]}),
                                               ("rp", {2: [18, -1, None]}), ("rp", {2: [18.0, 1, None]}),
                                               ("rp", {2: [18, 1, [-1.0]]}), ("rp", {2: [18, 1, [float("nan")]]}),
                                               ("rp", {2: [18, 1, ["1"]]}), ("rp", {2: [18, 1]}),
@@ -67,9 +68,19 @@ def test_tick_and_done_roundtrip():
 def test_held_counts_states_and_reports_are_of_their_shape(field, value):
     """Held counts are added to a process's next tick, states and reports to the agents' observations: a
     forged negative, fractional, infinite or misshapen one must reach neither."""
-    wire = codec.to_wire(Done("node-a", 2, 17, {}, {}, held={3: (1, 19)}, states={0: (2, 3)}))
+    wire = codec.to_wire(Done("node-a", 2, 17, {}, {}, held={3: (1, 19)}, states={0: (2, 3, 4)}))
     wire[field] = value
     with pytest.raises(codec.CodecError, match=f"field '{field}'"):
+        codec.decode(msgpack.packb({**wire, "v": SCHEMA_VERSION}))
+
+
+@pytest.mark.parametrize("value", [{4: [2, 3, 16]}, {4: [2, -3, 16, 9]}, {4: [2, 3, 16.5, 9]}, {"4": [2, 3, 16, 9]},
+                                   {4: [2, 3, 16, None]}, [[2, 3, 16, 9]]])
+def test_states_with_a_tick_are_of_their_shape(value):
+    """A tick hands a process the states it holds (``Tick.states``): a misshapen one never becomes its mail."""
+    wire = codec.to_wire(Tick(2, 17, states={4: (2, 3, 16, 9)}))
+    wire["st"] = value
+    with pytest.raises(codec.CodecError, match="field 'st'"):
         codec.decode(msgpack.packb({**wire, "v": SCHEMA_VERSION}))
 
 

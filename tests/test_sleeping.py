@@ -133,11 +133,11 @@ class ServesLikeAnyWorker(Worker):
         super().serve(t, out)
 
 
-def with_class(sc: Scenario, kind: str, cls: type) -> Scenario:
-    """``sc`` with every role of ``kind`` of this module's class ``cls``."""
+def with_class(sc: Scenario, kind: str, cls: type, nodes: set[str] | None = None) -> Scenario:
+    """``sc`` with every role of ``kind`` (on ``nodes``, or all) of this module's class ``cls``."""
     data = sc.to_dict()
     for node in data["nodes"]:
-        if kind in node["roles"]:
+        if kind in node["roles"] and (nodes is None or node["id"] in nodes):
             node["impls"] = [*node["impls"], [kind, f"tests.test_sleeping:{cls.__name__}"]]
     return Scenario.from_dict(data)
 
@@ -329,21 +329,25 @@ def agrees_with_one_process(scenario: Scenario, layout: str) -> None:
 @pytest.mark.zenoh
 @pytest.mark.parametrize(("name", "limit"), [("aot2", HOLD_LIMIT), ("tricky", HOLD_LIMIT), ("tricky", 2)])
 def test_zenoh_agrees_with_mail_that_waits(tmp_path, monkeypatch, name, limit):
-    """Over Zenoh, a process per node: mail held until it is due (tasks on their links, states a sleeping
-    controller holds, a wake once ``limit`` publications wait) gives the episode of one process, where no mail
-    crosses processes at all: the same observations, rewards and infos at every step."""
+    """Over Zenoh, a process per node: mail held until it is due (tasks on their links, a wake once ``limit``
+    publications wait) and states a sleeping controller reads at its next run (they come with its tick) give the
+    episode of one process, where no mail crosses processes at all: the same observations, rewards and infos at
+    every step."""
     monkeypatch.setattr(clock_module, "HOLD_LIMIT", limit)
-    held = []
+    held, handed_over = [], []
     collect = clock_module.Clock._collect
 
     def counted(self, opened):
         dones = collect(self, opened)
         held.extend(count for d in dones for count, _ in d.held.values())
+        handed_over.extend(w for d in dones for w in d.states if w in self.state_listeners)
         return dones
 
     monkeypatch.setattr(clock_module.Clock, "_collect", counted)
     agrees_with_one_process(driven_scenarios(tmp_path)[name], "per-node")
-    assert sum(held) > 0  # mail did wait
+    assert handed_over  # states went through the clock
+    if name == "aot2":
+        assert sum(held) > 0  # and mail on its links waited
 
 
 @pytest.mark.parametrize("limit", [HOLD_LIMIT, 2])
@@ -404,3 +408,37 @@ def test_a_controller_reads_later_only_a_report_that_brings_nothing_to_place(tmp
     eager = HearsEveryState(scenario.node["a"], scenario)
     eager.decided.add(7)
     assert not eager.reads_later(report)
+
+
+def test_states_go_with_the_ticks_only_from_processes_whose_every_listener_holds_them(tmp_path):
+    """One node's controller reads every state as it arrives: its neighbours' states reach it as mail (and, in the
+    same batch, every other listener of theirs), the others' go with the ticks. The tables are those of a run in
+    which every controller reads every state as mail."""
+    aot2 = load_scenario("aot2")
+    mixed = with_class(aot2, "controller", HearsEveryState, {"rpi3_0"})
+    with Simulation(mixed, layout="per-node") as sim:
+        by_clock = {sim.plan.roles[w] for w in sim.clock.state_listeners}
+    neighbours = {f"worker:{n}" for n in aot2.neighbours["rpi3_0"]}
+    workers = {r for r in sim.plan.roles if r.startswith("worker:")}
+    assert by_clock and neighbours.isdisjoint(by_clock) and by_clock | neighbours == workers
+    every = outputs(tmp_path, hearing_every_state(aot2), "every", ticks=300, seed=3, policy="random",
+                    layout="per-node")
+    assert outputs(tmp_path, mixed, "mixed", ticks=300, seed=3, policy="random", layout="per-node")[1:] == every[1:]
+
+
+def test_a_state_handed_over_twice_is_read_once(aot2):
+    """A tick for every process carries each state any of them has yet to read: one already taken is skipped."""
+    from node_runtime.runtime.host import Host
+    from node_runtime.runtime.layout import ProcessLayout
+
+    plan = ProcessLayout(aot2, "per-node")
+    host = Host("node-server_0", plan)
+    w = plan.role_index["worker:rpi3_0"]
+    host.take_states({w: (1, 2, 4, 7)})
+    host.take_states({w: (1, 2, 4, 7), plan.role_index["worker:server_0"]: (0, 0, 4, 3)})  # its own: read as mail
+    (env,) = host.mail["controller:server_0"][5]
+    assert (env.kind, env.src, env.dst, env.seq, env.sent, env.arrive) == (Kind.STATE, "worker:rpi3_0",
+                                                                           "state/rpi3_0", 7, 4, 5)
+    assert (env.body.node, env.body.queue, env.body.occupancy) == ("rpi3_0", 1, 2)
+    host.take_states({w: (3, 3, 6, 9)})
+    assert [e.body.queue for e in host.mail["controller:server_0"][7]] == [3]

@@ -13,6 +13,7 @@ message may be trusted (its sender, its tick) is for the handlers to decide.
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from typing import Any, NoReturn
 
 import msgpack
@@ -97,11 +98,16 @@ def _held(m: Any) -> bool:
         for v in m.values())))
 
 
-def _states(m: Any) -> bool:
-    """Worker role index -> [queue, occupancy]: counts of tasks, never negative."""
-    return type(m) is dict and (not m or (all(map(_is_int, m)) and all(
-        type(v) is list and len(v) == 2 and _is_int(v[0]) and _is_int(v[1]) and v[0] >= 0 and v[1] >= 0
-        for v in m.values())))
+def _counts_of(n: int) -> Callable[[Any], bool]:
+    """Role index -> [n non-negative ints]."""
+    def ok(m: Any) -> bool:
+        return type(m) is dict and (not m or (all(map(_is_int, m)) and all(
+            type(v) is list and len(v) == n and all(map(_is_int, v)) and min(v) >= 0 for v in m.values())))
+    return ok
+
+
+_states = _counts_of(3)  # Done: worker role index -> [queue, occupancy, seq]
+_tick_states = _counts_of(4)  # Tick: worker role index -> [queue, occupancy, tick sent, seq]
 
 
 def _report(v: Any) -> bool:
@@ -167,7 +173,8 @@ def _maybe_str(x: Any) -> bool:
 
 COMMANDS = ("run", "reset", "stop")
 TICK_FIELDS = (("e", _is_int), ("t", _is_int), ("cmd", COMMANDS.__contains__), ("expect", _int_map),
-               ("actions", _actions), ("seed", _is_int), ("external", _str_list), ("policy", _maybe_str))
+               ("actions", _actions), ("seed", _is_int), ("external", _str_list), ("policy", _maybe_str),
+               ("st", _tick_states))
 DONE_FIELDS = (("proc", _is_str), ("e", _is_int), ("t", _is_int), ("sent", _int_map), ("stats", _stats),
                ("rt", _times), ("fl", _flights), ("wake", _maybe_int), ("obs", _observations), ("error", _maybe_str),
                ("led", _ledger), ("dr", _drift), ("hd", _held), ("st", _states),
@@ -255,7 +262,8 @@ def to_wire(msg: Any) -> dict[str, Any]:
                 "msgs": [_envelope(e) for e in msg.envelopes]}
     if isinstance(msg, Tick):
         return {"type": "tick", "e": msg.episode, "t": msg.tick, "cmd": msg.command, "expect": msg.expect,
-                "actions": msg.actions, "seed": msg.seed, "external": msg.external, "policy": msg.policy}
+                "actions": msg.actions, "seed": msg.seed, "external": msg.external, "policy": msg.policy,
+                "st": msg.states}
     if isinstance(msg, Done):
         return _done_wire(msg)
     if isinstance(msg, Dones):
@@ -338,12 +346,14 @@ def _batch(d: dict[str, Any]) -> Batch:
 
 def _tick(d: dict[str, Any]) -> Tick:
     e, t, cmd, expect, actions = d["e"], d["t"], d["cmd"], d["expect"], d["actions"]
-    seed, external, policy = d["seed"], d["external"], d["policy"]
+    seed, external, policy, states = d["seed"], d["external"], d["policy"], d["st"]
     if not (isinstance(e, int) and isinstance(t, int) and cmd in COMMANDS and (expect == EMPTY or _int_map(expect))
             and (actions == EMPTY or _actions(actions)) and isinstance(seed, int)
-            and (external == NONE or _str_list(external)) and (policy is None or isinstance(policy, str))):
+            and (external == NONE or _str_list(external)) and (policy is None or isinstance(policy, str))
+            and (states == EMPTY or _tick_states(states))):
         _diagnose(d, "tick", TICK_FIELDS)
-    return Tick(e, t, cmd, expect, actions, seed, external, policy)
+    return Tick(e, t, cmd, expect, actions, seed, external, policy,
+                {k: tuple(v) for k, v in states.items()} if states else {})
 
 
 def encode(msg: Any) -> bytes:

@@ -53,6 +53,7 @@ class HostDriver:
         self.hosted = frozenset(host.by_id)
         self.proc_of = plan.proc_of
         self.publications = plan.publications  # role -> the topics it broadcasts on
+        self.n_roles = len(plan.roles)
         # one detector per node covers every event kind, users' own included; publishers come lazily
         self.listeners = [transport.monitored(keys.events("*", node)) for node in host.nodes]
         self.monitors: dict[tuple[str, str], Monitored] = {}
@@ -84,10 +85,13 @@ class HostDriver:
         """Why the clock cannot have sent this tick to this process, or None. It opens a tick for a
         process only with mail announced, actions for its roles, or work due; it never skips work due."""
         if cmd.command == "reset":  # episode numbers only grow, whoever drives the clock
-            if cmd.episode > self.episode:
+            if cmd.episode > self.episode and not cmd.states:
                 return None
             return f"a reset to episode {cmd.episode}; this process is in episode {self.episode}"
-        t, wake = cmd.tick, self.wake
+        t, wake, host = cmd.tick, self.wake, self.host
+        for w, (_, _, sent, _) in cmd.states.items():  # workers heard here whose states come as mail are not in it
+            if w >= self.n_roles or sent >= t or (w in host.states_heard and w not in host.states_from_clock):
+                return f"tick {t} with a state of role {w} sent in tick {sent}, which cannot come with this tick"
         if cmd.episode != self.episode or t <= self.tick:
             return f"tick {t} of episode {cmd.episode}; this process ran tick {self.tick} of episode {self.episode}"
         if self.pending is not None:
@@ -160,6 +164,8 @@ class HostDriver:
         for key in due:
             for batch in self.buffer.pop(key).values():
                 self.host.deliver(batch.envelopes)
+        if cmd.states:
+            self.host.take_states(cmd.states)
         self.run(cmd)
 
     def fail(self, t: int, why: str) -> None:

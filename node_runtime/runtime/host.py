@@ -14,9 +14,9 @@ from collections import defaultdict
 from dataclasses import dataclass
 
 from node_runtime.model.controller import Action, Controller
-from node_runtime.model.messages import Envelope, Kind
+from node_runtime.model.messages import Envelope, Kind, NodeState
 from node_runtime.model.plugins import load
-from node_runtime.model.role import COMPLETED, Outbox, Role, read_stats, role_id, role_node
+from node_runtime.model.role import COMPLETED, Outbox, Role, read_stats, role_id, role_node, state_topic
 from node_runtime.model.view import Observation
 from node_runtime.runtime.layout import ProcessLayout
 from node_runtime.runtime.protocol import Done
@@ -45,6 +45,22 @@ def make_role(role: str, plan: ProcessLayout) -> Role:
     return role_class(role, plan)(plan.scenario.node[role_node(role)], plan.scenario)
 
 
+def holders(proc: str, plan: ProcessLayout) -> frozenset[str]:
+    """The processes listening to ``proc``'s broadcasts whose every subscribing role holds them
+    (``Role.holds_broadcasts``): they read them at their next run, rather than wake for them."""
+    return frozenset(p for p in plan.listeners[proc] if all(
+        role_class(r, plan).holds_broadcasts for r in plan.roles_of[p] if plan.subscriptions[r]))
+
+
+def states_by_clock(proc: str, plan: ProcessLayout) -> bool:
+    """Whether the states ``proc``'s workers broadcast reach the other processes through the clock rather than
+    as mail: when every process that listens holds them. Only the latest state of a node matters to a role that
+    holds broadcasts (it overwrites what it knew), so the clock keeps that and hands it over in the listener's
+    next tick (``Tick.states``, docs/protocol.md "Mail that waits"); no publication wakes or waits for it."""
+    listeners = plan.listeners[proc]
+    return bool(listeners) and holders(proc, plan) == frozenset(listeners)
+
+
 class Host:
     def __init__(self, proc: str, plan: ProcessLayout) -> None:
         self.proc = proc
@@ -58,10 +74,15 @@ class Host:
         self.heard_elsewhere = {topic for r in self.roles for topic in plan.publications[r.id]
                                 if any(plan.proc_of[s] != proc for s in plan.subscribers.get(topic, ()))}
         self.listeners = plan.listeners[proc]
-        # the listeners whose every subscribing role holds broadcasts (``Role.holds_broadcasts``): they take
-        # this process's broadcasts at their next run instead of waking for them (``Done.held``)
-        self.holders = frozenset(p for p in self.listeners if all(
-            role_class(r, plan).holds_broadcasts for r in plan.roles_of[p] if plan.subscriptions[r]))
+        # the listeners that take this process's broadcasts at their next run instead of waking for them
+        # (``Done.held``); when they all do, its workers' states reach them through the clock instead
+        self.holders = holders(proc, plan)
+        self.states_by_clock = states_by_clock(proc, plan)
+        # the workers elsewhere whose states roles here hear, and those of them whose states come with the ticks
+        heard = [w for p in plan.broadcasters[proc] for w in plan.roles_of[p]
+                 if plan.publications[w] and self.local_subs.get(state_topic(role_node(w)))]
+        self.states_heard = frozenset(plan.role_index[w] for w in heard)
+        self.states_from_clock = frozenset(plan.role_index[w] for w in heard if states_by_clock(plan.proc_of[w], plan))
         # Co-located control (control_latency 0; the layout keeps a node's controller with its worker):
         # controllers answer before the other roles run and observe after them (``run``).
         self.colocated: list[tuple[Controller, str]] = []  # (controller, its worker's role id)
@@ -98,6 +119,8 @@ class Host:
         self.due: dict[str, float] = dict.fromkeys(self.by_id, 0)  # the next tick each role must run
         self.reported: dict[str, tuple] = {}  # what each role's stats were at the last report
         self.coasting: set[str] = set()  # roles whose last report gave a drift (Role.drift)
+        self.states_taken: dict[int, tuple[int, int]] = {}  # worker role index -> (sent, seq) of the last state
+        # the clock handed over (``take_states``)
         self.earliest = math.inf  # the earliest arrival tick of the mail delivered and not yet taken
         self.held: list[tuple[str, Envelope]] = []  # mail of roles here to roles here that read it later
         for out in self.outboxes.values():
@@ -114,6 +137,25 @@ class Host:
                 mail[env.dst][env.arrive].append(env)
             if env.arrive < self.earliest:
                 self.earliest = env.arrive
+
+    def take_states(self, states: dict[int, tuple[int, int, int, int]]) -> None:
+        """States broadcast to the roles here that the clock kept for them (``Tick.states``: worker role index ->
+        queue, occupancy, tick sent, seq): delivered as the broadcasts they stand for, at the tick after they were
+        sent. Only the latest of each worker's comes, which is all a role that holds broadcasts reads."""
+        roles, taken, mail = self.plan.roles, self.states_taken, self.mail
+        for w, (queue, occupancy, sent, seq) in states.items():
+            # a tick for every process carries the states any of them has yet to read: those not heard here, and
+            # those already taken, are skipped
+            if w not in self.states_from_clock or taken.get(w, (-1, -1)) >= (sent, seq):
+                continue
+            taken[w] = (sent, seq)
+            worker = roles[w]
+            node = role_node(worker)
+            topic = state_topic(node)
+            env = Envelope(Kind.STATE, worker, topic, seq, sent, sent + 1, NodeState(node, queue, occupancy))
+            for r in self.local_subs[topic]:
+                mail[r][sent + 1].append(env)
+            self.earliest = min(self.earliest, sent + 1)
 
     def take_held(self, t: int) -> None:
         """Mail held for roles here arrived at ticks the process slept through: it joins tick t's mail, still
@@ -213,7 +255,7 @@ class Host:
         broadcasts: list[Envelope] = []
         sent: dict[int, int] = {}
         held: dict[int, tuple[int, int | None]] = {}
-        states: dict[int, tuple[int, int]] = {}
+        states: dict[int, tuple[int, int, int]] = {}
         reports: dict[int, tuple[int, int, list[float] | None]] = {}
         flights: dict[int, dict[int, int]] = {}
         for role in ran:
@@ -239,10 +281,11 @@ class Host:
                         self.held.append((r, env))
                     else:
                         self.mail[r][env.arrive].append(env)
-                if env.dst in self.heard_elsewhere:
+                by_clock = env.kind == Kind.STATE and self.states_by_clock
+                if env.dst in self.heard_elsewhere and not by_clock:
                     broadcasts.append(env)
-                if self.driven and env.kind == Kind.STATE:
-                    states[role_index[role.id]] = (env.body.queue, env.body.occupancy)
+                if env.kind == Kind.STATE and (by_clock or self.driven):
+                    states[role_index[role.id]] = (env.body.queue, env.body.occupancy, env.seq)
             out.envelopes.clear()
             out.broadcasts.clear()
         index = self.plan.proc_index
@@ -263,7 +306,7 @@ class Host:
         return Outgoing(batches, broadcasts, self.report(t, ran, sent, flights, held, states, reports), events)
 
     def report(self, t: int, ran: list[Role], sent: dict[int, int], flights: dict[int, dict[int, int]],
-               held: dict[int, tuple[int, int | None]], states: dict[int, tuple[int, int]],
+               held: dict[int, tuple[int, int | None]], states: dict[int, tuple[int, int, int]],
                reports: dict[int, tuple[int, int, list[float] | None]]) -> Done:
         """The Done of tick t. Its stats hold only the roles whose counters changed since the last
         report (all of them after a reset): the orchestrator keeps the others' last values, moved on
