@@ -56,7 +56,8 @@ def states_by_clock(proc: str, plan: ProcessLayout) -> bool:
     """Whether the states ``proc``'s workers broadcast reach the other processes through the clock rather than
     as mail: when every process that listens holds them. Only the latest state of a node matters to a role that
     holds broadcasts (it overwrites what it knew), so the clock keeps that and hands it over in the listener's
-    next tick (``Tick.states``, docs/protocol.md "Mail that waits"); no publication wakes or waits for it."""
+    next tick (``Tick.states``; docs/protocol.md, "States that go with the ticks"): no publication wakes or waits
+    for it."""
     listeners = plan.listeners[proc]
     return bool(listeners) and holders(proc, plan) == frozenset(listeners)
 
@@ -281,10 +282,12 @@ class Host:
                         self.held.append((r, env))
                     else:
                         self.mail[r][env.arrive].append(env)
-                by_clock = env.kind == Kind.STATE and self.states_by_clock
-                if env.dst in self.heard_elsewhere and not by_clock:
+                state = env.kind == Kind.STATE
+                by_clock = state and self.states_by_clock  # the listeners elsewhere get it with their ticks
+                elsewhere = env.dst in self.heard_elsewhere
+                if elsewhere and not by_clock:
                     broadcasts.append(env)
-                if env.kind == Kind.STATE and (by_clock or self.driven):
+                if state and ((by_clock and elsewhere) or self.driven):  # for the clock; for re-timed observations
                     states[role_index[role.id]] = (env.body.queue, env.body.occupancy, env.seq)
             out.envelopes.clear()
             out.broadcasts.clear()
