@@ -299,13 +299,16 @@ class Simulation:
 
     def _remember(self) -> None:
         roles = self.plan.roles
-        self.heard.update(self.fresh)  # broadcasts arrive one tick after they leave
-        self.fresh = {}
         for d in self.last:
             for i, obs in d.obs.items():
                 self.seen[roles[i]] = obs
                 if roles[i] in self.reports:  # those that arrived by this observation are in it
                     self.reports[roles[i]] = [r for r in self.reports[roles[i]] if r[0] > obs.tick]
+        if not self.retimed:  # the states and reports below serve re-timed observations only
+            return
+        self.heard.update(self.fresh)  # broadcasts arrive one tick after they leave
+        self.fresh = {}
+        for d in self.last:
             for i, (queue, occupancy, _) in d.states.items():
                 self.fresh[role_node(roles[i])] = (queue, occupancy)
             for i, report in d.reports.items():

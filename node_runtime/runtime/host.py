@@ -80,10 +80,11 @@ class Host:
         self.holders = holders(proc, plan)
         self.states_by_clock = states_by_clock(proc, plan)
         # the workers elsewhere whose states roles here hear, and those of them whose states come with the ticks
-        heard = [w for p in plan.broadcasters[proc] for w in plan.roles_of[p]
+        by_clock = {p: states_by_clock(p, plan) for p in plan.broadcasters[proc]}
+        heard = [w for p in by_clock for w in plan.roles_of[p]
                  if plan.publications[w] and self.local_subs.get(state_topic(role_node(w)))]
         self.states_heard = frozenset(plan.role_index[w] for w in heard)
-        self.states_from_clock = frozenset(plan.role_index[w] for w in heard if states_by_clock(plan.proc_of[w], plan))
+        self.states_from_clock = frozenset(plan.role_index[w] for w in heard if by_clock[plan.proc_of[w]])
         # Co-located control (control_latency 0; the layout keeps a node's controller with its worker):
         # controllers answer before the other roles run and observe after them (``run``).
         self.colocated: list[tuple[Controller, str]] = []  # (controller, its worker's role id)
