@@ -42,11 +42,11 @@ from env.reward import (
     terms_for,
 )
 from node_runtime.model.plugins import load
+from node_runtime.model.rng import MAX_SEED
 from node_runtime.model.role import role_id
 from node_runtime.model.spec import Scenario
 from node_runtime.model.view import Observation
 from node_runtime.runtime.layout import Layout, check_layout
-from node_runtime.runtime.protocol import MAX_SEED
 from orchestrator.catalogue import Out
 from orchestrator.metrics import output_values, penalty_s
 from orchestrator.scenario import load_scenario
@@ -154,7 +154,7 @@ class ZenohEdgeEnv(ParallelEnv):
         self.penalty = penalty_s(sc)  # what the headline score charges a task that does not complete
         self.price = float(congestion_price)
         self.credit = TaskCredit(self.penalty, self.price)  # infos[agent]["credits"]
-        self.max_steps = max_steps or sc.episode_ticks // sc.decision_interval
+        self.max_steps = max_steps or sc.steps
         self.render_mode = render_mode
         self.connect = connect
         self.sim_id = sim_id

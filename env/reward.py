@@ -110,8 +110,7 @@ def reference_terms(obs: Observation, task: TaskView, action: int, dt: float, ar
 def nominal_arrivals(sc: Scenario) -> dict[str, float]:
     """Tasks per second each worker receives from clients on average: a client's mean rate (its own
     constant, the schedule's mean, or its trace rows over the episode), split evenly over its targets."""
-    a = sc.workload.arrival
-    mean = {"constant": a.rate, "linear": (a.start + a.end) / 2}.get(a.kind, (a.low + a.high) / 2)
+    mean = sc.workload.arrival.mean
     fixed = dict(sc.workload.client_rates)
     rows: dict[str, int] = {}
     for row in sc.workload.trace or ():

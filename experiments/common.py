@@ -17,7 +17,7 @@ import torch
 from agents import LEARNERS, LearnerConfig
 from env import ScenarioOverrides, ZenohEdgeEnv
 from env.reward import CONGESTION_PRICE, REWARDS
-from node_runtime.runtime.protocol import MAX_SEED
+from node_runtime.model.rng import MAX_SEED
 from orchestrator.scenario.errors import ScenarioError
 
 

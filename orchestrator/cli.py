@@ -29,10 +29,10 @@ from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, T
 from rich.table import Table
 
 from node_runtime.model.policies import POLICIES
+from node_runtime.model.rng import MAX_SEED
 from node_runtime.runtime import access, cli_options
 from node_runtime.runtime.keys import new_sim_id
 from node_runtime.runtime.layout import LAYOUT_HELP, ProcessLayout
-from node_runtime.runtime.protocol import MAX_SEED
 from node_runtime.runtime.security import SecurityError
 from orchestrator import local_sims
 from orchestrator.arguments import COUNT, NON_NEGATIVE, POLICY, POSITIVE, integer, layout_name
@@ -73,7 +73,7 @@ def _on_sigterm(signum: int, frame: Any) -> None:
 
 def cmd_launch(args: argparse.Namespace) -> int:
     scenario = load_scenario(args.scenario)
-    ticks = (args.steps or scenario.episode_ticks // scenario.decision_interval) * scenario.decision_interval
+    ticks = (args.steps or scenario.steps) * scenario.decision_interval
     out = Path(args.out) if args.out else Path("runs") / f"{scenario.name}-{dt.datetime.now():%Y%m%d-%H%M%S}"
     if args.serve and args.transport != "zenoh":
         raise UsageError("--serve needs --transport zenoh: other processes reach the simulation over Zenoh")
