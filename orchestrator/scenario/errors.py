@@ -18,7 +18,7 @@ class ScenarioError(ValueError):
         self.errors = errors
 
 
-def where(err: dict[str, Any]) -> str:
+def error_path(err: dict[str, Any]) -> str:
     """The key path of a validation error: an arrival's unknown ``kind`` is named as that key."""
     loc = err["loc"]
     if err["type"] == KIND_ERROR and isinstance(err.get("input"), dict):

@@ -23,7 +23,7 @@ from node_runtime.model.radio import free_space_loss_db, log_distance_gain_db, s
 from node_runtime.model.registry import ROLE_KINDS
 from node_runtime.model.role import Role
 from node_runtime.model.spec import LinkSpec, NodeSpec, Scenario, TaskType, TraceRow, Workload
-from orchestrator.scenario.errors import ScenarioError, describe, key_path, where
+from orchestrator.scenario.errors import ScenarioError, describe, error_path, key_path
 from orchestrator.scenario.schema import (
     BUILTIN_PROFILES,
     NODE_DEFAULTS,
@@ -52,7 +52,7 @@ def resolve(data: dict[str, Any], base: Path, default_name: str, label: str,
     try:
         cfg = model.model_validate(data)
     except ValidationError as exc:
-        raise ScenarioError([f"{label}: {where(e)}: {describe(e, model)}"
+        raise ScenarioError([f"{label}: {error_path(e)}: {describe(e, model)}"
                              for e in exc.errors()]) from None
     return _Resolver(cfg, base, label, also).scenario(cfg.name or default_name)
 
