@@ -5,7 +5,7 @@
     train(env, ddqn, episodes=50); evaluate(env, ddqn, episodes=10)
 
 The package only uses the PettingZoo API and the observation conventions (docs/agents.md), with the
-column names of ``env.observations``.
+column names of ``env.observations``; its baselines run the model's policies (``node_runtime.model.policies``).
 """
 
 from __future__ import annotations
