@@ -97,7 +97,7 @@ def test_python_block_compiles(block):
 
 
 RUN = [b for b in of("python") if b.marker != "no-run"]
-# Runs a page's blocks one after the other, each in a namespace of its own, and names the first that fails.
+# Runs the blocks one after the other, each in a namespace of its own, and names the first that fails.
 DRIVER = """
 import json, sys, traceback
 for label, code in json.load(sys.stdin):
@@ -120,11 +120,11 @@ def runnable(block: Block) -> str:
     return code
 
 
-@pytest.mark.parametrize("page", sorted({b.page for b in RUN}), ids=lambda p: str(p.relative_to(ROOT)))
-def test_python_blocks_run(page, tmp_path):
-    """In a fresh interpreter (a block may register a role kind or start processes), from a scratch directory
-    (blocks write runs/...), with examples/ importable as the pages say."""
-    todo = [(str(b), runnable(b)) for b in RUN if b.page == page]
+def test_python_blocks_run(tmp_path):
+    """In a fresh interpreter (a block may register a role kind or start processes), one for all blocks so that
+    torch is imported once, from a scratch directory (blocks write runs/...), with examples/ importable as the
+    pages say."""
+    todo = [(str(b), runnable(b)) for b in RUN]
     env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(ROOT), str(ROOT / "examples")])}
     done = subprocess.run([sys.executable, "-c", DRIVER], input=json.dumps(todo), cwd=tmp_path, env=env,
                           capture_output=True, text=True, timeout=240)
