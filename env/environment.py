@@ -95,8 +95,9 @@ class ZenohEdgeEnv(ParallelEnv):
             ``infos[agent]["invalid_action"]`` says so) or "raise" (``InvalidActionError``, for debugging).
             Penalise it with ``env.wrappers.InvalidActionPenalty``.
         render_mode: None, "ansi", "rgb_array" or "human".
-        connect, sim_id: attach to a simulation served by ``orchestrator launch --serve`` instead of
-            starting one (give the endpoint it printed, e.g. "tcp/10.0.0.5:7447", and its id).
+        connect: attach to a simulation served by ``orchestrator launch --serve`` instead of starting one:
+            the endpoint it printed, e.g. "tcp/10.0.0.5:7447".
+        sim_id: with ``connect``, the id of the simulation to attach to.
         security: with ``connect`` to a router that requires TLS and logins (``launch --security``), the
             directory of the ``driver`` identity written by deploy/make-certs.sh (deploy/README.md).
         congestion_price: the price c that the ``marginal`` reward and the credits per task charge for a

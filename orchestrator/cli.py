@@ -41,6 +41,7 @@ from orchestrator.metrics import ConservationError, TickReport
 from orchestrator.placement import load_placement
 from orchestrator.scenario import ScenarioError, load_scenario
 from orchestrator.session import RouterUnavailable, SimIdInUse, Simulation, node_policies
+from orchestrator.version import version_line
 from orchestrator.viewers import monitor
 from orchestrator.viewers.progress import progress_steps
 from orchestrator.viewers.summary import policy_text, rows
@@ -261,7 +262,8 @@ def cmd_bench(args: argparse.Namespace) -> int:
     with progress_steps(len(args.scenarios) * len(configs), "bench", console=console) as step:
         rows = bench.run(args.scenarios, args.ticks, configs, args.rounds, progress=step)
     table = Table(title=f"ticks/s, medians of {args.rounds} alternating chunks of {args.ticks // args.rounds} ticks "
-                        "(random policy); barrier = bare Zenoh barrier, same process count", title_justify="left")
+                        "(random policy); barrier = bare Zenoh barrier, same process count", title_justify="left",
+                  caption=f"measured with {version_line()}", caption_justify="left")
     for col in ("scenario", "transport", "layout", "processes", "ticks/s", "barrier ticks/s", "ratio"):
         table.add_column(col, justify="left" if col in ("scenario", "transport", "layout") else "right")
     for r in rows:
