@@ -31,7 +31,7 @@ from rich.table import Table
 from node_runtime.model.policies import POLICIES
 from node_runtime.runtime import access, cli_options
 from node_runtime.runtime.keys import new_sim_id
-from node_runtime.runtime.layout import LAYOUT_HELP, ProcessLayout
+from node_runtime.runtime.layout import DEFAULT_LAYOUT_HELP, LAYOUT_HELP, Choice, ProcessLayout, layout_for
 from node_runtime.runtime.protocol import MAX_SEED
 from node_runtime.runtime.security import SecurityError
 from orchestrator import local_sims
@@ -79,7 +79,8 @@ def cmd_launch(args: argparse.Namespace) -> int:
         raise UsageError("--serve needs --transport zenoh: other processes reach the simulation over Zenoh")
     if args.episodes == 0 and not args.serve:
         raise UsageError("--episodes 0 runs no episode: it is for --serve, which then only serves")
-    layout = args.layout or ("single" if args.transport == "inproc" else "per-role")
+    choice = Choice(args.layout) if args.layout else layout_for(scenario, args.transport, placed=bool(args.placement))
+    layout = choice.layout
     host, port = parse_listen(args.listen) if args.listen else ("127.0.0.1", None)
     placement = None
     if args.placement:
@@ -97,6 +98,8 @@ def cmd_launch(args: argparse.Namespace) -> int:
                   f"{len(scenario.clients)} task sources; {ticks} ticks of {scenario.dt:g} s; "
                   f"transport {args.transport} ({layout}); seed {seed}; "
                   f"{policy_text(node_policies(scenario, args.policy))}")
+    if choice.note is not None:
+        console.print(choice.note, markup=False, soft_wrap=True)
 
     def waiting(groups: dict[str, list[str]], endpoint: str) -> None:
         proto, address = endpoint.split("/", 1)
@@ -341,10 +344,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--seed", type=integer(0, MAX_SEED),
                    help="random seed, from 0 to 2^62 - 1 (default: the scenario's simulation.seed)")
     p.add_argument("--transport", choices=("zenoh", "inproc"), default="zenoh",
-                   help="zenoh: one OS process per role over a Zenoh router (default); inproc: all roles in this "
-                        "process over an in-memory bus (fast, same results)")
+                   help="zenoh: node processes (see --layout) around a Zenoh router (default); inproc: all roles in "
+                        "this process over an in-memory bus (fast, same results)")
     p.add_argument("--layout", type=layout_name, metavar="LAYOUT",
-                   help=f"process layout: {LAYOUT_HELP}. Default: per-role over zenoh, single inproc")
+                   help=f"process layout: {LAYOUT_HELP}. Default: single inproc; over zenoh {DEFAULT_LAYOUT_HELP}")
     p.add_argument("--policy", type=POLICY, metavar="POLICY",
                    help=f"node-side decision policy for every controller: {', '.join(sorted(POLICIES))}, or a "
                         "Policy subclass of your own as module:Class (docs/extending.md; default: the scenario's)")
