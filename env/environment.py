@@ -37,7 +37,6 @@ from env.reward import (
     RewardContext,
     RewardFn,
     RewardTerms,
-    nominal_arrivals,
     resolve_reward,
     terms_for,
 )
@@ -45,6 +44,7 @@ from node_runtime.model.plugins import load
 from node_runtime.model.role import role_id
 from node_runtime.model.spec import Scenario
 from node_runtime.model.view import Observation
+from node_runtime.model.workload import nominal_arrivals
 from node_runtime.runtime.layout import Layout, check_layout
 from node_runtime.runtime.protocol import MAX_SEED
 from orchestrator.catalogue import Out

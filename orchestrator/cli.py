@@ -39,7 +39,7 @@ from orchestrator.arguments import COUNT, NON_NEGATIVE, POLICY, POSITIVE, intege
 from orchestrator.clock import ClockError, ProcessFailed
 from orchestrator.metrics import ConservationError, TickReport
 from orchestrator.placement import load_placement
-from orchestrator.scenario import ScenarioError, load_scenario
+from orchestrator.scenario import ScenarioError, costs, load_scenario
 from orchestrator.session import RouterUnavailable, SimIdInUse, Simulation, node_policies
 from orchestrator.viewers import monitor
 from orchestrator.viewers.progress import progress_steps
@@ -322,6 +322,8 @@ def cmd_validate(args: argparse.Namespace) -> int:
     sc = load_scenario(args.scenario)
     print(f"{len(sc.nodes)} nodes, {sc.undirected_links} links, {len(sc.controllers)} controllers, "
           f"{len(sc.clients)} task sources")
+    for line in costs.report(sc):
+        print(line)
     return EXIT_OK
 
 

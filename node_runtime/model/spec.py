@@ -76,6 +76,11 @@ class TaskType:
     grace: float = 0.0  # seconds added to every drawn deadline
 
     @property
+    def cycles(self) -> float:
+        """CPU cycles one task of this type needs (as ``Task.cycles``)."""
+        return self.instructions * self.cpi
+
+    @property
     def drawn(self) -> bool:
         """Whether each task of this type draws its own deadline."""
         return self.deadline_high is not None
