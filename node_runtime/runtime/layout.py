@@ -38,7 +38,7 @@ def _groups(layout: Layout) -> int:
 
 
 # The default layout over Zenoh (docs/protocol.md#the-default-layout). Measured on 2 cores: per-role is ready
-# in 1-2.5 s up to 72 processes (aot1-aot4), 10 s at 102 and 27 s at 300, and never in 7 minutes at 3,000;
+# in 1-2.5 s up to 72 processes (aot1-aot4), 10 s at 102 and 27 s at 300 (3,000 were reported not ready in 7 min);
 # a node process has 43 MB resident, 7-10 MB of it its own (the rest shared with the fork server).
 PROCESSES_PER_CPU = 50  # per-role while its processes number at most this per core ...
 PROCESS_MEMORY = 32 * 2**20  # ... and this much memory each (bytes, with a margin over the measured) ...
