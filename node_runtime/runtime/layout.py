@@ -43,7 +43,7 @@ def _groups(layout: Layout) -> int:
 PROCESSES_PER_CPU = 50  # per-role while its processes number at most this per core ...
 PROCESS_MEMORY = 32 * 2**20  # ... and this much memory each (bytes, with a margin over the measured) ...
 MEMORY_SHARE = 0.5  # ... fits in this share of the memory available
-GROUPS_PER_CPU = 2  # otherwise groups:K with K = this x cores: K from 2 to 16 ran within 1.5x of each other
+GROUPS_PER_CPU = 2  # otherwise groups:K with K = this x cores: K from 2 to 16 ran within 2x of each other
 DEFAULT_LAYOUT_HELP = (f"per-role while its processes fit this machine (at most {PROCESSES_PER_CPU} a core, and "
                        f"{PROCESS_MEMORY // 2**20} MB each within {MEMORY_SHARE * 100:.0f} percent of the memory "
                        f"available), else groups:K with K = {GROUPS_PER_CPU} x cores "
