@@ -37,7 +37,6 @@ from env.reward import (
     RewardContext,
     RewardFn,
     RewardTerms,
-    nominal_arrivals,
     resolve_reward,
     terms_for,
 )
@@ -46,6 +45,7 @@ from node_runtime.model.rng import MAX_SEED
 from node_runtime.model.role import role_id
 from node_runtime.model.spec import Scenario
 from node_runtime.model.view import Observation
+from node_runtime.model.workload import nominal_arrivals
 from node_runtime.runtime.layout import Layout, check_layout
 from orchestrator.catalogue import Out
 from orchestrator.metrics import output_values, penalty_s
@@ -74,7 +74,8 @@ class ZenohEdgeEnv(ParallelEnv):
             ``Scenario``.
         seed: seed of the first episode (later resets without a seed draw from a stream it seeds).
         transport: "zenoh" (node processes over a Zenoh router) or "inproc" (same code, one process).
-        layout: "per-role" (default for zenoh), "per-node", "single" (default for inproc) or "groups:K".
+        layout: "per-role", "per-node", "single" (default for inproc) or "groups:K"; the default for zenoh is
+            per-role while its processes fit this machine, else groups:K (docs/protocol.md#the-default-layout).
         reward: "paper" (Eq. 1–5, see docs/reward.md), "reference", "sparse", "team", "score", "team_score", "marginal",
             a callable ``f(RewardContext)`` or its import path (default: the scenario's ``reward`` key, else
             "paper").

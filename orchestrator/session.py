@@ -9,7 +9,8 @@ This is what ``orchestrator launch`` drives and what ``ZenohEdgeEnv`` holds:
 
 ``transport="inproc"`` runs the same node code in this process over an in-memory bus (layout
 ``single`` by default: one host holding every role); ``"zenoh"`` starts one OS process per role
-(``per-role``, the default) or per node (``per-node``) around a Zenoh router owned by this object.
+(``per-role``, the default while it fits the machine, else ``groups:K``: node_runtime.runtime.layout.layout_for),
+per node (``per-node``) or per block of nodes around a Zenoh router owned by this object.
 Either way the bus carries the same liveliness tokens and answers the same requests (``serve``), so
 monitors and drivers work on both.
 """
@@ -33,7 +34,7 @@ from node_runtime.runtime.forkserver import account
 from node_runtime.runtime.host import Host, role_class
 from node_runtime.runtime.inproc import InprocBus
 from node_runtime.runtime.keys import DEFAULT_PREFIX, Keys, new_sim_id
-from node_runtime.runtime.layout import Layout, ProcessLayout
+from node_runtime.runtime.layout import Layout, ProcessLayout, layout_for
 from node_runtime.runtime.process import ORCHESTRATOR, READY_TIMEOUT
 from node_runtime.runtime.protocol import Done
 from node_runtime.runtime.security import Security, protocol
@@ -109,8 +110,12 @@ class Simulation:
         identity of the local processes; ``zenoh_settings``: merged last into the router's configuration."""
         if transport not in ("zenoh", "inproc"):
             raise ValueError(f"transport must be 'zenoh' or 'inproc', not {transport!r}")
-        self._common(scenario, transport, layout or ("single" if transport == "inproc" else "per-role"),
-                     Keys(sim_id or new_sim_id(), prefix))
+        if layout is None:  # the default: per-role over Zenoh while it fits this machine, said when it does not
+            choice = layout_for(scenario, transport, placed=bool(placement))
+            if choice.note is not None:
+                log.warning(choice.note)
+            layout = choice.layout
+        self._common(scenario, transport, layout, Keys(sim_id or new_sim_id(), prefix))
         if transport == "inproc":
             bus = InprocBus()
             for proc in self.plan.procs:

@@ -108,6 +108,11 @@ class TaskType(Strict):
     deadline: Deadline = 100.0  # delta: seconds from creation until the result must be back
 
     @property
+    def cycles(self) -> float:
+        """CPU cycles one task of this type needs (as ``Task.cycles``)."""
+        return self.instructions * self.cpi
+
+    @property
     def drawn(self) -> bool:
         """Whether each task of this type draws its own deadline."""
         return isinstance(self.deadline, DeadlineRange)

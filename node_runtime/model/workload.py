@@ -19,6 +19,23 @@ BLOCK = 256  # ticks of arrival counts drawn at once (a constant: part of the st
 LOOKAHEAD = BLOCK  # ticks ``next_arrival`` searches ahead before giving up
 
 
+def nominal_arrivals(sc: Scenario) -> dict[str, float]:
+    """Tasks per second each worker receives from clients on average: a client's mean rate (its own
+    constant, the schedule's mean, or its trace rows over the episode), split evenly over its targets."""
+    mean = sc.workload.arrival.mean
+    fixed = dict(sc.workload.client_rates)
+    rows: dict[str, int] = {}
+    for row in sc.workload.trace or ():
+        rows[row.client] = rows.get(row.client, 0) + 1
+    horizon = sc.episode_ticks * sc.dt
+    out: dict[str, float] = {}
+    for client, targets in sc.targets.items():
+        rate = rows.get(client, 0) / horizon if sc.workload.trace is not None else fixed.get(client, mean)
+        for node in targets:
+            out[node] = out.get(node, 0.0) + rate / len(targets)
+    return out
+
+
 def trace_tick(row: TraceRow, dt: float) -> int:
     return math.floor(row.time / dt + 1e-9)
 
