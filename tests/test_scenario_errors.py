@@ -157,6 +157,10 @@ CASES = [
     ("ether_negative_capacity", {"topology": {"ether": "e.json"}},
      {"e.json": ETHER_GPU.replace('"cpu_milis": 9000', '"cpu_milis": -9000')},
      "node 'gpu_0' lacks coordinates, or capacity.cpu_milis and memory as positive numbers"),
+    # a clock rate past a float's range: the hardware a topology source gives is held to the model's own ranges
+    ("ether_endless_frequency", {"topology": {"ether": "e.json"}},
+     {"e.json": ETHER_GPU.replace('"cpu_milis": 4000', '"cpu_milis": 1e307')},
+     "node 'rpi3_0'.frequency: expected a finite number (got inf), as the topology source gives it"),
     ("ether_buffer_bytes_too_small", {"topology": {"ether": "ether/network_2_clusters.json", "buffer_bytes": 1e-300}},
      {}, "of memory hold inf tasks of 1e-300 bytes (topology.buffer_bytes, or the task size)"),
     ("ether_is_a_directory", {"topology": {"ether": "."}}, {}, ": cannot read it: Is a directory"),

@@ -24,26 +24,32 @@ from node_runtime.model.messages import TaskSize
 from node_runtime.model.plugins import is_import_path
 from node_runtime.model.policies import POLICIES
 from node_runtime.model.rng import MAX_SEED
-from node_runtime.model.values import Count, NonNeg, Pos, Strict, Tick
+from node_runtime.model.values import Count, Decibels, NonNeg, Pos, Strict, Tick
 
 Mode = Literal["binary", "batch"]
 Admission = Literal["decide_first", "queue_first"]
 MIB = 1024 * 1024
 
 
-@dataclass(frozen=True, slots=True)
-class NodeSpec:
-    """One network node and the roles it has (usually a worker, optionally a client and a controller)."""
+class Hardware(Strict):
+    """What a node is made of. A scenario file's profiles and node entries give any of these (each one
+    optional there, ``schema.ProfileCfg``); a resolved node has them all."""
+
+    tier: Tick
+    cores: Count
+    frequency: Pos  # cycles per second, per core
+    buffer: Count  # Q_max: queued + undecided tasks
+    tx_power_dbm: Decibels
+    idle_power_w: NonNeg
+    kappa: NonNeg  # switched capacitance: compute energy = kappa * cycles * frequency**2
+
+
+class NodeSpec(Hardware):
+    """One network node: its hardware, where it stands and the roles it has (usually a worker, optionally
+    a client and a controller)."""
 
     id: str
-    tier: int
-    cores: int
-    frequency: float  # cycles per second, per core
-    buffer: int  # Q_max: queued + undecided tasks
     position: tuple[float, float]
-    tx_power_dbm: float
-    idle_power_w: float
-    kappa: float  # switched capacitance: compute energy = kappa * cycles * frequency**2
     roles: tuple[str, ...]  # its role kinds, in canonical order (node_runtime.model.registry)
     policy: str = "local"  # node-side decision policy (a name, or an import path "module:Class")
     profile: str = ""  # hardware profile name, for display
@@ -324,7 +330,7 @@ def _hashed(sc: Scenario) -> dict[str, Any]:
         "name": sc.name, "dt": sc.dt, "episode_ticks": sc.episode_ticks, "seed": sc.seed, "mode": sc.mode,
         "decision_interval": sc.decision_interval, "max_hops": sc.max_hops, "batch_size": sc.batch_size,
         "state_interval": sc.state_interval,
-        "nodes": [_hashed_node(asdict(n)) for n in sc.nodes],
+        "nodes": [_hashed_node(n.model_dump()) for n in sc.nodes],
         "links": [asdict(lk) for lk in sc.links],
         "workload": {
             "task_types": [_hashed_task_type(t) for t in wl.task_types],

@@ -6,7 +6,7 @@ these are the constraints that validation applies, named once for every section 
 
 from __future__ import annotations
 
-from typing import Annotated
+from typing import Annotated, Any
 
 from pydantic import BaseModel, ConfigDict, Field
 
@@ -25,3 +25,10 @@ class Strict(BaseModel):
     refused rather than left to turn results into nan."""
 
     model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
+
+
+def optional(model: type[BaseModel]) -> dict[str, Any]:
+    """``model``'s fields, each optional (None when not given) with the same type and constraints: for a
+    section of a file that may give any of them (a hardware profile gives some of a node's hardware)."""
+    fields = model.model_fields.items()
+    return {name: (Annotated[info.annotation, *info.metadata] | None, None) for name, info in fields}

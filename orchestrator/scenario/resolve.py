@@ -22,7 +22,7 @@ from node_runtime.model.plugins import PluginError, extend_path, is_import_path,
 from node_runtime.model.radio import free_space_loss_db, log_distance_gain_db, shannon_rate
 from node_runtime.model.registry import ROLE_KINDS
 from node_runtime.model.role import Role
-from node_runtime.model.spec import LinkSpec, NodeSpec, Scenario, TaskType, TraceRow, Workload
+from node_runtime.model.spec import Hardware, LinkSpec, NodeSpec, Scenario, TaskType, TraceRow, Workload
 from orchestrator.scenario.errors import ScenarioError, describe, error_path, key_path
 from orchestrator.scenario.schema import (
     BUILTIN_PROFILES,
@@ -313,13 +313,16 @@ class _Resolver:
                 for need in ROLE_KINDS[name].needs:
                     if not values.get(need):
                         self.error(f"{where}.{name}", f"a {name} needs a {need} on its node ({need}: true)")
-            out.append(NodeSpec(
-                id=node.id, tier=values["tier"], cores=values["cores"], frequency=float(values["frequency"]),
-                buffer=values["buffer"], position=(float(position[0]), float(position[1])),
-                tx_power_dbm=float(values["tx_power_dbm"]), idle_power_w=float(values["idle_power_w"]),
-                kappa=float(values["kappa"]), roles=kinds, policy=values["policy"], profile=profile_name or "",
-                impls=tuple((name, roles[name]) for name in ROLE_KINDS if roles.get(name)),
-                params=tuple(sorted(params.items()))))
+            try:
+                impls = tuple((name, roles[name]) for name in ROLE_KINDS if roles.get(name))
+                out.append(NodeSpec(
+                    **{key: values[key] for key in Hardware.model_fields}, id=node.id,
+                    position=(float(position[0]), float(position[1])), roles=kinds, policy=values["policy"],
+                    profile=profile_name or "", impls=impls, params=tuple(sorted(params.items()))))
+            except ValidationError as exc:  # the file's values are valid: hardware a topology source gave is not
+                for e in exc.errors():
+                    self.error(f"{where}.{key_path(e['loc'])}",
+                               f"{describe(e, NodeSpec)}, as the topology source gives it")
         for name in cfg.profiles:
             if not any(n.profile == name for n in out) and name not in BUILTIN_PROFILES:
                 self.error(f"profiles.{name}", "profile is not used by any node")

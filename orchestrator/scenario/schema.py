@@ -17,8 +17,8 @@ from typing import Annotated, Any, Literal
 from pydantic import BaseModel, ConfigDict, Field, create_model, field_validator, model_validator
 
 from node_runtime.model.arrival import Arrival, Constant
-from node_runtime.model.spec import Failure, SimulationSettings, TaskType, known_policy
-from node_runtime.model.values import Count, Decibels, NonNeg, Pos, Prob, Strict
+from node_runtime.model.spec import Failure, Hardware, SimulationSettings, TaskType, known_policy
+from node_runtime.model.values import Decibels, NonNeg, Pos, Prob, Strict, optional
 from node_runtime.runtime.keys import CHUNK
 from topologies.generators import GENERATORS
 
@@ -73,19 +73,15 @@ class RolesCfg(Strict):
     (``file_format`` adds them)."""
 
 
-class ProfileCfg(Strict):
-    """Hardware and roles of a node. ``file_format`` adds ``<kind>: bool`` per role kind (whether
-    the node has that role)."""
+# A profile's or a node entry's hardware: any of a resolved node's, with the same types and ranges
+HardwareCfg: Any = create_model("HardwareCfg", __base__=Strict, **optional(Hardware))
 
-    cores: Count | None = None
-    frequency: Pos | None = None
-    buffer: Count | None = None
-    tier: Annotated[int, Field(ge=0)] | None = None
+
+class ProfileCfg(HardwareCfg):
+    """Hardware (any of a node's, ``Hardware``) and roles of a node. ``file_format`` adds ``<kind>: bool``
+    per role kind (whether the node has that role)."""
+
     policy: str | None = None
-    tx_power_dbm: Decibels | None = None
-    idle_power_w: NonNeg | None = None
-    kappa: NonNeg | None = None
-
     roles: RolesCfg | None = None
     params: dict[str, float | int | bool | str] | None = None  # free parameters for user extensions
 
