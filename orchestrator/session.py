@@ -29,7 +29,7 @@ from node_runtime.model.spec import Scenario
 from node_runtime.model.view import Observation
 from node_runtime.runtime.access import access_control
 from node_runtime.runtime.driver import HostDriver
-from node_runtime.runtime.forkserver import account
+from node_runtime.runtime.failure import account
 from node_runtime.runtime.host import Host, role_class
 from node_runtime.runtime.inproc import InprocBus
 from node_runtime.runtime.keys import DEFAULT_PREFIX, Keys, new_sim_id
