@@ -47,7 +47,7 @@ def test_there_are_examples():
 def test_example_loads_and_runs(path):
     scenario = load_scenario(path)
     assert scenario.name == path.stem
-    with Simulation(scenario, transport="inproc") as sim:
+    with Simulation.inproc(scenario) as sim:
         summary = sim.run(50)
     totals = summary["totals"]
     assert totals["generated"] > 0
