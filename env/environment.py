@@ -27,7 +27,7 @@ from pettingzoo import ParallelEnv
 
 from env.actions import ActionRules
 from env.credit import TaskCredit
-from env.observations import DictObservation, FlatObservation, ObservationBuilder, ObservationLayout
+from env.observations import FlatObservation, ObservationBuilder, ObservationLayout
 from env.overrides import ScenarioOverrides
 from env.reward import (
     PaperWeights,
@@ -39,7 +39,7 @@ from env.reward import (
     resolve_reward,
     terms_for,
 )
-from env.settings import Connection, EpisodeSettings, ObservationSettings, check_seed
+from env.settings import FLAT, Connection, EpisodeSettings, ObservationSettings, check_seed
 from node_runtime.model.plugins import load
 from node_runtime.model.role import role_id
 from node_runtime.model.spec import Scenario
@@ -147,14 +147,14 @@ class ZenohEdgeEnv(ParallelEnv):
         degrees = {a: len(sc.neighbours[n]) for a, n in self.node_of.items()}
         slots = max(degrees.values(), default=0)
         batch = None if sc.mode == "binary" else sc.batch_size
-        self.flat = self.observing.flat
+        builder = self.observing.builder(sc)
+        self.flat = builder == FLAT
         padded = self.observing.uniform_spaces or self.flat
         self.layouts = {a: ObservationLayout(d, slots if padded else d, batch) for a, d in degrees.items()}
         if self.flat:
             n = len(self.possible_agents)
             self.builders = {a: FlatObservation(lay, i, n) for i, (a, lay) in enumerate(self.layouts.items())}
         else:
-            builder = self.observing.builder(sc) or DictObservation
             if isinstance(builder, str):
                 builder = load(builder, ObservationBuilder)
             self.builders = {a: builder(lay) for a, lay in self.layouts.items()}

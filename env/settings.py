@@ -13,7 +13,7 @@ from numbers import Integral
 from pathlib import Path
 from typing import Any
 
-from env.observations import ObservationBuilder
+from env.observations import DictObservation, ObservationBuilder
 from env.overrides import ScenarioOverrides
 from node_runtime.model.spec import Scenario
 from node_runtime.runtime.layout import Layout, check_layout
@@ -66,23 +66,20 @@ class EpisodeSettings:
 class ObservationSettings:
     """What the agents see: ``observation`` (an ``ObservationBuilder`` subclass, its import path, ``FLAT``, or
     None for the scenario's or the Dict observation), ``uniform_spaces`` (every agent padded to the largest
-    degree) and ``info_numbers`` (flat mode only: False leaves the infos empty)."""
+    degree) and ``info_numbers`` (flat mode only: False leaves the infos empty). Checked in ``builder``,
+    against the scenario."""
 
     observation: type[ObservationBuilder] | str | None = None
     uniform_spaces: bool = False
     info_numbers: bool = True
 
-    def __post_init__(self) -> None:
-        if not self.info_numbers and self.observation != FLAT:
+    def builder(self, sc: Scenario) -> type[ObservationBuilder] | str:
+        """The builder asked for, else the scenario's ``observation`` key, else the Dict observation (``FLAT``
+        for flat mode); ``info_numbers`` is checked against it, since the scenario may be what asks for flat."""
+        builder = self.observation or sc.extra.get("observation") or DictObservation
+        if not self.info_numbers and builder != FLAT:
             raise ValueError('info_numbers=False applies to observation="flat" only (its infos are numbers)')
-
-    @property
-    def flat(self) -> bool:
-        return self.observation == FLAT
-
-    def builder(self, sc: Scenario) -> type[ObservationBuilder] | str | None:
-        """The builder asked for, else the scenario's ``observation`` key (None: the Dict observation)."""
-        return self.observation or sc.extra.get("observation")
+        return builder
 
 
 @dataclass(frozen=True, kw_only=True)

@@ -258,7 +258,7 @@ def test_the_arguments_are_sorted_into_settings_checked_before_the_scenario_is_r
     env = ZenohEdgeEnv("aot1", transport="inproc", layout="groups:2", max_steps=7, agents=["rpi3_0"], seed=4,
                        observation="flat", info_numbers=False, reward_weights=weights, congestion_price=1)
     assert (env.episode.max_steps, env.episode.agents, env.episode.seed) == (7, ("rpi3_0",), 4)
-    assert (env.observing.flat, env.observing.info_numbers, env.observing.uniform_spaces) == (True, False, False)
+    assert (env.flat, env.observing.info_numbers, env.observing.uniform_spaces) == (True, False, False)
     assert (env.connection.transport, env.connection.layout, env.connection.connect) == ("inproc", "groups:2", None)
     assert env.reward_settings == RewardSettings(weights=weights, congestion_price=1.0)
     assert env.credit.settings is env.reward_settings  # one object, held once
