@@ -5,7 +5,7 @@
     train(env, ddqn, episodes=50); evaluate(env, ddqn, episodes=10)
 
 The package only uses the PettingZoo API and the observation conventions (docs/agents.md), with the
-column names of ``env.observations``.
+column names of ``env.observations``; its baselines run the model's policies (``node_runtime.model.policies``).
 """
 
 from __future__ import annotations
@@ -17,7 +17,7 @@ import torch
 
 from agents.a2c import A2C, A2CConfig
 from agents.baselines import BASELINES, Baseline
-from agents.common import Policy
+from agents.common import AgentPolicy
 from agents.ddqn import DDQN, DDQNConfig
 from agents.learner import Learner, LearnerConfig
 from agents.ppo import PPO, PPOConfig
@@ -29,7 +29,7 @@ POLICY_NAMES = (*LEARNERS, *BASELINES)
 
 
 def make_policy(name: str, env: Any = None, config: LearnerConfig | None = None, device: str = "cpu",
-                seed: int | None = None) -> Policy:
+                seed: int | None = None) -> AgentPolicy:
     """A baseline by name, a user's ``Baseline`` subclass by import path ("module:Class"; ``PluginError`` if it
     is none), or a fresh learner for ``env``'s agents (``config`` defaults to the learner's)."""
     if is_import_path(name):
@@ -49,5 +49,5 @@ def load_learner(path: str | Path, device: str = "cpu") -> Learner:
     return LEARNERS[algo].load(path, device)
 
 
-__all__ = ["A2C", "BASELINES", "DDQN", "LEARNERS", "POLICY_NAMES", "PPO", "A2CConfig", "Baseline", "DDQNConfig",
-           "Learner", "LearnerConfig", "PPOConfig", "Policy", "evaluate", "load_learner", "make_policy", "train"]
+__all__ = ["A2C", "BASELINES", "DDQN", "LEARNERS", "POLICY_NAMES", "PPO", "A2CConfig", "AgentPolicy", "Baseline",
+           "DDQNConfig", "Learner", "LearnerConfig", "PPOConfig", "evaluate", "load_learner", "make_policy", "train"]

@@ -1,4 +1,4 @@
-"""What every agent shares: the policy protocol, observation flattening, masked distributions, networks.
+"""What every agent shares: the ``AgentPolicy`` protocol, observation flattening, masked distributions, networks.
 
 Nothing here knows the emulator: it works from the PettingZoo API and the observation conventions of
 this project's environments (a dict with ``own`` (6,), ``task`` (7,) or (B, 7), ``neighbours`` (D, 8)
@@ -27,7 +27,7 @@ Action = int | list[int]
 
 
 @runtime_checkable
-class Policy(Protocol):
+class AgentPolicy(Protocol):
     """Anything that maps every live agent's observation to a valid action."""
 
     name: str

@@ -23,7 +23,7 @@ import torch.nn.functional as F
 from torch import nn
 
 from agents.common import AgentSpec, Observation, masked_argmax, mlp, polyak
-from agents.learner import Closed, Learner, LearnerConfig, Pending
+from agents.learner import Closed, Learner, LearnerConfig, OpenTransition
 
 
 @dataclass
@@ -154,7 +154,7 @@ class DDQN(Learner):
             reward = p.reward if p.credit is None else p.credit
             self.store(self.nets[self.group[t.agent]], p, reward, t.discount, next_feats, next_mask)
 
-    def store(self, net: QLearner, p: Pending, reward: float, discount: float, next_feats: np.ndarray,
+    def store(self, net: QLearner, p: OpenTransition, reward: float, discount: float, next_feats: np.ndarray,
               next_mask: np.ndarray) -> None:
         """Add a transition to the replay buffer, then learn when the schedule says so."""
         c = self.config

@@ -66,7 +66,7 @@ CREDITS = ("step", "task")
 
 
 @dataclass
-class Pending:
+class OpenTransition:
     """An agent's open transition: its last decision and what happened since."""
 
     features: np.ndarray
@@ -85,7 +85,7 @@ class Closed:
     """A transition closed at the agent's next decision or at the end of the episode."""
 
     agent: str
-    pending: Pending
+    pending: OpenTransition
     next_obs: Observation | None  # None: nothing to bootstrap from
     discount: float  # to apply to the next state's value (0 when terminal)
     last: bool  # closed by the end of the episode: the agent's next transition starts a new one
@@ -112,9 +112,9 @@ class Learner(ABC):
         if self.config.credit == "task" and not self.task_credit:
             raise ValueError(f"{self.name} learns from step rewards only: credit='task' needs a learner that "
                              "waits for each decision's credit (ppo, a2c, ddqn)")
-        self.pending: dict[str, Pending] = {}
+        self.pending: dict[str, OpenTransition] = {}
         self.step = 0  # of the episode
-        self.awaiting: dict[tuple[str, int], Pending] = {}  # credit="task": decisions whose credit has not come
+        self.awaiting: dict[tuple[str, int], OpenTransition] = {}  # credit="task": decisions whose credit has not come
         self.uncredited = 0  # decisions whose credit never came (their tasks outlived the episode): not learnt
         self.env_steps = 0  # environment steps observed while training
         self.returns = ReturnScale(self.config.gamma)
@@ -181,7 +181,7 @@ class Learner(ABC):
                 if explore:
                     if agent in self.pending:
                         raise RuntimeError(f"{agent}: explore() called twice without observe() in between")
-                    p = self.pending[agent] = Pending(feats[i], masks[i], int(chosen[i]),
+                    p = self.pending[agent] = OpenTransition(feats[i], masks[i], int(chosen[i]),
                                                       {k: v[i] for k, v in extras.items()}, step=self.step)
                     if self.config.credit == "task":
                         self.awaiting[(agent, self.step)] = p

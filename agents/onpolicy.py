@@ -36,7 +36,7 @@ from agents.common import (
     mlp,
     one_hot,
 )
-from agents.learner import Closed, Learner, LearnerConfig, Pending
+from agents.learner import Closed, Learner, LearnerConfig, OpenTransition
 
 
 @dataclass
@@ -99,7 +99,7 @@ class Record:
     next_value: float
     last: bool
     teacher: int = -1  # the teacher's action in that state (-1: no teacher)
-    source: Pending | None = None  # credit="task": the decision, whose credit is its reward once it has come
+    source: OpenTransition | None = None  # credit="task": the decision, whose credit is its reward once it has come
 
 
 def credited(records: list[Record]) -> tuple[list[Record], list[Record]]:

@@ -17,7 +17,7 @@ from typing import Any
 
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
 
-from agents.common import Policy, has_decision
+from agents.common import AgentPolicy, has_decision
 from agents.learner import Learner
 
 EVAL_SEED = 100_000  # evaluation episodes use seeds EVAL_SEED + k, never met in training (seeds 0, 1, ...)
@@ -45,7 +45,7 @@ def _number(x: float | None) -> float:
     return math.nan if x is None else float(x)
 
 
-def run_episode(env: Any, policy: Policy, seed: int, learner: Learner | None = None) -> dict[str, float]:
+def run_episode(env: Any, policy: AgentPolicy, seed: int, learner: Learner | None = None) -> dict[str, float]:
     """One episode of ``policy`` (of ``learner.explore`` when a learner is given, which then learns)."""
     start = time.perf_counter()
     observations, _ = env.reset(seed=seed)
@@ -92,7 +92,7 @@ def train(env: Any, learner: Learner, episodes: int, *, seed: int = 0, steps_per
     return rows
 
 
-def evaluate(env: Any, policy: Policy, episodes: int, *, seed: int = EVAL_SEED, progress: Progress | None = None,
+def evaluate(env: Any, policy: AgentPolicy, episodes: int, *, seed: int = EVAL_SEED, progress: Progress | None = None,
              label: str = "") -> list[dict]:
     """Run ``policy.act`` for ``episodes`` episodes on seeds seed, seed + 1, ...; one metrics row each."""
     task = progress.add_task(label or f"evaluate {policy.name}", total=episodes, info="") if progress else None

@@ -26,6 +26,7 @@ from rich.console import Console
 from rich.table import Table
 
 from env import ZenohEdgeEnv
+from orchestrator.version import version_line
 from orchestrator.viewers.bench import BareBarrier, alternate
 from orchestrator.viewers.progress import progress_steps
 
@@ -107,7 +108,7 @@ def main() -> None:
              "steps, random masked actions")
     if args.repeats > 1:
         title += f"; medians over {args.repeats} sets of processes, and the range of their ratios"
-    table = Table(title=title, title_justify="left")
+    table = Table(title=title, title_justify="left", caption=f"measured with {version_line()}", caption_justify="left")
     columns = ["scenario", "transport", "layout", "processes", "steps/s", "barrier ticks/s", "ratio"]
     for col in columns + (["range"] if args.repeats > 1 else []):
         table.add_column(col, justify="left" if col in ("scenario", "transport", "layout") else "right")

@@ -28,6 +28,7 @@ from rich.table import Table
 
 from orchestrator.scenario import ScenarioError, load_scenario
 from orchestrator.session import Simulation
+from orchestrator.version import version_line
 from orchestrator.viewers.bench import BareBarrier, alternate, ticks_per_s
 
 RADIUS = 40.0  # metres
@@ -103,7 +104,7 @@ def cell(v: Any) -> str:
 
 def report(rows: list[dict[str, Any]], title: str, path: Path | None) -> None:
     """The rows as a table on the console; also as JSON in ``path``."""
-    table = Table(title=title)
+    table = Table(title=title, caption=f"measured with {version_line()}", caption_justify="left")
     columns = list(dict.fromkeys(key for r in rows for key in r))  # a row may leave a column out
     for key in columns:
         table.add_column(HEADERS.get(key, key), justify="right")

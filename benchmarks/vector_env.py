@@ -22,6 +22,7 @@ from torchrl.envs import EnvBase, ParallelEnv, PettingZooWrapper
 
 from env import ZenohEdgeEnv
 from env.vector import ZenohEdgeVectorEnv
+from orchestrator.version import version_line
 
 
 def wrapper(scenario: str, max_steps: int, info_numbers: bool) -> PettingZooWrapper:
@@ -76,7 +77,7 @@ def main() -> None:
         to_vector = measured[name, k] / measured[("vector", 1)] if ("vector", 1) in measured else None
         print(f"| {name} | {k} | {measured[name, k]:,.0f} | {measured[name, k] / measured['wrapper', 1]:.2f} | "
               f"{'–' if to_vector is None else f'{to_vector:.2f}'} |", flush=True)
-    print(f"load average after: {' '.join(f'{x:.2f}' for x in os.getloadavg())}")
+    print(f"load average after: {' '.join(f'{x:.2f}' for x in os.getloadavg())}; measured with {version_line()}")
 
 
 if __name__ == "__main__":

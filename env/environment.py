@@ -35,7 +35,6 @@ from env.reward import (
     RewardFn,
     RewardSettings,
     RewardTerms,
-    nominal_arrivals,
     resolve_reward,
     terms_for,
 )
@@ -44,6 +43,7 @@ from node_runtime.model.plugins import load
 from node_runtime.model.role import role_id
 from node_runtime.model.spec import Scenario
 from node_runtime.model.view import Observation
+from node_runtime.model.workload import nominal_arrivals
 from node_runtime.runtime.layout import Layout
 from orchestrator.catalogue import Out
 from orchestrator.metrics import output_values, penalty_s
@@ -64,7 +64,8 @@ class ZenohEdgeEnv(ParallelEnv):
             ``Scenario``.
         seed: seed of the first episode (later resets without a seed draw from a stream it seeds).
         transport: "zenoh" (node processes over a Zenoh router) or "inproc" (same code, one process).
-        layout: "per-role" (default for zenoh), "per-node", "single" (default for inproc) or "groups:K".
+        layout: "per-role", "per-node", "single" (default for inproc) or "groups:K"; the default for zenoh is
+            per-role while its processes fit this machine, else groups:K (docs/protocol.md#the-default-layout).
         reward: "paper" (Eq. 1–5, see docs/reward.md), "reference", "sparse", "team", "score", "team_score", "marginal",
             a callable ``f(RewardContext)`` or its import path (default: the scenario's ``reward`` key, else
             "paper").
@@ -85,8 +86,9 @@ class ZenohEdgeEnv(ParallelEnv):
             ``infos[agent]["invalid_action"]`` says so) or "raise" (``InvalidActionError``, for debugging).
             Penalise it with ``env.wrappers.InvalidActionPenalty``.
         render_mode: None, "ansi", "rgb_array" or "human".
-        connect, sim_id: attach to a simulation served by ``orchestrator launch --serve`` instead of
-            starting one (give the endpoint it printed, e.g. "tcp/10.0.0.5:7447", and its id).
+        connect: attach to a simulation served by ``orchestrator launch --serve`` instead of starting one:
+            the endpoint it printed, e.g. "tcp/10.0.0.5:7447".
+        sim_id: with ``connect``, the id of the simulation to attach to.
         security: with ``connect`` to a router that requires TLS and logins (``launch --security``), the
             directory of the ``driver`` identity written by deploy/make-certs.sh (deploy/README.md).
         congestion_price: the price c that the ``marginal`` reward and the credits per task charge for a

@@ -8,12 +8,12 @@ fixed by whoever serves it, refuses them; the episode length (``max_steps``) is 
 
 from __future__ import annotations
 
-import dataclasses
 import numbers
 from dataclasses import dataclass
 from typing import Literal
 
-from node_runtime.model.spec import Arrival, Scenario
+from node_runtime.model.arrival import Constant
+from node_runtime.model.spec import Scenario
 
 MODES = ("binary", "batch")
 
@@ -43,12 +43,8 @@ class ScenarioOverrides:
         changes: dict[str, object] = {} if self.mode is None else {"mode": self.mode}
         changes |= {k: int(v) for k, v in (("decision_interval", self.decision_interval),
                                            ("batch_size", self.batch_size)) if v is not None}
-        if changes:
-            steps = sc.episode_ticks // sc.decision_interval
-            sc = dataclasses.replace(sc, **changes)
-            sc = dataclasses.replace(sc, episode_ticks=steps * sc.decision_interval)
         if self.arrival_rate is not None:
             # a constant rate, drawn by the scenario's own arrival process (Poisson counts or exponential gaps)
-            arrival = Arrival("constant", rate=float(self.arrival_rate), process=sc.workload.arrival.process)
-            sc = dataclasses.replace(sc, workload=dataclasses.replace(sc.workload, arrival=arrival, client_rates=()))
-        return sc
+            arrival = Constant(rate=float(self.arrival_rate), process=sc.workload.arrival.process)
+            changes["workload"] = sc.workload.model_copy(update={"arrival": arrival, "client_rates": ()})
+        return sc.replace(**changes) if changes else sc

@@ -32,7 +32,6 @@ from numbers import Real
 from typing import Any
 
 from node_runtime.model.plugins import is_import_path, load
-from node_runtime.model.spec import Scenario
 from node_runtime.model.view import Observation, TaskView
 
 
@@ -107,23 +106,6 @@ def reference_terms(obs: Observation, task: TaskView, action: int, dt: float, ar
     overload = -math.log10(p) / 3.0 * cap * w.overload
     return RewardTerms(w.utility, t_wait, t_comm, t_exc, delay, overload, w.utility - (delay + overload))
 
-
-def nominal_arrivals(sc: Scenario) -> dict[str, float]:
-    """Tasks per second each worker receives from clients on average: a client's mean rate (its own
-    constant, the schedule's mean, or its trace rows over the episode), split evenly over its targets."""
-    a = sc.workload.arrival
-    mean = {"constant": a.rate, "linear": (a.start + a.end) / 2}.get(a.kind, (a.low + a.high) / 2)
-    fixed = dict(sc.workload.client_rates)
-    rows: dict[str, int] = {}
-    for row in sc.workload.trace or ():
-        rows[row.client] = rows.get(row.client, 0) + 1
-    horizon = sc.episode_ticks * sc.dt
-    out: dict[str, float] = {}
-    for client, targets in sc.targets.items():
-        rate = rows.get(client, 0) / horizon if sc.workload.trace is not None else fixed.get(client, mean)
-        for node in targets:
-            out[node] = out.get(node, 0.0) + rate / len(targets)
-    return out
 
 
 CONGESTION_PRICE = 2.0  # what marginal_reward charges for a deadline's worth of delay imposed, in completions

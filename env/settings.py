@@ -15,9 +15,9 @@ from typing import Any
 
 from env.observations import DictObservation, ObservationBuilder
 from env.overrides import ScenarioOverrides
+from node_runtime.model.rng import MAX_SEED
 from node_runtime.model.spec import Scenario
 from node_runtime.runtime.layout import Layout, check_layout
-from node_runtime.runtime.protocol import MAX_SEED
 from node_runtime.runtime.security import Security
 from orchestrator.scenario import load_scenario
 from orchestrator.serve import describe
@@ -50,7 +50,7 @@ class EpisodeSettings:
             object.__setattr__(self, "agents", tuple(self.agents))
 
     def steps(self, sc: Scenario) -> int:
-        return self.max_steps or sc.episode_ticks // sc.decision_interval
+        return self.max_steps or sc.steps
 
     def nodes(self, sc: Scenario) -> list[str]:
         """The driven controllers' nodes, in the scenario's order."""

@@ -16,7 +16,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from agents import BASELINES, Learner, Policy, evaluate, load_learner, make_policy
+from agents import BASELINES, AgentPolicy, Learner, evaluate, load_learner, make_policy
 from agents.training import EVAL_SEED, progress_bar, write_csv
 from experiments import marl_eval
 from experiments.common import Parser, add_env_arguments, check_scenario, make_env, positive_int, seed_int, set_threads
@@ -47,7 +47,7 @@ class Episode:
 
 def run_episode(job: Episode, scratch: Path) -> dict[str, Any]:
     set_threads(1)
-    policy: Policy
+    policy: AgentPolicy
     if job.checkpoint is None:
         policy = make_policy(job.baseline, seed=job.seed)
     else:
@@ -77,7 +77,7 @@ def main(argv: Sequence[str] | None = None) -> None:
     add_ray_arguments(p)
     args = p.parse_args(argv)
     set_threads(1)
-    policy: Policy
+    policy: AgentPolicy
     checkpoint = args.policy not in BASELINES and Path(args.policy).is_file()  # a file wins over an import path
     if checkpoint:
         try:

@@ -34,7 +34,7 @@ from rich.console import Console
 from rich.progress import Progress
 from rich.table import Table
 
-from agents import BASELINES, LEARNERS, Baseline, LearnerConfig, Policy, evaluate, make_policy, train
+from agents import BASELINES, LEARNERS, AgentPolicy, Baseline, LearnerConfig, evaluate, make_policy, train
 from agents.training import progress_bar, write_csv
 from experiments import marl_eval
 from experiments.common import (
@@ -83,7 +83,7 @@ class Point:
 
 
 @dataclass(frozen=True)
-class Run:
+class SweepRun:
     """One cell of the grid: train ``agent`` (when it learns) at ``point`` with ``seed``, then evaluate it."""
 
     study: str
@@ -170,8 +170,8 @@ def run_study(study: str, points: Sequence[Point], x_key: str, xlabel: str, args
         "points": [dataclasses.asdict(p) for p in points],
         "learners": {a: {k: v for k, v in dataclasses.asdict(configs[a, args.seeds[0]]).items() if k != "seed"}
                      for a in learners}}, indent=1))
-    runs = [Run(study, point, agent, seed, settings, configs.get((agent, seed)), args.reward, args.transport,
-                args.device, args.threads, args.congestion_price)
+    runs = [SweepRun(study, point, agent, seed, settings, configs.get((agent, seed)), args.reward, args.transport,
+                     args.device, args.threads, args.congestion_price)
             for seed in args.seeds for point in points for agent in args.agents
             if agent in LEARNERS or seed == args.seeds[0]]
     if wants_ray(args):
@@ -203,7 +203,7 @@ def run_study(study: str, points: Sequence[Point], x_key: str, xlabel: str, args
     return rows
 
 
-def run_one(run: Run, out: Path, progress: Progress | None = None) -> RunResult:
+def run_one(run: SweepRun, out: Path, progress: Progress | None = None) -> RunResult:
     """One run of the grid, writing its training log and checkpoint under ``out``."""
     set_threads(run.threads)
     s = run.settings
@@ -213,7 +213,7 @@ def run_one(run: Run, out: Path, progress: Progress | None = None) -> RunResult:
     trained_steps = 0
     try:
         start = time.perf_counter()
-        policy: Policy
+        policy: AgentPolicy
         if run.config is not None:
             policy = learner = LEARNERS[run.agent].for_env(env, run.config, run.device)
             where = Path(run.point.label) / f"seed{run.seed}"
@@ -233,7 +233,7 @@ def run_one(run: Run, out: Path, progress: Progress | None = None) -> RunResult:
     return RunResult(rows, timings, trained_steps)
 
 
-def _timing(run: Run, phase: str, episodes: int, start: float) -> dict[str, Any]:
+def _timing(run: SweepRun, phase: str, episodes: int, start: float) -> dict[str, Any]:
     return {"point": run.point.label, "seed": run.seed, "agent": run.agent, "phase": phase, "episodes": episodes,
             "wall_s": round(time.perf_counter() - start, 2)}
 

@@ -3,12 +3,12 @@
     orchestrator launch topologies/aot2.yaml            # run a scenario over Zenoh processes
     orchestrator validate my_scenario.yaml              # check a scenario file
     orchestrator monitor                                # live dashboard of a running simulation
-    orchestrator topology aot2 --png aot2.png           # draw a scenario's network
+    orchestrator topology aot2                          # draw a scenario's network (runs/aot2-<time>/)
     orchestrator plot runs/aot2-20261123-101500         # time-series PNGs of a finished run
     orchestrator bench                                  # ticks/s against a bare Zenoh barrier
 
-Exit status: 0 success, 1 the run failed (a node died, conservation broke, ...), 2 a bad scenario
-or bad arguments, 130 interrupted.
+A bare ``orchestrator`` prints the help. Exit status: 0 success, 1 the run failed (a node died,
+conservation broke, ...), 2 a bad scenario or bad arguments, 130 interrupted.
 """
 
 from __future__ import annotations
@@ -29,17 +29,17 @@ from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, T
 from rich.table import Table
 
 from node_runtime.model.policies import POLICIES
+from node_runtime.model.rng import MAX_SEED
 from node_runtime.runtime import access, cli_options
 from node_runtime.runtime.keys import new_sim_id
-from node_runtime.runtime.layout import LAYOUT_HELP, ProcessLayout
-from node_runtime.runtime.protocol import MAX_SEED
+from node_runtime.runtime.layout import DEFAULT_LAYOUT_HELP, LAYOUT_HELP, Choice, ProcessLayout, layout_for
 from node_runtime.runtime.security import SecurityError
 from orchestrator import local_sims
 from orchestrator.arguments import COUNT, NON_NEGATIVE, POLICY, POSITIVE, integer, layout_name
 from orchestrator.clock import ClockError, ProcessFailed
 from orchestrator.metrics import ConservationError, TickReport
 from orchestrator.placement import load_placement
-from orchestrator.scenario import ScenarioError, load_scenario
+from orchestrator.scenario import ScenarioError, costs, load_scenario
 from orchestrator.session import (
     RemoteHosts,
     RouterSettings,
@@ -48,9 +48,11 @@ from orchestrator.session import (
     Simulation,
     node_policies,
 )
+from orchestrator.version import version_line
 from orchestrator.viewers import monitor
 from orchestrator.viewers.progress import progress_steps
 from orchestrator.viewers.summary import policy_text, rows
+from topologies import bundled_scenarios
 
 EXIT_OK, EXIT_FAILED, EXIT_USAGE, EXIT_INTERRUPTED = 0, 1, 2, 130
 LOCAL = "local"  # the node-side policy that keeps every task on its own node
@@ -76,17 +78,23 @@ def _on_sigterm(signum: int, frame: Any) -> None:
     raise Terminated()
 
 
+def run_dir(name: str) -> Path:
+    """Where a command writes by default: runs/<name>-<time>, under the current directory, never in it."""
+    return Path("runs") / f"{name}-{dt.datetime.now():%Y%m%d-%H%M%S}"
+
+
 # ----- launch -----
 
 def cmd_launch(args: argparse.Namespace) -> int:
     scenario = load_scenario(args.scenario)
-    ticks = (args.steps or scenario.episode_ticks // scenario.decision_interval) * scenario.decision_interval
-    out = Path(args.out) if args.out else Path("runs") / f"{scenario.name}-{dt.datetime.now():%Y%m%d-%H%M%S}"
+    ticks = (args.steps or scenario.steps) * scenario.decision_interval
+    out = Path(args.out) if args.out else run_dir(scenario.name)
     if args.serve and args.transport != "zenoh":
         raise UsageError("--serve needs --transport zenoh: other processes reach the simulation over Zenoh")
     if args.episodes == 0 and not args.serve:
         raise UsageError("--episodes 0 runs no episode: it is for --serve, which then only serves")
-    layout = args.layout or ("single" if args.transport == "inproc" else "per-role")
+    choice = Choice(args.layout) if args.layout else layout_for(scenario, args.transport, placed=bool(args.placement))
+    layout = choice.layout
     host, port = parse_listen(args.listen) if args.listen else ("127.0.0.1", None)
     placement = None
     if args.placement:
@@ -104,6 +112,8 @@ def cmd_launch(args: argparse.Namespace) -> int:
                   f"{len(scenario.clients)} task sources; {ticks} ticks of {scenario.dt:g} s; "
                   f"transport {args.transport} ({layout}); seed {seed}; "
                   f"{policy_text(node_policies(scenario, args.policy))}")
+    if choice.note is not None:
+        console.print(choice.note, markup=False, soft_wrap=True)
 
     def waiting(groups: dict[str, list[str]], endpoint: str) -> None:
         proto, address = endpoint.split("/", 1)
@@ -270,7 +280,8 @@ def cmd_bench(args: argparse.Namespace) -> int:
     with progress_steps(len(args.scenarios) * len(configs), "bench", console=console) as step:
         rows = bench.run(args.scenarios, args.ticks, configs, args.rounds, progress=step)
     table = Table(title=f"ticks/s, medians of {args.rounds} alternating chunks of {args.ticks // args.rounds} ticks "
-                        "(random policy); barrier = bare Zenoh barrier, same process count", title_justify="left")
+                        "(random policy); barrier = bare Zenoh barrier, same process count", title_justify="left",
+                  caption=f"measured with {version_line()}", caption_justify="left")
     for col in ("scenario", "transport", "layout", "processes", "ticks/s", "barrier ticks/s", "ratio"):
         table.add_column(col, justify="left" if col in ("scenario", "transport", "layout") else "right")
     for r in rows:
@@ -289,7 +300,7 @@ def cmd_bench(args: argparse.Namespace) -> int:
 def cmd_topology(args: argparse.Namespace) -> int:
     from orchestrator.viewers import draw
 
-    return draw.cmd_topology(args)
+    return draw.cmd_topology(args, run_dir)
 
 
 def cmd_plot(args: argparse.Namespace) -> int:
@@ -311,14 +322,17 @@ def cmd_trace(args: argparse.Namespace) -> int:
     except TraceError as exc:
         fail(f"orchestrator trace: {exc}")
         return EXIT_USAGE
+    out = Path(args.out) if args.out else run_dir(f"{scenario.name}-{args.format}") / "trace.csv"
     try:
-        write(rows, Path(args.out))
+        if not args.out:
+            out.parent.mkdir(parents=True, exist_ok=True)
+        write(rows, out)
     except OSError as exc:
-        fail(f"orchestrator trace: cannot write {args.out}: {exc.strerror}")
+        fail(f"orchestrator trace: cannot write {out}: {exc.strerror}")
         return EXIT_USAGE
     span = rows[-1]["time"] if rows else 0
-    print(f"{len(rows)} tasks over {span:g} s for {len(scenario.clients)} task sources -> {args.out} "
-          f"(use it with `workload: {{trace: {Path(args.out).name}}}`)")
+    print(f"{len(rows)} tasks over {span:g} s for {len(scenario.clients)} task sources -> {out} "
+          f"(use it with `workload: {{trace: {out.name}}}`, the path relative to the scenario file)")
     return EXIT_OK
 
 
@@ -328,21 +342,29 @@ def cmd_validate(args: argparse.Namespace) -> int:
     sc = load_scenario(args.scenario)
     print(f"{len(sc.nodes)} nodes, {sc.undirected_links} links, {len(sc.controllers)} controllers, "
           f"{len(sc.clients)} task sources")
+    for line in costs.report(sc):
+        print(line)
     return EXIT_OK
 
 
 # ----- parser -----
 
+def scenarios_help() -> str:
+    """The bundled scenarios, as every command that takes a scenario accepts them by name."""
+    return (f"Bundled scenarios, by name in place of a file: {', '.join(bundled_scenarios())}. "
+            "The format of a scenario file: docs/scenario.md.")
+
+
 def build_parser() -> argparse.ArgumentParser:
+    scenarios = scenarios_help()
     parser = argparse.ArgumentParser(
         prog="orchestrator",
         description="ZenohEdge: a distributed task-offloading emulator. Every worker, client and controller "
                     "runs as its own process and talks over Eclipse Zenoh under a simulated clock.",
-        epilog="Scenarios: topologies/aot1.yaml … aot4.yaml (the paper's Array-of-Things networks); "
-               "format in docs/scenario.md.")
+        epilog=scenarios)
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
 
-    p = sub.add_parser("launch", help="run a scenario and save its metrics",
+    p = sub.add_parser("launch", help="run a scenario and save its metrics", epilog=scenarios,
                        description="Run one episode of a scenario with node-side policies, show progress, print a "
                                    "summary and write summary.json, ticks.csv and nodes.csv.")
     p.add_argument("scenario", help="scenario YAML file, or a bundled name such as aot2")
@@ -350,10 +372,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--seed", type=integer(0, MAX_SEED),
                    help="random seed, from 0 to 2^62 - 1 (default: the scenario's simulation.seed)")
     p.add_argument("--transport", choices=("zenoh", "inproc"), default="zenoh",
-                   help="zenoh: one OS process per role over a Zenoh router (default); inproc: all roles in this "
-                        "process over an in-memory bus (fast, same results)")
+                   help="zenoh: node processes (see --layout) around a Zenoh router (default); inproc: all roles in "
+                        "this process over an in-memory bus (fast, same results)")
     p.add_argument("--layout", type=layout_name, metavar="LAYOUT",
-                   help=f"process layout: {LAYOUT_HELP}. Default: per-role over zenoh, single inproc")
+                   help=f"process layout: {LAYOUT_HELP}. Default: single inproc; over zenoh {DEFAULT_LAYOUT_HELP}")
     p.add_argument("--policy", type=POLICY, metavar="POLICY",
                    help=f"node-side decision policy for every controller: {', '.join(sorted(POLICIES))}, or a "
                         "Policy subclass of your own as module:Class (docs/extending.md; default: the scenario's)")
@@ -400,12 +422,13 @@ def build_parser() -> argparse.ArgumentParser:
     p.set_defaults(func=cmd_bench)
 
     p = sub.add_parser(
-        "topology", help="draw a scenario's network to a PNG",
+        "topology", help="draw a scenario's network to a PNG", epilog=scenarios,
         description="Draw the network of a scenario without running it: nodes at their positions (metres), "
                     "coloured by tier, circles for controllers (agents), squares for worker-only nodes, a dark "
                     "outline on task sources, size by capacity and link width by rate (both log scale).")
     p.add_argument("scenario", metavar="SCENARIO", help="scenario YAML file, or a bundled name such as aot2")
-    p.add_argument("--png", required=True, metavar="FILE", help="PNG file to write (folders are created)")
+    p.add_argument("--png", metavar="FILE",
+                   help="PNG file to write (folders are created; default: runs/<scenario>-<time>/topology.png)")
     p.add_argument("--title", metavar="T", help="heading instead of the scenario name (counts are always shown)")
     p.set_defaults(func=cmd_topology)
 
@@ -426,7 +449,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("format", choices=("alibaba",), help="the input's format")
     p.add_argument("input", help="batch_task.csv (no header)")
     p.add_argument("--scenario", required=True, help="scenario whose task sources receive the tasks")
-    p.add_argument("--out", required=True, metavar="FILE", help="trace CSV to write")
+    p.add_argument("--out", metavar="FILE",
+                   help="trace CSV to write (default: runs/<scenario>-alibaba-<time>/trace.csv)")
     p.add_argument("--frequency", type=POSITIVE, default=4.0e6, help="instructions/s of one core (default 4e6)")
     p.add_argument("--memory", type=POSITIVE, default=1.0e9, help="bytes that plan_mem = 100 stands for (default 1e9)")
     p.add_argument("--output-ratio", type=NON_NEGATIVE, default=1.0, help="output bytes / input bytes (default 1)")
@@ -437,16 +461,23 @@ def build_parser() -> argparse.ArgumentParser:
 
     monitor.add_parser(sub)
 
-    p = sub.add_parser("validate", help="check a scenario file",
+    p = sub.add_parser("validate", help="check a scenario file", epilog=scenarios,
                        description="Load and validate a scenario. Prints 'N nodes, E links, C controllers, S task "
-                                   "sources' and exits 0, or one line per problem and exits 2.")
+                                   "sources', then what one task of each type costs alone on each device against its "
+                                   "deadline (with a 'warning:' line where it cannot meet it), and exits 0; or one "
+                                   "line per problem and exits 2.")
     p.add_argument("scenario")
     p.set_defaults(func=cmd_validate)
     return parser
 
 
 def main(argv: list[str] | None = None) -> int:
-    args = build_parser().parse_args(argv)
+    parser = build_parser()
+    argv = sys.argv[1:] if argv is None else argv
+    if not argv:  # a bare `orchestrator`: the help, as pip gives it
+        parser.print_help()
+        return EXIT_OK
+    args = parser.parse_args(argv)
     previous = signal.signal(signal.SIGTERM, _on_sigterm)
     try:
         return args.func(args)

@@ -8,9 +8,10 @@ This is what ``orchestrator launch`` drives and what ``ZenohEdgeEnv`` holds:
             report = sim.step()
 
 ``Simulation.inproc`` runs the same node code in this process over an in-memory bus (layout ``single`` by
-default: one host holding every role); ``Simulation.over_zenoh`` starts one OS process per role
-(``per-role``, the default) or per node (``per-node``) around a Zenoh router owned by this object;
-``Simulation.attach`` drives one served elsewhere.
+default: one host holding every role); ``Simulation.over_zenoh`` starts one OS process per role (``per-role``,
+the default while it fits the machine, else ``groups:K``: node_runtime.runtime.layout.layout_for), per node
+(``per-node``) or per block of nodes around a Zenoh router owned by this object; ``Simulation.attach`` drives
+one served elsewhere.
 Either way the bus carries the same liveliness tokens and answers the same requests (``serve``), so
 monitors and drivers work on both.
 """
@@ -35,7 +36,7 @@ from node_runtime.runtime.failure import account
 from node_runtime.runtime.host import Host, role_class
 from node_runtime.runtime.inproc import InprocBus
 from node_runtime.runtime.keys import DEFAULT_PREFIX, Keys, new_sim_id
-from node_runtime.runtime.layout import Layout, ProcessLayout
+from node_runtime.runtime.layout import Layout, ProcessLayout, layout_for
 from node_runtime.runtime.process import ORCHESTRATOR, READY_TIMEOUT
 from node_runtime.runtime.protocol import Done
 from node_runtime.runtime.security import Security, protocol
@@ -60,6 +61,14 @@ def check_transport(name: str) -> TransportName:
     if name not in ("zenoh", "inproc"):
         raise ValueError(f"transport must be 'zenoh' or 'inproc', not {name!r}")
     return name
+
+
+def default_layout(scenario: Scenario, transport: TransportName, placed: bool) -> Layout:
+    """The default: per-role over Zenoh while it fits this machine, said when it does not (``layout_for``)."""
+    choice = layout_for(scenario, transport, placed=placed)
+    if choice.note is not None:
+        log.warning(choice.note)
+    return choice.layout
 
 
 class RouterUnavailable(Exception):
@@ -138,11 +147,13 @@ class Simulation:
     transport: Transport  # the orchestrator's (or the attached driver's) end of the bus
     clock: Clock
 
-    def __init__(self, scenario: Scenario, *, transport: TransportName, keys: Keys, layout: Layout | None) -> None:
-        """What every simulation has, however it is opened: the plan, the metrics, the episode's state."""
+    def __init__(self, scenario: Scenario, *, transport: TransportName, keys: Keys, layout: Layout | None,
+                 placed: bool = False) -> None:
+        """What every simulation has, however it is opened: the plan, the metrics, the episode's state.
+        ``placed``: some processes run on other hosts (the default layout then stays per-role)."""
         self.scenario = scenario
         self.transport_name = transport
-        self.layout = layout or ("single" if transport == "inproc" else "per-role")  # the default layout
+        self.layout = layout or default_layout(scenario, transport, placed)
         self.plan = ProcessLayout(scenario, self.layout)
         self.keys = keys
         self.metrics = Metrics(self.plan)
@@ -203,8 +214,9 @@ class Simulation:
                    remote: RemoteHosts | None = None) -> Simulation:
         """One OS process per process of the layout (per role by default) around a Zenoh router this object
         owns; those of ``remote`` are left to other hosts."""
-        self = cls(scenario, transport="zenoh", keys=Keys(sim_id or new_sim_id(), prefix), layout=layout)
         placement = dict(remote.placement) if remote is not None else {}
+        self = cls(scenario, transport="zenoh", keys=Keys(sim_id or new_sim_id(), prefix), layout=layout,
+                   placed=bool(placement))
         settings = dict(router.zenoh_settings or {})
         if router.security is not None:
             settings = {"access_control": access_control(self.keys, self.plan, placement), **settings}

@@ -31,6 +31,16 @@ def code_version() -> dict[str, Any]:
     return {"version": version, "commit": commit, "dirty": dirty}
 
 
+def version_line(code: dict[str, Any] | None = None) -> str:
+    """The code version in one line, to stamp a measurement: "zenohedge 0.1.0, commit e8dab53 (uncommitted
+    changes)". Benchmarks print it under their tables, so that a table pasted into the docs says what it measured."""
+    code = code_version() if code is None else code
+    line = f"zenohedge {code['version'] or '(not installed)'}"
+    if code["commit"]:
+        line += f", commit {code['commit'][:7]}" + (" (uncommitted changes)" if code["dirty"] else "")
+    return line
+
+
 def _git(*args: str) -> str:
     return subprocess.run(["git", "-C", str(ROOT), *args], capture_output=True, text=True, check=True,
                           timeout=10).stdout.strip()

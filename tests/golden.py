@@ -112,6 +112,12 @@ def _model_part(summary: dict[str, Any]) -> dict[str, Any]:
     return {k: v for k, v in summary.items() if k not in ("run", "code")}
 
 
+def _model_infos(infos: dict[str, Any]) -> dict[str, Any]:
+    """Infos with the episode summary of the last step reduced to its model part."""
+    return {a: {**info, "episode": _model_part(info["episode"])} if isinstance(info.get("episode"), dict) else info
+            for a, info in infos.items()}
+
+
 def _launch(case: Case, scenario: Any) -> dict[str, Any]:
     from orchestrator.session import Simulation
 
@@ -134,12 +140,13 @@ def _episode(case: Case, scenario: Any) -> dict[str, Any]:
     returns = 0.0
     try:
         obs, infos = env.reset(seed=case.seed)
-        stream.update(_digest([obs, infos]).encode())
+        stream.update(_digest([obs, _model_infos(infos)]).encode())
         while env.agents:
             actions = {a: _sample(env, a, obs[a], rng) for a in env.agents}
             obs, rewards, terms, truncs, infos = env.step(actions)
             returns += sum(rewards.values())
-            stream.update(_digest([actions, obs, rewards, terms, truncs, infos, env.step_details]).encode())
+            stream.update(_digest([actions, obs, rewards, terms, truncs, _model_infos(infos),
+                                   _model_infos(env.step_details)]).encode())
     finally:
         env.close()
     return {"episode": stream.hexdigest()[:20], "totals": {"return": round(returns, 6)}}

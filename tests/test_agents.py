@@ -104,10 +104,10 @@ def test_least_queue_and_greedy_choose_as_documented():
 
 @settings(max_examples=200, deadline=None)
 @given(st.data())
-def test_deterministic_baselines_choose_as_their_node_side_twins(data):
-    # The agent-side baselines read the encoded arrays; the node-side policies of the same names read the
-    # controller's raw view. On the same view they must place the task alike (seconds-scale values, so
-    # float32 encoding cannot flip a choice).
+def test_a_baseline_reads_back_the_view_its_rule_decides_on(data):
+    # A baseline runs the node-side rule of its name on the view it reads back from the encoded arrays;
+    # on the controller's raw view the rule must place the task alike (seconds-scale values, so float32
+    # encoding cannot flip a choice): units, columns, masks and the random stream all come back.
     def node(name: str, worker: bool = True) -> NodeView:
         return NodeView(name, data.draw(st.integers(0, 8)), data.draw(st.integers(0, 12)), 12,
                         data.draw(st.sampled_from([1e8, 4e8, 1e9, 4e9])), 1,
@@ -117,17 +117,49 @@ def test_deterministic_baselines_choose_as_their_node_side_twins(data):
     neighbours = [node(f"n{i}", data.draw(st.booleans())) for i in range(degree)]
     task = TaskView(7, data.draw(st.sampled_from([1e8, 1e9])), 1e6, 1e5, 1.0, 60.0, 30.0, 0, "me")
     view = View(5, "me", node("me"), 1, [task], neighbours)
-    # Exact ties between estimates are a matter of rounding: the node side sums wait and run in float64,
-    # the agent side reads float32 arrays, so either may win (e.g. 0.88 s + 2 x 1e9 / 1e8 against
-    # 0.88 s + 8 x 1e9 / 4e8). Such views test nothing about the rule, and are left out.
+    # Exact ties between estimates are a matter of rounding: the raw view holds float64 numbers, the
+    # arrays float32 ones, so either target may win (e.g. 0.88 s + 2 x 1e9 / 1e8 against
+    # 0.88 s + 8 x 1e9 / 4e8). Such views test nothing about the reading, and are left out.
     valid = [i for i, ok in enumerate(view.valid_actions()) if ok]
     for name in ("greedy", "greedy_backlog"):
         costs = sorted(make_node_policy(name).estimate(view, task, a, 0) for a in valid)
         assume(len(costs) < 2 or not math.isclose(costs[0], costs[1], rel_tol=1e-5))
     assume(not math.isclose(make_node_policy("local_first").estimate(view, task, 0, 0), task.time_left, rel_tol=1e-5))
-    encoded = DictObservation(ObservationLayout(degree, degree, None)).encode(view)
-    for name in ("local", "least_queue", "greedy", "greedy_backlog", "local_first"):
-        assert BASELINES[name]().act({"a": encoded})["a"] == make_node_policy(name).decide(view)[0], name
+    encoded = DictObservation(ObservationLayout(degree, degree + 1, None)).encode(view)  # one padding slot
+    seed = data.draw(st.integers(0, 2**32 - 1))
+    for name in BASELINES:
+        rule = make_node_policy(name)
+        rule.reset(np.random.default_rng(seed))
+        assert BASELINES[name](seed).act({"a": encoded})["a"] == rule.decide(view)[0], name
+
+
+@pytest.mark.parametrize("scenario, mode", [("aot3_compute", None), ("examples/n_tier_cloud", None),
+                                            ("aot4_wired", "batch")])
+def test_baselines_choose_as_their_rules_on_the_controllers_views(scenario, mode):
+    """Over real episodes: at every step, each agent's action is what its rule decides on the controller's
+    raw view (the deterministic rules; a baseline's random stream is shared by its agents)."""
+    overrides = ScenarioOverrides(mode=mode, batch_size=3 if mode else None, arrival_rate=0.5)
+    env = ZenohEdgeEnv(scenario, transport="inproc", max_steps=60, overrides=overrides, uniform_spaces=True)
+    offloads = 0
+    try:
+        for name in ("least_queue", "greedy", "greedy_backlog", "local_first"):
+            baseline, rule = BASELINES[name](0), make_node_policy(name)
+            obs, _ = env.reset(seed=4)
+            decisions = 0
+            while env.agents:
+                actions = baseline.act(obs)
+                for agent in env.agents:
+                    raw = env._raw[agent]
+                    if raw is not None and raw.tasks:
+                        expected = rule.decide(raw)
+                        assert (actions[agent] if mode else [actions[agent]])[:len(expected)] == expected, name
+                        decisions += 1
+                        offloads += sum(a > 0 for a in expected)
+                obs, *_ = env.step(actions)
+            assert decisions > 0, name
+    finally:
+        env.close()
+    assert offloads > 0  # the rules did send tasks away: not only "keep it" was compared
 
 
 def test_the_tie_that_the_twin_test_leaves_out_is_one():

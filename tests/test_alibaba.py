@@ -96,3 +96,15 @@ def test_the_shipped_sample_converts_and_runs(tmp_path):
                                      "workload": {"trace": str(out)}, "simulation": {"steps": 50}})
     summary = run_summary(load_scenario(path))
     assert summary["totals"]["generated"] == sum(float(r["time"]) < 50 for r in rows)
+
+
+def test_without_out_the_trace_goes_under_runs_not_in_the_current_directory(tmp_path, monkeypatch, capsys):
+    sample = ROOT / "topologies" / "traces" / "alibaba_batch_task_sample.csv"
+    monkeypatch.chdir(tmp_path)
+    assert main(["trace", "alibaba", str(sample), "--scenario", "aot2", "--limit", "5"]) == 0
+    said = capsys.readouterr().out
+    written = [p.relative_to(tmp_path) for p in tmp_path.rglob("*") if p.is_file()]
+    assert len(written) == 1 and written[0].parts[0] == "runs" and written[0].parent.name.startswith("aot2-alibaba-")
+    assert f"-> {written[0]} " in said
+    with (tmp_path / written[0]).open() as fh:
+        assert len(list(csv.DictReader(fh))) == 5

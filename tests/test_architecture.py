@@ -91,7 +91,8 @@ def _map_text() -> str:
 
 def on_the_map(text: str | None = None) -> set[str]:
     """The files docs/architecture.md (or ``text``) names, as paths from the root: a name inside a section on
-    a folder (a heading or a bullet that starts with `folder/`) is in that folder, unless it starts at the top."""
+    a folder (a heading or a bullet that starts with `folder/`) is in that folder, unless it starts at the top
+    or is a file of the root itself (``mkdocs_hooks.py``)."""
     named, base = set(), ""
     for line in (_map_text() if text is None else text).splitlines():
         folder = re.match(r"(?:#+ |- )[^`]*`([a-z_0-9/]+/)`", line)
@@ -100,7 +101,8 @@ def on_the_map(text: str | None = None) -> set[str]:
         elif folder and line.startswith("- "):
             base = folder.group(1)
         for name in re.findall(r"`([A-Za-z0-9_/]+\.py)`", line):
-            named.add(name if name.split("/")[0] in TOP_LEVEL else base + name)
+            whole = name.split("/")[0] in TOP_LEVEL or (ROOT / name).is_file()
+            named.add(name if whole else base + name)
     return named
 
 

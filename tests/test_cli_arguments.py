@@ -119,3 +119,22 @@ def test_launch_takes_a_policy_of_your_own_by_import_path(tmp_path, monkeypatch,
             main(["launch", "aot1", "--policy", policy])
         assert e.value.code == 2
         assert capsys.readouterr().err.strip().endswith(f"argument --policy: {error}")
+
+
+def test_a_bare_orchestrator_prints_the_help_and_exits_0(capsys):
+    assert main([]) == 0
+    out, err = capsys.readouterr()
+    assert out.startswith("usage: orchestrator") and "launch" in out and "validate" in out and err == ""
+
+
+@pytest.mark.parametrize("command", [[], ["launch"], ["validate"], ["topology"]])
+def test_the_help_names_every_bundled_scenario(command, capsys):
+    from topologies import bundled_scenarios
+
+    with pytest.raises(SystemExit) as exc:
+        main([*command, "--help"])
+    assert exc.value.code == 0
+    words = set(capsys.readouterr().out.replace(",", " ").replace(".", " ").split())
+    names = bundled_scenarios()
+    assert len(names) >= 31 and "examples/minimal" in names
+    assert not set(names) - words

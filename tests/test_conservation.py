@@ -9,7 +9,8 @@ from __future__ import annotations
 import csv
 import dataclasses
 
-from node_runtime.model.spec import Arrival, Failure
+from node_runtime.model.arrival import Constant
+from node_runtime.model.spec import Failure
 from orchestrator.scenario import load_scenario
 from tests.conftest import ROOT, run_summary
 
@@ -30,9 +31,9 @@ def recompute_from_csv(path):
 
 def test_aot4_high_load_5000_ticks(tmp_path):
     base = load_scenario(ROOT / "topologies" / "aot4.yaml")
-    wl = dataclasses.replace(base.workload, arrival=Arrival("constant", rate=0.6))
-    scenario = dataclasses.replace(base, workload=wl, failures=(Failure("nuc_1", 1000, 1300),
-                                                                Failure("server_0", 3000, 3100)))
+    wl = base.workload.model_copy(update={"arrival": Constant(rate=0.6)})
+    scenario = base.replace(workload=wl, failures=(Failure(node="nuc_1", at=1000, duration=300),
+                                                   Failure(node="server_0", at=3000, duration=100)))
     summary = run_summary(scenario, ticks=5000, policy="random", out=tmp_path)
     rows, generated = recompute_from_csv(tmp_path / "ticks.csv")
     assert rows == 5000
@@ -45,6 +46,6 @@ def test_aot4_high_load_5000_ticks(tmp_path):
 def test_lossy_links_account_for_every_task(tmp_path):
     base = load_scenario(ROOT / "topologies" / "aot1.yaml")
     lossy = tuple(dataclasses.replace(lk, loss=0.2) for lk in base.links)
-    summary = run_summary(dataclasses.replace(base, links=lossy), ticks=1500, policy="least_queue", out=tmp_path)
+    summary = run_summary(base.replace(links=lossy), ticks=1500, policy="least_queue", out=tmp_path)
     recompute_from_csv(tmp_path / "ticks.csv")
     assert summary["totals"]["dropped"]["link_loss"] > 0

@@ -11,7 +11,7 @@ import pytest
 from agents.baselines import BASELINES
 from agents.common import AgentSpec
 from agents.ddqn import DDQN, DDQNConfig
-from agents.learner import LearnerConfig, Pending
+from agents.learner import LearnerConfig, OpenTransition
 from agents.onpolicy import Record, credited, uncredited_removed
 from agents.ppo import PPO, PPOConfig
 from env import ZenohEdgeEnv
@@ -175,7 +175,7 @@ def test_ddqn_stores_a_transition_once_its_credit_comes_and_never_one_without():
 
 def record(agent, credit):
     return Record(agent, np.zeros(1), np.zeros(1), np.ones(2, bool), 0, 0.0, 0.0, 0.0, 1.0, 0.0, False,
-                  source=Pending(np.zeros(1), np.ones(2, bool), 0, credit=credit))
+                  source=OpenTransition(np.zeros(1), np.ones(2, bool), 0, credit=credit))
 
 
 def test_an_agents_records_wait_from_its_first_decision_without_credit():

@@ -87,9 +87,15 @@ def test_topology_command_errors(tmp_path, capsys):
     assert run_command(["topology", str(ROOT / "topologies" / "aot1.yaml"), "--png", str(png)]) == 2
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and "cannot write" in err and "Traceback" not in err
-    with pytest.raises(SystemExit) as exc:  # --png is required
-        parser().parse_args(["topology", "aot1"])
-    assert exc.value.code == 2
+
+
+def test_topology_without_png_writes_under_runs_not_in_the_current_directory(tmp_path, monkeypatch, capsys):
+    monkeypatch.chdir(tmp_path)
+    assert run_command(["topology", "aot1"]) == 0
+    out = Path(capsys.readouterr().out.strip())
+    assert out.parent.parent == Path("runs") and out.parent.name.startswith("aot1-") and out.name == "topology.png"
+    assert_png(tmp_path / out)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["runs"]
 
 
 # ----- plots -----

@@ -72,3 +72,21 @@ def test_every_example_is_shown_in_the_doc():
     shown = {rel for rel, _ in doc_blocks()}
     files = {str(p.relative_to(ROOT)) for p in [*YAMLS, *EXAMPLES.glob("*.csv")]}
     assert files <= shown, f"not shown in docs/scenario.md: {sorted(files - shown)}"
+
+
+def test_the_first_scenario_in_the_doc_validates_as_shown_and_drops_nothing(tmp_path, capsys):
+    """docs/scenario.md's minimal scenario: `validate` prints what the doc shows, without a warning, and a run
+    completes what the doc says."""
+    from orchestrator.cli import main
+
+    section = DOC.read_text().split("## A minimal scenario\n", 1)[1].split("\n## ", 1)[0]
+    blocks = {m.group("lang"): m.group("body") for m in FENCE.finditer(section) if not FILE_LINE.match(m.group("body"))}
+    path = tmp_path / "my.yaml"
+    path.write_text(blocks["yaml"])
+    shown = blocks["console"].split("$ orchestrator validate my.yaml\n", 1)[1].split("$ ")[0]
+    assert main(["validate", str(path)]) == 0
+    assert capsys.readouterr().out == shown
+    with Simulation(load_scenario(path), transport="inproc") as sim:
+        totals = sim.run()["totals"]
+    assert (totals["completed"], totals["generated"], totals["dropped"]["total"]) == (492, 494, 0)
+    assert "It completes 492 of 494 tasks (2 still in the system at the end)" in section

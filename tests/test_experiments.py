@@ -135,7 +135,8 @@ def test_train_then_evaluate_command_lines(tmp_path, capsys):
 def test_evaluate_takes_a_rule_of_your_own_by_import_path(tmp_path, monkeypatch, capsys):
     """A Baseline subclass named module:Class, from the working directory, plays the same episodes."""
     (tmp_path / "myrules.py").write_text(
-        "from agents.baselines import GreedyBacklog\n\nclass Mine(GreedyBacklog):\n    name = 'mine'\n")
+        "from agents.baselines import Baseline\nfrom node_runtime.model.policies import GreedyBacklog\n\n"
+        "class Mine(Baseline):\n    rule = GreedyBacklog\n    name = 'mine'\n")
     monkeypatch.chdir(tmp_path)
     common = ["--scenario", "aot1", "--lam", "0.3", "--episodes", "2", "--max-steps", "40", "--no-progress"]
     evaluate.main(["myrules:Mine", *common, "--csv", "mine.csv"])

@@ -298,7 +298,7 @@ def test_reference_scenarios_run_what_the_reference_ran(name):
     assert (sc.admission, sc.control_latency, sc.workload.arrival.process) == ("queue_first", 0, "exponential_gaps")
     (task,) = sc.workload.task_types
     assert (task.instructions, task.input_bytes, task.output_bytes) == (3.2e8, 1.5e8, 1.5e8)
-    assert (task.deadline, task.deadline_high, task.grace) == (100.0, 200.0, 5.0)
+    assert (task.deadline.low, task.deadline.high, task.deadline.grace) == (100.0, 200.0, 5.0)
     plain = load_scenario(ROOT / "topologies" / f"{name.removesuffix('_reference')}.yaml")
     assert [n.id for n in sc.nodes] == [n.id for n in plain.nodes] and sc.links != plain.links
 

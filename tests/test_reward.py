@@ -7,8 +7,9 @@ import math
 import numpy as np
 import pytest
 
-from env.reward import PaperWeights, nominal_arrivals, paper_terms, reference_terms, shaped
+from env.reward import PaperWeights, paper_terms, reference_terms, shaped
 from node_runtime.model.view import NodeView, Observation, TaskView
+from node_runtime.model.workload import nominal_arrivals
 
 # An rpi3-like node (1 core at 4e6 cycles/s, buffer 3, holding 3 tasks of which 2 queued) next to a
 # nuc-like one (3.2e7 cycles/s, buffer 54, 5 tasks queued) over a 30 Mbit/s link.

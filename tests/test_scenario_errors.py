@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import statistics
 import subprocess
 import sys
 
@@ -9,6 +10,7 @@ import pytest
 import yaml
 
 from orchestrator.cli import main
+from orchestrator.scenario import load_scenario
 
 NODES = [{"id": "a", "client": True, "controller": True}, {"id": "b"}]
 LINKS = [["a", "b"]]
@@ -88,6 +90,13 @@ CASES = [
      "workload.arrival: rate is not used by kind 'linear', which takes end, start"),
     ("arrival_missing_keys", good(workload={"arrival": {"kind": "zigzag", "low": 0.1}}), {},
      "workload.arrival: kind 'zigzag' needs high, period"),
+    ("arrival_unknown_kind", good(workload={"arrival": {"kind": "poisson"}}), {},
+     "workload.arrival.kind: expected 'constant', 'linear', 'zigzag' or 'uniform' (got 'poisson')"),
+    ("arrival_misspelt_key_of_its_kind", good(workload={"arrival": {"kind": "linear", "strat": 0.1, "end": 1}}), {},
+     "workload.arrival.strat: unknown key (did you mean 'start'?)"),
+    ("arrival_not_a_mapping", good(workload={"arrival": 7}), {}, "workload.arrival: expected a mapping (got 7)"),
+    ("failure_zero_duration", good(failures=[{"node": "a", "at": 3, "duration": 0}]), {},
+     "failures[0].duration: expected a number >= 1 (got 0)"),
     ("link_rates_without_ether", {"topology": {"nodes": NODES, "links": LINKS, "link_rates": "ether"}}, {},
      "topology: link_rates only applies to an Ether import"),
     ("trace_and_arrival", good(workload={"trace": "t.csv", "arrival": {"rate": 0.2}}), {"t.csv": HEADER},
@@ -214,7 +223,7 @@ def test_unknown_bundled_name_lists_the_bundled_scenarios_and_suggests_one(capsy
 def test_an_outside_scenario_names_a_bundled_ether_file_by_its_relative_path(tmp_path, capsys):
     path = write_case(tmp_path, "outside", {"topology": {"ether": "ether/network_2_clusters.json"}}, {})
     assert main(["validate", str(path)]) == 0
-    assert capsys.readouterr().out.strip() == "19 nodes, 34 links, 15 controllers, 12 task sources"
+    assert capsys.readouterr().out.splitlines()[0] == "19 nodes, 34 links, 15 controllers, 12 task sources"
 
 
 def test_cli_process_exit_status_and_no_traceback(tmp_path):
@@ -226,9 +235,34 @@ def test_cli_process_exit_status_and_no_traceback(tmp_path):
         assert proc.stderr.strip() == f"{path}: topology.nodes[0].cores: expected a number >= 1 (got -2)"
 
 
-def test_validate_prints_the_counts(capsys):
+def test_validate_prints_the_counts_then_what_a_task_costs(capsys):
     assert main(["validate", "topologies/aot2.yaml"]) == 0
-    assert capsys.readouterr().out.strip() == "19 nodes, 34 links, 15 controllers, 12 task sources"
+    lines = capsys.readouterr().out.strip().splitlines()
+    assert lines[0] == "19 nodes, 34 links, 15 controllers, 12 task sources"
+    # 8e7 instructions x cpi 1 on one core of 4 MHz; 150 MiB at the median rate of the links into the rpi3s
+    aot2 = load_scenario("aot2")
+    rate = statistics.median(link.rate_bps for link in aot2.links if link.dst.startswith("rpi3"))
+    row = next(line.split() for line in lines if line.split()[:2] == ["sensing", "rpi3"])
+    assert row[2:5] == ["12", "20", "s"] and row[5] == f"{150 * 2**20 * 8 / rate:.3g}" and row[-2:] == ["100", "s"]
+    assert [line for line in lines if line.startswith("warning:")] == [
+        "warning: 12 rpi3 node(s) (rpi3_0, rpi3_1, rpi3_2 ...) receive more work than they serve, up to 3.4 times "
+        "(0.17 tasks/s of 20 s of service at rpi3_0): what they do not offload queues, and is dropped when the "
+        "buffer is full or the deadline passes"]
+
+
+def test_validate_warns_of_a_task_that_cannot_meet_its_deadline_alone(tmp_path, capsys):
+    """150 MiB tasks of 8e7 instructions on rpi3s (4 MHz: 20 s of service) with a 10 s deadline: served where
+    they arrive or offloaded, no task can make it; the file is still valid (exit 0)."""
+    data = {"workload": {"tasks": [{"name": "big", "deadline": 10}]},
+            "topology": {"nodes": [{"id": "a", "profile": "rpi3"}, {"id": "b", "profile": "rpi3"}],
+                         "links": [["a", "b"]]}}
+    path = write_case(tmp_path, "big", data, {})
+    assert main(["validate", str(path)]) == 0
+    warnings = [line for line in capsys.readouterr().out.splitlines() if line.startswith("warning:")]
+    assert warnings == ["warning: task type 'big' cannot meet its deadline (10 s) even alone on rpi3: 20 s of service",
+                        "warning: 2 rpi3 node(s) (a, b) receive more work than they serve, up to 3.4 times (0.17 "
+                        "tasks/s of 20 s of service at a): what they do not offload queues, and is dropped when the "
+                        "buffer is full or the deadline passes"]
 
 
 def test_a_generator_profile_typo_is_reported_once(tmp_path, capsys):

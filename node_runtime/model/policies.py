@@ -1,8 +1,9 @@
-"""Node-side decision policies: what a controller does when no RL agent drives it.
+"""Decision policies: what a controller does when no RL agent drives it, and the agents' heuristics.
 
 A policy maps an ``Observation`` to one action per task in it (0 = keep locally, i = neighbour
 i - 1). Policies only pick valid actions. In batch mode they place the tasks one after another,
-counting each placed task against its target so a batch does not all pile onto one node.
+counting each placed task against its target so a batch does not all pile onto one node. Each rule
+is defined here only: ``agents.baselines`` runs the same classes on the environment's observations.
 """
 
 from __future__ import annotations

@@ -9,6 +9,9 @@ from __future__ import annotations
 
 import numpy as np
 
+# A seed travels with every reset as a msgpack integer (64 bits at most), and a launch adds the episode to it
+MAX_SEED = 2**62 - 1
+
 
 def stream(seed: int, node_index: int, role: int, purpose: int = 0) -> np.random.Generator:
     seq = np.random.SeedSequence(seed, spawn_key=(node_index, role, purpose))

@@ -1,20 +1,33 @@
-"""The resolved scenario: what every node process needs to know, and nothing about files.
+"""The scenario model: what every node process needs to know, and nothing about files.
 
-The orchestrator parses and validates a YAML scenario into these frozen dataclasses; node
-processes receive them (pickled by the launcher, or as a dict over the bus for remote hosts).
-Everything here is plain data so that it round-trips through ``to_dict``/``from_dict``.
+One typed description of each fact. The scenario file's sections that are values of the model (the
+``simulation`` settings, task types and their deadlines, the arrival schedule, failures) are these
+classes, validated where a scenario enters (``orchestrator.scenario`` for a file, ``from_dict`` for one
+received over the bus) and then used as they are by every process. Nodes and links are resolved from
+the file's profiles, topology sources and radio model, so the file describes them in its own terms
+(``orchestrator.scenario.schema``) and ``NodeSpec``/``LinkSpec`` hold the result.
 """
 
 from __future__ import annotations
 
 import hashlib
 import json
-from dataclasses import asdict, dataclass, field, fields
+from dataclasses import asdict, dataclass
 from functools import cached_property
-from typing import Any, Literal
+from typing import Annotated, Any, Literal
+
+import numpy as np
+from pydantic import Discriminator, Field, Tag, field_validator, model_validator
+
+from node_runtime.model.arrival import Arrival, Constant
+from node_runtime.model.plugins import is_import_path
+from node_runtime.model.policies import POLICIES
+from node_runtime.model.rng import MAX_SEED
+from node_runtime.model.values import Count, NonNeg, Pos, Strict, Tick
 
 Mode = Literal["binary", "batch"]
 Admission = Literal["decide_first", "queue_first"]
+MIB = 1024 * 1024
 
 
 @dataclass(frozen=True, slots=True)
@@ -63,48 +76,60 @@ class LinkSpec:
     loss: float = 0.0  # probability that a message on this link is lost
 
 
-@dataclass(frozen=True, slots=True)
-class TaskType:
-    name: str
-    weight: float
-    instructions: float  # rho
-    input_bytes: float  # alpha_in
-    output_bytes: float  # alpha_out
-    cpi: float  # xi, cycles per instruction
-    deadline: float  # delta, seconds from creation until the result must be back; with a range, its low end
-    deadline_high: float | None = None  # a range: delta ~ U[deadline, deadline_high) + grace, drawn per task
-    grace: float = 0.0  # seconds added to every drawn deadline
+class DeadlineRange(Strict):
+    """A deadline drawn per task: U[low, high) seconds, plus ``grace``."""
+
+    low: Pos
+    high: Pos
+    grace: NonNeg = 0.0
+
+    @model_validator(mode="after")
+    def _ordered(self) -> DeadlineRange:
+        if self.high <= self.low:
+            raise ValueError("high must be > low (for a fixed deadline, give a number)")
+        return self
+
+
+# A number, or a range; the tags name the alternatives in errors (the scenario's key paths skip them).
+Deadline = Annotated[Annotated[Pos, Tag("<number>")] | Annotated[DeadlineRange, Tag("<range>")],
+                     Discriminator(lambda v: "<range>" if isinstance(v, dict | DeadlineRange) else "<number>")]
+
+
+class TaskType(Strict):
+    """A kind of task the clients create, tau = <rho, alpha_in, alpha_out, xi, delta>, and how often
+    (``weight``, relative to the other types). Defaults follow the paper's parameter table."""
+
+    name: str = "task"
+    weight: Pos = 1.0
+    instructions: Pos = 8.0e7  # rho
+    input_bytes: Pos = 150.0 * MIB  # alpha_in
+    output_bytes: Pos = 150.0 * MIB  # alpha_out
+    cpi: Pos = 1.0  # xi, cycles per instruction
+    deadline: Deadline = 100.0  # delta: seconds from creation until the result must be back
+
+    @property
+    def cycles(self) -> float:
+        """CPU cycles one task of this type needs (as ``Task.cycles``)."""
+        return self.instructions * self.cpi
 
     @property
     def drawn(self) -> bool:
         """Whether each task of this type draws its own deadline."""
-        return self.deadline_high is not None
+        return isinstance(self.deadline, DeadlineRange)
 
     @property
     def longest_deadline(self) -> float:
-        """The bound of every deadline this type gives a task: the range's high end (or the fixed value)
-        plus the grace. No task of the type completes later than this."""
-        return (self.deadline_high if self.drawn else self.deadline) + self.grace
+        """The bound of every deadline this type gives a task: the range's high end plus its grace (or
+        the fixed value). No task of the type completes later than this."""
+        d = self.deadline
+        return d.high + d.grace if isinstance(d, DeadlineRange) else d
 
-
-@dataclass(frozen=True, slots=True)
-class Arrival:
-    """Arrival-rate schedule lambda(t), tasks per second per client.
-
-    kinds: constant(rate); linear(start -> end over the episode); zigzag(low..high, period s);
-    uniform(each client draws a constant rate in [low, high] at every reset). The process: poisson
-    (a Poisson count per tick) or exponential_gaps (one task at a time, max(1, floor(Exp(lambda) / dt))
-    ticks apart, the reference implementation's client).
-    """
-
-    kind: Literal["constant", "linear", "zigzag", "uniform"] = "constant"
-    rate: float = 0.17
-    start: float = 0.0
-    end: float = 0.0
-    low: float = 0.0
-    high: float = 0.0
-    period: float = 100.0
-    process: Literal["poisson", "exponential_gaps"] = "poisson"
+    def draw_deadline(self, rng: np.random.Generator | None) -> float:
+        """δ of one new task: U[low, high) plus the grace for a range (drawn from ``rng``), else the fixed value."""
+        d = self.deadline
+        if isinstance(d, DeadlineRange):
+            return float(rng.uniform(d.low, d.high)) + d.grace
+        return d
 
 
 @dataclass(frozen=True, slots=True)
@@ -118,45 +143,78 @@ class TraceRow:
     deadline: float
 
 
-@dataclass(frozen=True, slots=True)
-class Workload:
+class Workload(Strict):
     task_types: tuple[TaskType, ...]
-    arrival: Arrival = Arrival()
+    arrival: Arrival = Constant()
     client_rates: tuple[tuple[str, float], ...] = ()  # per-client constant overrides
     client_targets: tuple[tuple[str, tuple[str, ...]], ...] = ()  # client node -> worker nodes
     trace: tuple[TraceRow, ...] | None = None
     source: str = ""  # import path of a user TaskSource subclass ("" = Poisson / trace)
 
 
-@dataclass(frozen=True, slots=True)
-class Failure:
-    """Node ``node`` is down for ticks [start, end)."""
+class Failure(Strict):
+    """Node ``node`` is down for ``duration`` ticks from tick ``at``."""
 
     node: str
-    start: int
-    end: int
+    at: Tick
+    duration: Count
+
+    @property
+    def end(self) -> int:
+        """The first tick the node is up again."""
+        return self.at + self.duration
 
 
-@dataclass(frozen=True)
-class Scenario:
+def known_policy(name: str) -> str:
+    """A built-in policy's name, or an import path (imported when the scenario's extensions are checked)."""
+    if name not in POLICIES and not is_import_path(name):
+        raise ValueError(f"expected one of {', '.join(POLICIES)}, or an import path 'module:Class'")
+    return name
+
+
+class SimulationSettings(Strict):
+    """The file's ``simulation`` section: how time runs and how decisions are made. Defaults follow the
+    paper (1,000 steps of 1 s)."""
+
+    dt: Pos = 1.0
+    steps: Count = 1000  # decision epochs in an episode
+    seed: Annotated[int, Field(ge=0, le=MAX_SEED)] = 0
+    mode: Mode = "binary"
+    decision_interval: Count = 1  # ticks per decision epoch
+    max_hops: Tick = 1
+    batch_size: Count = 4  # decisions per epoch in batch mode (fixed action shape)
+    state_interval: Count = 1  # ticks between one-hop state broadcasts
+    policy: str = "local"  # node-side decision policy of every node that names none
+    admission: Admission = "decide_first"  # queue_first: arrivals are queued at once, decisions divert queued tasks
+    control_latency: Literal[0, 2] = 2  # ticks between the state a controller observes and its decision's effect
+
+    @field_validator("policy")
+    @classmethod
+    def _known_policy(cls, v: str) -> str:
+        return known_policy(v)
+
+    @property
+    def episode_ticks(self) -> int:
+        """Ticks in an episode: its steps of ``decision_interval`` ticks each."""
+        return self.steps * self.decision_interval
+
+
+class Scenario(SimulationSettings):
+    """A resolved scenario: the settings, every node with its hardware and roles, every directed link with
+    its rate, the workload and the failures."""
+
     name: str
-    dt: float
-    episode_ticks: int
-    seed: int
-    mode: Mode
-    decision_interval: int
-    max_hops: int
-    batch_size: int  # decisions per epoch in batch mode (fixed action shape)
-    state_interval: int  # ticks between one-hop state broadcasts
     nodes: tuple[NodeSpec, ...]
     links: tuple[LinkSpec, ...]
     workload: Workload
     failures: tuple[Failure, ...] = ()
     kinds: tuple[tuple[str, str], ...] = ()  # role kinds the nodes have, in canonical order: (name, class path)
     source: str = ""  # the file it came from, for messages only
-    extra: dict[str, Any] = field(default_factory=dict)  # free-form metadata (description ...)
-    admission: Admission = "decide_first"  # queue_first: arrivals are queued at once, decisions divert queued tasks
-    control_latency: int = 2  # ticks between the state a controller observes and its decision's effect (2 or 0)
+    extra: dict[str, Any] = Field(default_factory=dict)  # free-form metadata (description ...)
+
+    def replace(self, **changes: Any) -> Scenario:
+        """A copy with ``changes``, validated again (its derived views are computed afresh)."""
+        return type(self)(**{name: getattr(self, name) for name in type(self).model_fields} | changes)
 
     # ----- derived views (cached, never serialised) -----
 
@@ -201,7 +259,7 @@ class Scenario:
     def failure_windows(self) -> dict[str, tuple[tuple[int, int], ...]]:
         windows: dict[str, list[tuple[int, int]]] = {}
         for f in self.failures:
-            windows.setdefault(f.node, []).append((f.start, f.end))
+            windows.setdefault(f.node, []).append((f.at, f.end))
         return {k: tuple(sorted(v)) for k, v in windows.items()}
 
     def is_failed(self, node: str, tick: int) -> bool:
@@ -227,58 +285,68 @@ class Scenario:
     # ----- serialisation -----
 
     def to_dict(self) -> dict[str, Any]:
-        return {f.name: _plain(getattr(self, f.name)) for f in fields(self)}
+        """Plain lists, dicts, strings and numbers, every default filled in: what travels over the bus
+        (msgpack) or into JSON."""
+        return self.model_dump(mode="json")
 
     @classmethod
     def from_dict(cls, d: dict[str, Any]) -> Scenario:
-        wl = d["workload"]
-        workload = Workload(
-            task_types=tuple(TaskType(**t) for t in wl["task_types"]),
-            arrival=Arrival(**wl["arrival"]),
-            client_rates=tuple((c, float(r)) for c, r in wl["client_rates"]),
-            client_targets=tuple((c, tuple(ts)) for c, ts in wl["client_targets"]),
-            trace=None if wl["trace"] is None else tuple(TraceRow(**r) for r in wl["trace"]),
-            source=wl.get("source", ""),
-        )
-        return cls(
-            name=d["name"],
-            dt=float(d["dt"]),
-            episode_ticks=int(d["episode_ticks"]),
-            seed=int(d["seed"]),
-            mode=d["mode"],
-            decision_interval=int(d["decision_interval"]),
-            max_hops=int(d["max_hops"]),
-            batch_size=int(d["batch_size"]),
-            state_interval=int(d["state_interval"]),
-            nodes=tuple(NodeSpec(**{**n, "position": tuple(n["position"]), "roles": tuple(n["roles"]),
-                                     "impls": tuple(tuple(kv) for kv in n["impls"]),
-                                     "params": tuple(tuple(kv) for kv in n.get("params", ()))}) for n in d["nodes"]),
-            links=tuple(LinkSpec(**lk) for lk in d["links"]),
-            workload=workload,
-            failures=tuple(Failure(**f) for f in d["failures"]),
-            kinds=tuple(tuple(kv) for kv in d["kinds"]),
-            source=d.get("source", ""),
-            extra=dict(d.get("extra", {})),
-            admission=d.get("admission", "decide_first"),
-            control_latency=int(d.get("control_latency", 2)),
-        )
+        """A scenario received over the bus, validated as a file's sections are."""
+        return cls.model_validate(d)
 
     def digest(self) -> str:
         """Content hash of everything that affects the emulation (not the source path, nor the modules
-        the role kinds come from: code is not hashed)."""
-        d = self.to_dict()
-        d.pop("source", None)
-        d.pop("extra", None)
-        d.pop("kinds", None)
-        d["nodes"] = [_hashed_node(n) for n in d["nodes"]]
-        _drop_later_defaults(d)
-        blob = json.dumps(d, sort_keys=True, separators=(",", ":")).encode()
+        the role kinds come from: code is not hashed). The hashed form is the one scenarios were first
+        hashed in, so that summary.json's scenario_hash stays comparable across versions."""
+        blob = json.dumps(_hashed(self), sort_keys=True, separators=(",", ":")).encode()
         return hashlib.sha256(blob).hexdigest()[:16]
 
 
 # Kinds that every node's hash names, present or not, as before kinds were registered: scenarios keep
 # their hashes (summary.json's scenario_hash).
 DIGEST_KINDS = ("worker", "client", "controller")
+
+
+def _hashed(sc: Scenario) -> dict[str, Any]:
+    """The scenario in the form it was first hashed in: ``episode_ticks`` rather than steps, no default
+    policy (each node's is hashed), every arrival key, a deadline as (deadline, deadline_high, grace), a
+    failure as [start, end); settings added later are left out while they hold their defaults."""
+    wl = sc.workload
+    d: dict[str, Any] = {
+        "name": sc.name, "dt": sc.dt, "episode_ticks": sc.episode_ticks, "seed": sc.seed, "mode": sc.mode,
+        "decision_interval": sc.decision_interval, "max_hops": sc.max_hops, "batch_size": sc.batch_size,
+        "state_interval": sc.state_interval,
+        "nodes": [_hashed_node(asdict(n)) for n in sc.nodes],
+        "links": [asdict(lk) for lk in sc.links],
+        "workload": {
+            "task_types": [_hashed_task_type(t) for t in wl.task_types],
+            "arrival": {"kind": wl.arrival.kind, **LEGACY_ARRIVAL, **wl.arrival.model_dump(exclude={"kind"})},
+            "client_rates": [list(kv) for kv in wl.client_rates],
+            "client_targets": [[c, list(ts)] for c, ts in wl.client_targets],
+            "trace": None if wl.trace is None else [asdict(r) for r in wl.trace],
+            "source": wl.source,
+        },
+        "failures": [{"node": f.node, "start": f.at, "end": f.end} for f in sc.failures],
+        "admission": sc.admission, "control_latency": sc.control_latency,
+    }
+    for part, later in [(d, LATER_SETTINGS), (d["workload"]["arrival"], LATER_ARRIVAL),
+                        *((t, LATER_TASK_TYPE) for t in d["workload"]["task_types"])]:
+        for key, default in later.items():
+            if part.get(key, default) == default:
+                part.pop(key, None)
+    return json.loads(json.dumps(d))  # tuples as lists, as they were hashed
+
+
+# Every arrival key with the default it had when all kinds shared one record
+LEGACY_ARRIVAL: dict[str, Any] = {"rate": 0.17, "start": 0.0, "end": 0.0, "low": 0.0, "high": 0.0, "period": 100.0}
+
+
+def _hashed_task_type(t: TaskType) -> dict[str, Any]:
+    d = t.deadline
+    deadline = {"deadline": d.low, "deadline_high": d.high, "grace": d.grace} if isinstance(d, DeadlineRange) \
+        else {"deadline": d, "deadline_high": None, "grace": 0.0}
+    return {"name": t.name, "weight": t.weight, "instructions": t.instructions, "input_bytes": t.input_bytes,
+            "output_bytes": t.output_bytes, "cpi": t.cpi, **deadline}
 
 
 def _hashed_node(node: dict[str, Any]) -> dict[str, Any]:
@@ -297,22 +365,3 @@ def _hashed_node(node: dict[str, Any]) -> dict[str, Any]:
 LATER_SETTINGS: dict[str, Any] = {"admission": "decide_first", "control_latency": 2}
 LATER_ARRIVAL: dict[str, Any] = {"process": "poisson"}
 LATER_TASK_TYPE: dict[str, Any] = {"deadline_high": None, "grace": 0.0}
-
-
-def _drop_later_defaults(d: dict[str, Any]) -> None:
-    for part, later in [(d, LATER_SETTINGS), (d["workload"]["arrival"], LATER_ARRIVAL),
-                        *((t, LATER_TASK_TYPE) for t in d["workload"]["task_types"])]:
-        for key, default in later.items():
-            if part.get(key, default) == default:
-                part.pop(key, None)
-
-
-def _plain(value: Any) -> Any:
-    """Dataclasses and tuples to dicts and lists, so the result is JSON/msgpack friendly."""
-    if hasattr(value, "__dataclass_fields__"):
-        return {k: _plain(v) for k, v in asdict(value).items()}
-    if isinstance(value, (tuple, list)):
-        return [_plain(v) for v in value]
-    if isinstance(value, dict):
-        return {k: _plain(v) for k, v in value.items()}
-    return value

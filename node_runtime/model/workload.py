@@ -13,24 +13,27 @@ from collections import defaultdict
 
 import numpy as np
 
-from node_runtime.model.spec import Arrival, Scenario, TaskType, TraceRow
+from node_runtime.model.spec import Scenario, TaskType, TraceRow
 
 BLOCK = 256  # ticks of arrival counts drawn at once (a constant: part of the stream's definition)
 LOOKAHEAD = BLOCK  # ticks ``next_arrival`` searches ahead before giving up
 
 
-def rate_at(arrival: Arrival, seconds: float, horizon: float) -> float:
-    """lambda(t) in tasks per second for the deterministic schedules."""
-    if arrival.kind == "constant":
-        return arrival.rate
-    if arrival.kind == "linear":
-        frac = min(max(seconds / horizon, 0.0), 1.0) if horizon > 0 else 0.0
-        return arrival.start + (arrival.end - arrival.start) * frac
-    if arrival.kind == "zigzag":
-        phase = (seconds % arrival.period) / arrival.period
-        tri = 2 * phase if phase < 0.5 else 2 * (1 - phase)
-        return arrival.low + (arrival.high - arrival.low) * tri
-    raise ValueError(f"rate_at: no deterministic rate for arrival kind {arrival.kind!r}")
+def nominal_arrivals(sc: Scenario) -> dict[str, float]:
+    """Tasks per second each worker receives from clients on average: a client's mean rate (its own
+    constant, the schedule's mean, or its trace rows over the episode), split evenly over its targets."""
+    mean = sc.workload.arrival.mean
+    fixed = dict(sc.workload.client_rates)
+    rows: dict[str, int] = {}
+    for row in sc.workload.trace or ():
+        rows[row.client] = rows.get(row.client, 0) + 1
+    horizon = sc.episode_ticks * sc.dt
+    out: dict[str, float] = {}
+    for client, targets in sc.targets.items():
+        rate = rows.get(client, 0) / horizon if sc.workload.trace is not None else fixed.get(client, mean)
+        for node in targets:
+            out[node] = out.get(node, 0.0) + rate / len(targets)
+    return out
 
 
 def trace_tick(row: TraceRow, dt: float) -> int:
@@ -65,12 +68,12 @@ class TaskSource:
         self.counts_rng = counts_rng
         self.types_rng = types_rng
         self.deadlines_rng: np.random.Generator | None = None  # set by the client when a type draws deadlines
-        self.drawn = any(t.drawn or t.grace for t in self.types)
+        self.drawn = any(t.drawn for t in self.types)
         self.gaps = self.arrival.process == "exponential_gaps"
         self._next: int | None = None  # exponential gaps: the tick of the next task, once drawn
         self.fixed_rate = dict(scenario.workload.client_rates).get(node)
-        if self.fixed_rate is None and self.arrival.kind == "uniform":
-            self.fixed_rate = float(counts_rng.uniform(self.arrival.low, self.arrival.high))
+        if self.fixed_rate is None:
+            self.fixed_rate = self.arrival.client_rate(counts_rng)
         self._blocks: dict[int, np.ndarray] = {}  # block start tick -> counts
         self.trace: dict[int, list[TraceRow]] | None = None
         if scenario.workload.trace is not None:
@@ -89,7 +92,7 @@ class TaskSource:
     def rate(self, tick: int) -> float:
         if self.fixed_rate is not None:
             return self.fixed_rate
-        return rate_at(self.arrival, tick * self.dt, self.horizon)
+        return self.arrival.rate_at(tick * self.dt, self.horizon)
 
     def count(self, tick: int) -> int:
         start = tick - tick % BLOCK
@@ -133,15 +136,8 @@ class TaskSource:
             picks = [self.types[0]] * n
         else:
             picks = [self.types[i] for i in self.types_rng.choice(len(self.types), size=n, p=self.probs)]
-        if self.drawn:
-            return [(t.instructions, t.input_bytes, t.output_bytes, t.cpi, self.deadline(t)) for t in picks]
-        return [(t.instructions, t.input_bytes, t.output_bytes, t.cpi, t.deadline) for t in picks]
-
-    def deadline(self, task_type: TaskType) -> float:
-        """δ of one new task: U[deadline, deadline_high) when the type has a range, plus its grace."""
-        if task_type.drawn:
-            return float(self.deadlines_rng.uniform(task_type.deadline, task_type.deadline_high)) + task_type.grace
-        return task_type.deadline + task_type.grace
+        return [(t.instructions, t.input_bytes, t.output_bytes, t.cpi, t.draw_deadline(self.deadlines_rng))
+                for t in picks]
 
     def next_arrival(self, after: int) -> int:
         """The first tick after ``after`` with a task, or the end of the search window.

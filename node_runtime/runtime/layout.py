@@ -7,8 +7,11 @@ on the layout: it is fixed by role ids, so every layout yields the same emulatio
 
 from __future__ import annotations
 
+import os
 from dataclasses import dataclass
 from functools import cached_property
+
+import psutil
 
 from node_runtime.model.registry import RoleKind, kinds_of
 from node_runtime.model.role import role_id, role_kind, role_node
@@ -32,6 +35,67 @@ def check_layout(name: str) -> Layout:
 
 def _groups(layout: Layout) -> int:
     return int(layout.partition(":")[2])
+
+
+# The default layout over Zenoh (docs/protocol.md#the-default-layout). Measured on 2 cores: per-role is ready
+# in 1-2.5 s up to 72 processes (aot1-aot4), 10 s at 102 and 27 s at 300 (3,000 were reported not ready in 7 min);
+# a node process has 43 MB resident, 7-10 MB of it its own (the rest shared with the fork server).
+PROCESSES_PER_CPU = 50  # per-role while its processes number at most this per core ...
+PROCESS_MEMORY = 32 * 2**20  # ... and this much memory each (bytes, with a margin over the measured) ...
+MEMORY_SHARE = 0.5  # ... fits in this share of the memory available
+GROUPS_PER_CPU = 2  # otherwise groups:K with K = this x cores: K from 2 to 16 ran within 2x of each other
+DEFAULT_LAYOUT_HELP = (f"per-role while its processes fit this machine (at most {PROCESSES_PER_CPU} a core, and "
+                       f"{PROCESS_MEMORY // 2**20} MB each within {MEMORY_SHARE * 100:.0f} percent of the memory "
+                       f"available), else groups:K with K = {GROUPS_PER_CPU} x cores "
+                       "(docs/protocol.md#the-default-layout)")
+
+
+@dataclass(frozen=True)
+class Machine:
+    """What the default layout must fit: the cores this process may run on, the memory available."""
+
+    cpus: int
+    memory: int  # bytes
+
+    @classmethod
+    def here(cls) -> Machine:
+        cpus = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count() or 1
+        return cls(cpus, psutil.virtual_memory().available)
+
+    @property
+    def processes(self) -> int:
+        """How many node processes fit: per core, and in the memory."""
+        return min(PROCESSES_PER_CPU * self.cpus, int(self.memory * MEMORY_SHARE) // PROCESS_MEMORY)
+
+
+@dataclass(frozen=True)
+class Choice:
+    """A default layout, and the line that says why when it is not per-role (None when it is)."""
+
+    layout: Layout
+    note: str | None = None
+
+
+def default_layout(processes: int, nodes: int, machine: Machine) -> Choice:
+    """The layout over Zenoh when none is given: per-role (a process per role, ``processes`` of them)
+    while that fits ``machine``; else ``groups:K``, K = GROUPS_PER_CPU x cores (at most ``nodes``)."""
+    if processes <= machine.processes:
+        return Choice("per-role")
+    layout = f"groups:{max(1, min(nodes, GROUPS_PER_CPU * machine.cpus))}"
+    return Choice(layout, f"layout {layout}: {processes} processes (per-role) would not fit {machine.cpus} "
+                          f"core{'s' if machine.cpus != 1 else ''} and {machine.memory / 2**30:.1f} GB available "
+                          f"(at most {machine.processes}); --layout per-role forces a process per role")
+
+
+def layout_for(scenario: Scenario, transport: str, machine: Machine | None = None, placed: bool = False) -> Choice:
+    """The default layout of a simulation: ``single`` in-process; over Zenoh, ``default_layout`` of this
+    machine, or per-role when nodes are placed on other hosts (their processes are not this machine's)."""
+    if transport == "inproc":
+        return Choice("single")
+    if placed:
+        return Choice("per-role")
+    per_role = ProcessLayout(scenario, "per-role")
+    return default_layout(len(per_role.procs), len(scenario.nodes), machine or Machine.here())
 
 
 @dataclass(frozen=True)

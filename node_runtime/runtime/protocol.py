@@ -26,8 +26,6 @@ from node_runtime.model.messages import Envelope
 from node_runtime.model.view import Observation
 
 SCHEMA_VERSION = 10
-# A tick carries the episode's seed as a msgpack integer (64 bits at most); launch adds the episode to it
-MAX_SEED = 2**62 - 1
 Command = Literal["run", "reset", "stop"]
 
 

@@ -5,7 +5,9 @@ from __future__ import annotations
 import difflib
 from typing import Any
 
-from pydantic import BaseModel
+from pydantic import BaseModel, Tag
+
+from node_runtime.model.arrival import KIND_ERROR, KINDS
 
 
 class ScenarioError(ValueError):
@@ -14,6 +16,14 @@ class ScenarioError(ValueError):
     def __init__(self, errors: list[str]) -> None:
         super().__init__("\n".join(errors))
         self.errors = errors
+
+
+def error_path(err: dict[str, Any]) -> str:
+    """The key path of a validation error: an arrival's unknown ``kind`` is named as that key."""
+    loc = err["loc"]
+    if err["type"] == KIND_ERROR and isinstance(err.get("input"), dict):
+        loc = (*loc, "kind")
+    return key_path(loc)
 
 
 def key_path(loc: tuple[Any, ...]) -> str:
@@ -59,6 +69,11 @@ def describe(err: dict[str, Any], model: type[BaseModel]) -> str:
         return f"expected a number, or a range {{low, high, grace}} (got {err.get('input')!r})"
     ctx = err.get("ctx", {})
     got = err.get("input")
+    if kind == KIND_ERROR:
+        if not isinstance(got, dict):
+            return f"expected a mapping (got {got!r})"
+        *first, last = map(repr, KINDS)
+        return f"expected {', '.join(first)} or {last} (got {got.get('kind')!r})"
     if kind == "extra_forbidden":
         field = str(err["loc"][-1])
         known = _fields_at(model, err["loc"][:-1])
@@ -86,20 +101,27 @@ def _fields_at(model: type[BaseModel], loc: tuple[Any, ...]) -> list[str]:
     """Field names of the model found at ``loc`` (for 'did you mean' hints). Parts that are not
     fields are mapping keys (a profile's name) and keep the current model."""
     current: Any = model
+    annotation: Any = None
     for part in loc:
-        if _is_tag(part):
+        if _is_tag(part):  # the alternative of a union that was tried: that alternative's fields
+            current = _inner_model(annotation, part) or current
             continue
         fields = getattr(current, "model_fields", {})
         if isinstance(part, str) and part in fields:
-            current = _inner_model(fields[part].annotation)
+            annotation = fields[part].annotation
+            current = _inner_model(annotation)
     return list(getattr(current, "model_fields", {}))
 
 
-def _inner_model(annotation: Any) -> Any:
+def _inner_model(annotation: Any, tag: str | None = None) -> Any:
+    """The first model in ``annotation`` (or, given a tag, the one the union's alternative of that tag holds)."""
     if isinstance(annotation, type) and issubclass(annotation, BaseModel):
         return annotation
+    tags = [m.tag for m in getattr(annotation, "__metadata__", ()) if isinstance(m, Tag)]
+    if tag is not None and tags:
+        return _inner_model(annotation.__origin__) if tag in tags else None
     for arg in getattr(annotation, "__args__", ()):
-        found = _inner_model(arg)
+        found = _inner_model(arg, tag)
         if found is not None:
             return found
     return None

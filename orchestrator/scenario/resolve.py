@@ -22,15 +22,13 @@ from node_runtime.model.plugins import PluginError, extend_path, is_import_path,
 from node_runtime.model.radio import free_space_loss_db, log_distance_gain_db, shannon_rate
 from node_runtime.model.registry import ROLE_KINDS
 from node_runtime.model.role import Role
-from node_runtime.model.spec import Arrival, Failure, LinkSpec, NodeSpec, Scenario, TaskType, TraceRow, Workload
-from orchestrator.scenario.errors import ScenarioError, describe, key_path
+from node_runtime.model.spec import LinkSpec, NodeSpec, Scenario, TaskType, TraceRow, Workload
+from orchestrator.scenario.errors import ScenarioError, describe, error_path, key_path
 from orchestrator.scenario.schema import (
     BUILTIN_PROFILES,
     NODE_DEFAULTS,
     REWARD_NAMES,
-    DeadlineCfg,
     ScenarioFile,
-    TaskCfg,
     WorkloadCfg,
     file_format,
 )
@@ -54,7 +52,7 @@ def resolve(data: dict[str, Any], base: Path, default_name: str, label: str,
     try:
         cfg = model.model_validate(data)
     except ValidationError as exc:
-        raise ScenarioError([f"{label}: {key_path(e['loc'])}: {describe(e, model)}"
+        raise ScenarioError([f"{label}: {error_path(e)}: {describe(e, model)}"
                              for e in exc.errors()]) from None
     return _Resolver(cfg, base, label, also).scenario(cfg.name or default_name)
 
@@ -119,49 +117,30 @@ class _Resolver:
 
     def scenario(self, name: str) -> Scenario:
         cfg = self.cfg
-        tasks = tuple(self.task_type(t) for t in cfg.workload.tasks)
+        tasks = tuple(cfg.workload.tasks)
         draft = self.draft(tasks)
         self.fail_if_errors()
         nodes = self.nodes(draft)
         self.fail_if_errors()
         links = self.links(draft, nodes)
         self.fail_if_errors()
-        ids = {n.id for n in nodes}
         self.check_graph(nodes, links)
-        failures = self.failures(ids)
+        self.check_failures({n.id for n in nodes})
         workload = self.workload(tasks, nodes, links)
         self.fail_if_errors()
         self.check_extensions(nodes)
         self.fail_if_errors()
-        sim = cfg.simulation
         return Scenario(
+            **dict(cfg.simulation),
             name=name,
-            dt=sim.dt,
-            episode_ticks=sim.steps * sim.decision_interval,
-            seed=sim.seed,
-            mode=sim.mode,
-            decision_interval=sim.decision_interval,
-            max_hops=sim.max_hops,
-            batch_size=sim.batch_size,
-            state_interval=sim.state_interval,
             nodes=tuple(nodes),
             links=tuple(links),
             workload=workload,
-            failures=failures,
+            failures=tuple(cfg.failures),
             kinds=tuple((name, kind.path) for name, kind in ROLE_KINDS.items() if any(n.has(name) for n in nodes)),
             source=self.label,
             extra={"description": cfg.description, "reward": cfg.reward or "", "observation": cfg.observation or ""},
-            admission=sim.admission,
-            control_latency=sim.control_latency,
         )
-
-    @staticmethod
-    def task_type(t: TaskCfg) -> TaskType:
-        if isinstance(t.deadline, DeadlineCfg):
-            d = t.deadline
-            return TaskType(t.name, t.weight, t.instructions, t.input_bytes, t.output_bytes, t.cpi, d.low, d.high,
-                            d.grace)
-        return TaskType(t.name, t.weight, t.instructions, t.input_bytes, t.output_bytes, t.cpi, t.deadline)
 
     # --- user extensions ---
 
@@ -397,13 +376,10 @@ class _Resolver:
         if not any(n.has("client") for n in nodes):
             self.error("topology", "no node is a task source: set 'client: true' on a node or profile")
 
-    def failures(self, ids: set[str]) -> tuple[Failure, ...]:
-        out = []
+    def check_failures(self, ids: set[str]) -> None:
         for i, f in enumerate(self.cfg.failures):
             if f.node not in ids:
                 self.error(f"failures[{i}].node", f"unknown node {f.node!r}")
-            out.append(Failure(f.node, f.at, f.at + f.duration))
-        return tuple(out)
 
     def workload(self, tasks: tuple[TaskType, ...], nodes: list[NodeSpec], links: list[LinkSpec]) -> Workload:
         wl = self.cfg.workload
@@ -435,10 +411,9 @@ class _Resolver:
         trace = None
         if wl.trace is not None:
             trace = self.trace(self.file(wl.trace), by_id)
-        a = wl.arrival
         return Workload(
             task_types=tasks,
-            arrival=Arrival(a.kind, a.rate, a.start, a.end, a.low, a.high, a.period, a.process),
+            arrival=wl.arrival,
             client_rates=tuple(sorted(wl.rates.items())),
             client_targets=tuple((c, tuple(ts)) for c, ts in sorted(wl.targets.items())),
             trace=trace,
@@ -448,8 +423,7 @@ class _Resolver:
     def check_arrivals(self, wl: WorkloadCfg) -> None:
         """Every rate a source may draw with, times dt, within MAX_TASKS_PER_TICK."""
         a, dt = wl.arrival, self.cfg.simulation.dt
-        highest = {"constant": ("rate",), "linear": ("start", "end")}.get(a.kind, ("high",))
-        peaks = {f"workload.arrival.{key}": getattr(a, key) for key in highest}
+        peaks = {f"workload.arrival.{key}": getattr(a, key) for key in a.peak_keys}
         peaks.update({f"workload.rates.{c}": rate for c, rate in wl.rates.items()})
         for where, rate in peaks.items():
             if rate * dt > MAX_TASKS_PER_TICK:
@@ -459,8 +433,7 @@ class _Resolver:
     def check_deadlines(self, wl: WorkloadCfg) -> None:
         """Every deadline within LONGEST_DEADLINE_TICKS ticks (a trace's rows are checked as they are read)."""
         for i, t in enumerate(wl.tasks):
-            d = t.deadline
-            if why := self.too_long(d.high + d.grace if isinstance(d, DeadlineCfg) else d):
+            if why := self.too_long(t.longest_deadline):
                 self.error(f"workload.tasks[{i}].deadline", why)
 
     def too_long(self, deadline: float) -> str | None:

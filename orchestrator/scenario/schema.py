@@ -1,9 +1,12 @@
-"""The scenario file format: one pydantic model per section (reference: docs/scenario.md).
+"""The scenario file format (reference: docs/scenario.md).
 
-This pass checks structure only (types, ranges, required and unknown keys); meaning (references
-between nodes, links, failures and traces; connectivity) is ``resolve``'s. Defaults follow the
-paper's parameter table (λ = 0.17, α = 150 MiB, ρ = 8e7, ξ = 1, δ = 100 s, B = 2 MHz, P = 20 dBm,
-1000 steps).
+The sections that are values of the model (``simulation``, ``workload.tasks``, ``workload.arrival``,
+``failures``) are the model's own classes (``node_runtime.model.spec``, ``node_runtime.model.arrival``);
+what only a file says (profiles, topology sources, the radio model, per-node overrides) is described
+here. This pass checks structure only (types, ranges, required and unknown keys); meaning
+(references between nodes, links, failures and traces; connectivity) is ``resolve``'s. Defaults
+follow the paper's parameter table (λ = 0.17, α = 150 MiB, ρ = 8e7, ξ = 1, δ = 100 s, B = 2 MHz,
+P = 20 dBm, 1000 steps).
 """
 
 from __future__ import annotations
@@ -11,51 +14,15 @@ from __future__ import annotations
 from functools import cache
 from typing import Annotated, Any, Literal
 
-from pydantic import BaseModel, ConfigDict, Discriminator, Field, Tag, create_model, field_validator, model_validator
+from pydantic import BaseModel, ConfigDict, Field, create_model, field_validator, model_validator
 
-from node_runtime.model.plugins import is_import_path
-from node_runtime.model.policies import POLICIES
+from node_runtime.model.arrival import Arrival, Constant
+from node_runtime.model.spec import Failure, SimulationSettings, TaskType, known_policy
+from node_runtime.model.values import Count, Decibels, NonNeg, Pos, Prob, Strict
 from node_runtime.runtime.keys import CHUNK
-from node_runtime.runtime.protocol import MAX_SEED
 from topologies.generators import GENERATORS
 
-MIB = 1024 * 1024
-Pos = Annotated[float, Field(gt=0)]
-NonNeg = Annotated[float, Field(ge=0)]
-Prob = Annotated[float, Field(ge=0, le=1)]
-Count = Annotated[int, Field(ge=1)]
-# Levels in dB or dBm: their power form 10^(x/10) must be a float (below 1.8e308)
-DB_LIMIT = 3000.0
-Decibels = Annotated[float, Field(ge=-DB_LIMIT, le=DB_LIMIT)]
-
-
-class Strict(BaseModel):
-    # inf and nan are no quantity of the model: refused rather than left to turn results into nan
-    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
-
-
 # ----- the file format -----
-
-class SimulationCfg(Strict):
-    dt: Pos = 1.0
-    steps: Count = 1000
-    seed: Annotated[int, Field(ge=0, le=MAX_SEED)] = 0
-    mode: Literal["binary", "batch"] = "binary"
-    decision_interval: Count = 1
-    max_hops: Annotated[int, Field(ge=0)] = 1
-    batch_size: Count = 4
-    state_interval: Count = 1
-    policy: str = "local"
-    admission: Literal["decide_first", "queue_first"] = "decide_first"
-    control_latency: Literal[0, 2] = 2
-
-    @field_validator("policy")
-    @classmethod
-    def known_policy(cls, v: str) -> str:
-        if v not in POLICIES and not is_import_path(v):
-            raise ValueError(f"expected one of {', '.join(POLICIES)}, or an import path 'module:Class'")
-        return v
-
 
 class PathLossCfg(Strict):
     ref_loss_db: Decibels = 40.0
@@ -78,66 +45,11 @@ class NetworkCfg(Strict):
     loss: Prob = 0.0
 
 
-class ArrivalCfg(Strict):
-    kind: Literal["constant", "linear", "zigzag", "uniform"] = "constant"
-    rate: NonNeg = 0.17
-    start: NonNeg = 0.0
-    end: NonNeg = 0.0
-    low: NonNeg = 0.0
-    high: NonNeg = 0.0
-    period: Pos = 100.0
-    process: Literal["poisson", "exponential_gaps"] = "poisson"
-
-    @model_validator(mode="after")
-    def ordered(self) -> ArrivalCfg:
-        uses = {"constant": {"rate"}, "linear": {"start", "end"}, "zigzag": {"low", "high", "period"},
-                "uniform": {"low", "high"}}[self.kind]
-        stray = sorted(self.model_fields_set - uses - {"kind", "process"})
-        if stray:
-            raise ValueError(f"{', '.join(stray)} {'is' if len(stray) == 1 else 'are'} not used by kind "
-                             f"{self.kind!r}, which takes {', '.join(sorted(uses))}")
-        missing = sorted(uses - self.model_fields_set) if self.kind != "constant" else []
-        if missing:
-            raise ValueError(f"kind {self.kind!r} needs {', '.join(missing)}")
-        if self.kind in ("zigzag", "uniform") and self.high < self.low:
-            raise ValueError("high must be >= low")
-        return self
-
-
-class DeadlineCfg(Strict):
-    """A deadline drawn per task: U[low, high) seconds, plus ``grace``."""
-
-    low: Pos
-    high: Pos
-    grace: NonNeg = 0.0
-
-    @model_validator(mode="after")
-    def ordered(self) -> DeadlineCfg:
-        if self.high <= self.low:
-            raise ValueError("high must be > low (for a fixed deadline, give a number)")
-        return self
-
-
-# A number, or a mapping; the tags name the alternatives in pydantic's errors (errors.key_path skips them).
-Deadline = Annotated[Annotated[Pos, Tag("<number>")] | Annotated[DeadlineCfg, Tag("<range>")],
-                     Discriminator(lambda v: "<range>" if isinstance(v, dict | DeadlineCfg) else "<number>")]
-
-
-class TaskCfg(Strict):
-    name: str = "task"
-    weight: Pos = 1.0
-    instructions: Pos = 8.0e7
-    input_bytes: Pos = 150 * MIB
-    output_bytes: Pos = 150 * MIB
-    cpi: Pos = 1.0
-    deadline: Deadline = 100.0
-
-
 class WorkloadCfg(Strict):
-    arrival: ArrivalCfg = ArrivalCfg()
-    rates: dict[str, NonNeg] = {}
-    targets: dict[str, list[str]] = {}
-    tasks: Annotated[list[TaskCfg], Field(min_length=1)] = [TaskCfg()]
+    arrival: Arrival = Constant()
+    rates: dict[str, NonNeg] = Field(default_factory=dict)
+    targets: dict[str, list[str]] = Field(default_factory=dict)
+    tasks: Annotated[list[TaskType], Field(min_length=1)] = Field(default_factory=lambda: [TaskType()])
     trace: str | None = None
     source: str | None = None  # import path of a TaskSource subclass
 
@@ -179,10 +91,8 @@ class ProfileCfg(Strict):
 
     @field_validator("policy")
     @classmethod
-    def known_policy(cls, v: str | None) -> str | None:
-        if v is not None and v not in POLICIES and not is_import_path(v):
-            raise ValueError(f"expected one of {', '.join(POLICIES)}, or an import path 'module:Class'")
-        return v
+    def _known_policy(cls, v: str | None) -> str | None:
+        return None if v is None else known_policy(v)
 
 
 class NodeCfg(ProfileCfg):
@@ -227,8 +137,8 @@ class TopologyCfg(Strict):
     link_rates: Literal["wireless", "ether"] = "wireless"
     buffer_bytes: Pos | None = None  # Ether buffers: round(memory / buffer_bytes) instead of memory / task size
     generator: GeneratorCfg | None = None
-    nodes: list[NodeCfg] = []
-    links: list[LinkCfg] = []
+    nodes: list[NodeCfg] = Field(default_factory=list)
+    links: list[LinkCfg] = Field(default_factory=list)
 
     @model_validator(mode="after")
     def one_source(self) -> TopologyCfg:
@@ -243,12 +153,6 @@ class TopologyCfg(Strict):
         return self
 
 
-class FailureCfg(Strict):
-    node: str
-    at: Annotated[int, Field(ge=0)]
-    duration: Count
-
-
 # the environment's built-in rewards (env.reward.REWARDS)
 REWARD_NAMES = ("paper", "reference", "sparse", "team", "score", "team_score", "marginal")
 
@@ -259,13 +163,13 @@ class ScenarioFile(Strict):
     roles: RolesCfg = RolesCfg()
     reward: str | None = None  # for the environment: one of REWARD_NAMES, or an import path of a callable
     observation: str | None = None  # for the environment: import path of an observation builder class
-    simulation: SimulationCfg = SimulationCfg()
+    simulation: SimulationSettings = SimulationSettings()
     network: NetworkCfg = NetworkCfg()
     workload: WorkloadCfg = WorkloadCfg()
     energy: EnergyCfg = EnergyCfg()
-    profiles: dict[str, ProfileCfg] = {}
+    profiles: dict[str, ProfileCfg] = Field(default_factory=dict)
     topology: TopologyCfg
-    failures: list[FailureCfg] = []
+    failures: list[Failure] = Field(default_factory=list)
 
 
 @cache

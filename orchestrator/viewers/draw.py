@@ -11,6 +11,7 @@ from __future__ import annotations
 import argparse
 import math
 import sys
+from collections.abc import Callable
 from pathlib import Path
 
 import matplotlib
@@ -311,15 +312,17 @@ def _legends(fig: plt.Figure, ax: Axes, scenario: Scenario, areas: dict[str, flo
 
 # ----- command line -----
 
-def cmd_topology(args: argparse.Namespace) -> int:
-    """Scenario errors propagate to the CLI's main (one line per problem, exit 2); so does nothing else."""
+def cmd_topology(args: argparse.Namespace, run_dir: Callable[[str], Path]) -> int:
+    """Scenario errors propagate to the CLI's main (one line per problem, exit 2); so does nothing else.
+    Without --png the picture goes to ``run_dir(scenario name)/topology.png``."""
     from orchestrator.scenario import load_scenario
 
     scenario = load_scenario(args.scenario)
+    png = Path(args.png) if args.png else run_dir(scenario.name) / "topology.png"
     try:
-        out = draw_topology(scenario, Path(args.png), title=args.title)
+        out = draw_topology(scenario, png, title=args.title)
     except OSError as exc:
-        print(f"orchestrator topology: cannot write {args.png}: {exc.strerror or exc}", file=sys.stderr, flush=True)
+        print(f"orchestrator topology: cannot write {png}: {exc.strerror or exc}", file=sys.stderr, flush=True)
         return 2
     print(out)
     return 0

@@ -53,7 +53,7 @@ class PlotError(ValueError):
 
 
 @dataclass(frozen=True)
-class Run:
+class RunData:
     """A run directory's contents, as arrays: ``ticks[col]`` has one value per tick, ``nodes[col]`` one row
     per node (in ``node_ids`` order) and one column per tick."""
 
@@ -93,7 +93,7 @@ class Run:
 
 # ----- reading -----
 
-def load_run(run_dir: Path) -> Run:
+def load_run(run_dir: Path) -> RunData:
     """Read and check a run directory; every problem is a ``PlotError``."""
     run_dir = Path(run_dir)
     if not run_dir.is_dir():
@@ -111,7 +111,7 @@ def load_run(run_dir: Path) -> Run:
     if ticks["tick"].size == 0:
         raise PlotError(f"{run_dir / 'ticks.csv'}: no ticks recorded (the file has a header only)")
     node_ids, nodes = _read_nodes(run_dir / "nodes.csv", ticks["tick"])
-    return Run(run_dir, summary, ticks, node_ids, nodes, node_tiers(summary, node_ids))
+    return RunData(run_dir, summary, ticks, node_ids, nodes, node_tiers(summary, node_ids))
 
 
 def node_tiers(summary: dict[str, Any], node_ids: tuple[str, ...]) -> dict[str, tuple[int, str]] | None:
@@ -232,7 +232,7 @@ def rolling_sum(values: np.ndarray, w: int) -> np.ndarray:
     return out
 
 
-def rolling_response(run: Run, w: int) -> np.ndarray:
+def rolling_response(run: RunData, w: int) -> np.ndarray:
     """Mean response time of the completions in the last ``w`` ticks (weighted by completions, so it is
     the true mean over those tasks, not a mean of per-tick means); NaN where none completed."""
     done = run.ticks["completed"]
@@ -242,7 +242,7 @@ def rolling_response(run: Run, w: int) -> np.ndarray:
         return np.where(count > 0, total / np.where(count > 0, count, 1), np.nan)
 
 
-def _figure(run: Run, rows: int, cols: int, size: tuple[float, float], subtitle: str, **kw: Any) -> tuple[
+def _figure(run: RunData, rows: int, cols: int, size: tuple[float, float], subtitle: str, **kw: Any) -> tuple[
         Figure, np.ndarray]:
     fig, axes = plt.subplots(rows, cols, figsize=size, dpi=DPI, squeeze=False, layout="constrained", **kw)
     fig.suptitle(f"{subtitle} — {run.title}", fontsize=13, x=0.01, ha="left")
@@ -271,7 +271,7 @@ def _energy_scale(values: np.ndarray) -> tuple[float, str]:
 
 # ----- panels (each draws one family of series on one axes; the figures combine them) -----
 
-def _time_axes(ax: Axes, run: Run, title: str, ylabel: str) -> None:
+def _time_axes(ax: Axes, run: RunData, title: str, ylabel: str) -> None:
     ax.set(title=title, xlabel=run.tick_label, ylabel=ylabel)
     ax.set_xlim(*((run.x[0], run.x[-1]) if len(run.x) > 1 else (run.x[0] - 0.5, run.x[0] + 0.5)))
     ax.xaxis.set_major_locator(MaxNLocator(integer=True))
@@ -280,12 +280,12 @@ def _time_axes(ax: Axes, run: Run, title: str, ylabel: str) -> None:
     ax.set_axisbelow(True)
 
 
-def rolling_mean(run: Run, values: np.ndarray) -> tuple[np.ndarray, int]:
+def rolling_mean(run: RunData, values: np.ndarray) -> tuple[np.ndarray, int]:
     w = window(len(run.x))
     return rolling_sum(values, w) / np.minimum(np.arange(1, len(values) + 1), w), w
 
 
-def panel_tasks(ax: Axes, run: Run) -> None:
+def panel_tasks(ax: Axes, run: RunData) -> None:
     t = run.ticks
     ax.plot(run.x, np.cumsum(t["generated"]), color=C_GENERATED, linestyle="--", label="generated")
     ax.plot(run.x, np.cumsum(t["completed"]), color=C_COMPLETED, label="completed")
@@ -295,7 +295,7 @@ def panel_tasks(ax: Axes, run: Run) -> None:
     ax.legend(fontsize=8, loc="upper left")
 
 
-def panel_system(ax: Axes, run: Run) -> None:
+def panel_system(ax: Axes, run: RunData) -> None:
     t = run.ticks
     ax.stackplot(run.x, t["queued"], t["undecided"], t["in_flight"], colors=[C_QUEUED, C_UNDECIDED, C_IN_FLIGHT],
                  labels=["queued at workers", "awaiting a decision", "in flight on links"], alpha=0.9, linewidth=0)
@@ -303,7 +303,7 @@ def panel_system(ax: Axes, run: Run) -> None:
     ax.legend(fontsize=8, loc="upper left")
 
 
-def panel_response(ax: Axes, run: Run, *, points: bool = True) -> None:
+def panel_response(ax: Axes, run: RunData, *, points: bool = True) -> None:
     rt = run.ticks["response_time_mean"]
     ratio = run.summary.get("completion_ratio")
     done = f" ({quantity(ratio, 'ratio')} of the generated)" if ratio is not None else ""
@@ -329,7 +329,7 @@ def panel_response(ax: Axes, run: Run, *, points: bool = True) -> None:
     ax.legend(fontsize=8, loc="upper left", ncols=2)
 
 
-def panel_utilisation(ax: Axes, run: Run) -> None:
+def panel_utilisation(ax: Axes, run: RunData) -> None:
     util, w = rolling_mean(run, 100 * run.ticks["utilisation"])
     over, _ = rolling_mean(run, run.ticks["overloaded_nodes"])
     ax.plot(run.x, util, color=C_UTIL, label="utilisation of all workers (%)")
@@ -346,14 +346,14 @@ def panel_utilisation(ax: Axes, run: Run) -> None:
     ax.legend(lines, [ln.get_label() for ln in lines], fontsize=8, loc="upper left")
 
 
-def panel_energy(ax: Axes, run: Run) -> None:
+def panel_energy(ax: Axes, run: RunData) -> None:
     energy = np.cumsum(run.ticks[ENERGY.name])
     scale, unit = _energy_scale(energy)
     ax.plot(run.x, energy / scale, color=C_ENERGY, linewidth=1.8)
     _time_axes(ax, run, "energy, all nodes", f"energy, cumulative ({unit})")
 
 
-def panel_figures(ax: Axes, run: Run) -> None:
+def panel_figures(ax: Axes, run: RunData) -> None:
     """The run's key numbers, from summary.json, as text."""
     lines = rows(run.summary)
     ax.axis("off")
@@ -367,7 +367,7 @@ def panel_figures(ax: Axes, run: Run) -> None:
 
 # ----- figures -----
 
-def plot_overview(run: Run, path: Path) -> Path:
+def plot_overview(run: RunData, path: Path) -> Path:
     fig, ax = _figure(run, 2, 3, (17, 9), "overview")
     panel_tasks(ax[0, 0], run)
     panel_system(ax[0, 1], run)
@@ -394,7 +394,7 @@ def _tier_colour(tier: int) -> str:
     return TIER_COLOURS[tier % len(TIER_COLOURS)]
 
 
-def _tier_names(run: Run) -> dict[int, str]:
+def _tier_names(run: RunData) -> dict[int, str]:
     """tier -> "tier 1 (2 nuc, 4 tx2)"."""
     assert run.tiers is not None
     groups: dict[int, dict[str, int]] = {}
@@ -404,7 +404,7 @@ def _tier_names(run: Run) -> dict[int, str]:
     return {t: f"tier {t} ({', '.join(f'{c} {p}' for p, c in sorted(g.items()))})" for t, g in sorted(groups.items())}
 
 
-def _node_ticklabels(ax: Axes, run: Run, labels: list[str], axis: str) -> None:
+def _node_ticklabels(ax: Axes, run: RunData, labels: list[str], axis: str) -> None:
     """Colour node names by tier (same colours as `orchestrator topology`), when tiers are known."""
     if run.tiers is None:
         return
@@ -413,7 +413,7 @@ def _node_ticklabels(ax: Axes, run: Run, labels: list[str], axis: str) -> None:
         label.set_color(_tier_colour(run.tiers[nid][0]))
 
 
-def plot_queues(run: Run, path: Path) -> Path:
+def plot_queues(run: RunData, path: Path) -> Path:
     n = len(run.node_ids)
     fig, ax = _figure(run, 2, 1, (14, 3.6 + 0.2 * n), "queue length per node", sharex=True,
                       gridspec_kw={"height_ratios": [max(3.0, n / 6), 2.0]})
@@ -455,7 +455,7 @@ def plot_queues(run: Run, path: Path) -> Path:
     return _save(fig, path)
 
 
-def plot_drops(run: Run, path: Path) -> Path:
+def plot_drops(run: RunData, path: Path) -> Path:
     fig, ax = _figure(run, 1, 2, (15, 5.5), "where the tasks went", width_ratios=[2.2, 1])
     left, right = ax[0, 0], ax[0, 1]
     cum = {c: np.cumsum(run.ticks[f"dropped_{c}"]) for c in run.causes}
@@ -486,7 +486,7 @@ def plot_drops(run: Run, path: Path) -> Path:
     return _save(fig, path)
 
 
-def plot_response_time(run: Run, path: Path) -> Path:
+def plot_response_time(run: RunData, path: Path) -> Path:
     fig, ax = _figure(run, 1, 2, (15, 5.5), "response time (result back at the source − task creation)",
                       width_ratios=[2.2, 1], sharey=True)
     left, right = ax[0, 0], ax[0, 1]
@@ -509,7 +509,7 @@ def plot_response_time(run: Run, path: Path) -> Path:
     return _save(fig, path)
 
 
-def plot_energy(run: Run, path: Path, top: int = 8) -> Path:
+def plot_energy(run: RunData, path: Path, top: int = 8) -> Path:
     e = run.summary.get(ENERGY.name, {})
     parts = ", ".join(f"{p.label} {si(e[p.key], ENERGY.unit)}" for p in ENERGY.parts if p.key in e)
     fig, ax = _figure(run, 1, 2, (15, max(5.5, 1.8 + 0.17 * len(run.node_ids))),
@@ -555,7 +555,7 @@ def plot_energy(run: Run, path: Path, top: int = 8) -> Path:
     return _save(fig, path)
 
 
-FIGURES: dict[str, Callable[[Run, Path], Path]] = {
+FIGURES: dict[str, Callable[[RunData, Path], Path]] = {
     "overview.png": plot_overview,
     "queues.png": plot_queues,
     "drops.png": plot_drops,
