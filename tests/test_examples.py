@@ -86,7 +86,7 @@ def test_the_first_scenario_in_the_doc_validates_as_shown_and_drops_nothing(tmp_
     shown = blocks["console"].split("$ orchestrator validate my.yaml\n", 1)[1].split("$ ")[0]
     assert main(["validate", str(path)]) == 0
     assert capsys.readouterr().out == shown
-    with Simulation(load_scenario(path), transport="inproc") as sim:
+    with Simulation.inproc(load_scenario(path)) as sim:
         totals = sim.run()["totals"]
     assert (totals["completed"], totals["generated"], totals["dropped"]["total"]) == (492, 494, 0)
     assert "It completes 492 of 494 tasks (2 still in the system at the end)" in section
