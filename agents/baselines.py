@@ -17,6 +17,7 @@ import numpy as np
 
 from agents.common import Action, Observation, is_batch, masks_of
 from env.observations import NeighbourField, OwnField, TaskField
+from node_runtime.model.messages import TaskSize
 from node_runtime.model.policies import POLICIES, Policy
 from node_runtime.model.view import NodeView, TaskView
 from node_runtime.model.view import Observation as View
@@ -101,8 +102,9 @@ def view_of(obs: Observation, mask: np.ndarray) -> View:
 def task_of(row: np.ndarray) -> TaskView:
     """One task slot's row (``TaskField`` columns) as the controller's ``TaskView``."""
     t = TaskField
-    return TaskView(0, float(row[t.INSTRUCTIONS_G]) * 1e9, float(row[t.INPUT_MB]) * 1e6, float(row[t.OUTPUT_MB]) * 1e6,
-                    float(row[t.CPI]), math.nan, float(row[t.TIME_LEFT_S]), int(row[t.WAITED_TICKS]), "")
+    size = TaskSize(float(row[t.INSTRUCTIONS_G]) * 1e9, float(row[t.INPUT_MB]) * 1e6, float(row[t.OUTPUT_MB]) * 1e6,
+                    float(row[t.CPI]), math.nan)
+    return TaskView(0, size, float(row[t.TIME_LEFT_S]), int(row[t.WAITED_TICKS]), "")
 
 
 def baseline(rule: type[Policy]) -> type[Baseline]:

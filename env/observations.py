@@ -192,7 +192,8 @@ class DictObservation(ObservationBuilder):
         if obs.tasks:
             tasks = out["task"] if self.layout.batch is not None else out["task"][None, :]
             for k, task in enumerate(obs.tasks):  # the columns of TaskField, in order
-                tasks[k] = (1.0, task.instructions * 1e-9, task.input_bytes * 1e-6, task.output_bytes * 1e-6, task.cpi,
+                size = task.size
+                tasks[k] = (1.0, size.instructions * 1e-9, size.input_bytes * 1e-6, size.output_bytes * 1e-6, size.cpi,
                             task.time_left, task.waited)
             out["action_mask"] = self.layout.masks(obs)
         return out

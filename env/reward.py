@@ -68,9 +68,9 @@ def paper_terms(obs: Observation, task: TaskView, action: int, dt: float,
                 w: PaperWeights = PaperWeights()) -> RewardTerms:
     own = obs.own
     target = own if action == 0 else obs.neighbours[action - 1]
-    cycles = task.cycles
+    cycles = task.size.cycles
     t_wait = target.queue * cycles / target.capacity
-    t_comm = 0.0 if action == 0 else 8.0 * (task.input_bytes + task.output_bytes) / target.rate_bps
+    t_comm = 0.0 if action == 0 else 8.0 * (task.size.input_bytes + task.size.output_bytes) / target.rate_bps
     t_exc = cycles / target.capacity - cycles / own.capacity
     delay = w.wait * t_wait + w.comm * t_comm + w.exc * t_exc
     occupancy = target.occupancy - (1 if action == 0 else 0)
@@ -95,12 +95,12 @@ def reference_terms(obs: Observation, task: TaskView, action: int, dt: float, ar
     # queue length in tasks over a capacity in cycles/s: the reference's units, hence near 0
     t_wait = own.occupancy / own.capacity + (0.0 if local else target.occupancy / target.capacity)
     t_wait = min(t_wait, cap * w.wait)
-    t_comm = 0.0 if local else min(8.0 * task.input_bytes / target.rate_bps, cap * w.comm)
-    t_exc = task.cycles / target.capacity - task.cycles / own.capacity
+    t_comm = 0.0 if local else min(8.0 * task.size.input_bytes / target.rate_bps, cap * w.comm)
+    t_exc = task.size.cycles / target.capacity - task.size.cycles / own.capacity
     t_exc = max(min(t_exc, cap * w.exc), -cap * w.exc)
     delay = t_wait + t_comm + t_exc
     expected = (target.occupancy + (0 if local else 1) + arrivals.get(target.node, 0.0) * dt
-                - target.capacity * dt / task.cycles)
+                - target.capacity * dt / task.size.cycles)
     q_next = max(min(expected, float(target.buffer)), 0.0)
     p = max(w.epsilon, (target.buffer - q_next) / target.buffer)
     overload = -math.log10(p) / 3.0 * cap * w.overload

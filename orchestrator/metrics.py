@@ -69,7 +69,7 @@ def penalty_s(sc: Scenario) -> float:
     deadline (of its trace's rows, or of its task types: a range's high end plus its grace), so it is
     never less than a completion's time and letting a task expire never lowers the score."""
     trace = sc.workload.trace
-    deadlines = [row.deadline for row in trace or ()] or [t.longest_deadline for t in sc.workload.task_types]
+    deadlines = [row.size.deadline for row in trace or ()] or [t.longest_deadline for t in sc.workload.task_types]
     return max(deadlines, default=0.0)
 
 

@@ -19,6 +19,7 @@ from agents.learner import ReturnScale
 from agents.onpolicy import Record
 from env import ScenarioOverrides, TaskField, ZenohEdgeEnv
 from env.observations import DictObservation, ObservationLayout
+from node_runtime.model.messages import TaskSize
 from node_runtime.model.policies import make_policy as make_node_policy
 from node_runtime.model.view import NodeView, TaskView
 from node_runtime.model.view import Observation as View
@@ -115,7 +116,7 @@ def test_a_baseline_reads_back_the_view_its_rule_decides_on(data):
                         data.draw(st.sampled_from([0.0, 0.5, 3.0, 20.0])))
     degree = data.draw(st.integers(1, 4))
     neighbours = [node(f"n{i}", data.draw(st.booleans())) for i in range(degree)]
-    task = TaskView(7, data.draw(st.sampled_from([1e8, 1e9])), 1e6, 1e5, 1.0, 60.0, 30.0, 0, "me")
+    task = TaskView(7, TaskSize(data.draw(st.sampled_from([1e8, 1e9])), 1e6, 1e5, 1.0, 60.0), 30.0, 0, "me")
     view = View(5, "me", node("me"), 1, [task], neighbours)
     # Exact ties between estimates are a matter of rounding: the raw view holds float64 numbers, the
     # arrays float32 ones, so either target may win (e.g. 0.88 s + 2 x 1e9 / 1e8 against
@@ -166,7 +167,7 @@ def test_the_tie_that_the_twin_test_leaves_out_is_one():
     """The view hypothesis found: n0 and n1 tie at 20.88 s, and the two sides may pick either."""
     n0 = NodeView("n0", 1, 0, 12, 1e8, 1, 1e7, 1, True, 0.0)
     n1 = NodeView("n1", 7, 0, 12, 4e8, 1, 1e7, 1, True, 0.0)
-    task = TaskView(7, 1e9, 1e6, 1e5, 1.0, 60.0, 30.0, 0, "me")
+    task = TaskView(7, TaskSize(1e9, 1e6, 1e5, 1.0, 60.0), 30.0, 0, "me")
     view = View(5, "me", NodeView("me", 0, 0, 12, 1e8, 1, 1e6, 1, True, 0.0), 1, [task], [n0, n1])
     greedy = make_node_policy("greedy")
     assert greedy.estimate(view, task, 1, 0) == pytest.approx(20.88) == greedy.estimate(view, task, 2, 0)

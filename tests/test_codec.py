@@ -5,15 +5,15 @@ from __future__ import annotations
 import msgpack
 import pytest
 
-from node_runtime.model.messages import Decision, Envelope, Kind, NodeState, Pending, Report, Result, Task
+from node_runtime.model.messages import Decision, Envelope, Kind, NodeState, Pending, Report, Result, Task, TaskSize
 from node_runtime.model.view import NodeView, Observation, TaskView
 from node_runtime.runtime import codec
 from node_runtime.runtime.protocol import SCHEMA_VERSION, Batch, Done, Tick
 
 
 def task(**kw):
-    base = dict(id=(3 << 32) | 9, origin="rpi3_0", created=12, instructions=8e7, input_bytes=157286400.0,
-                output_bytes=1.5e8, cpi=1.0, deadline=100.0, hops=1, path=("rpi3_0", "nuc_0"))
+    base = dict(id=(3 << 32) | 9, origin="rpi3_0", created=12, size=TaskSize(8e7, 157286400.0, 1.5e8, 1.0, 100.0),
+                hops=1, path=("rpi3_0", "nuc_0"))
     base.update(kw)
     return Task(**base)
 
@@ -24,7 +24,7 @@ def test_batch_roundtrip():
         Envelope(Kind.RESULT, "worker:b", "client:a", 2, 5, 6, Result(task(), "b", 5, 1, 12.5)),
         Envelope(Kind.DECISION, "controller:a", "worker:a", 3, 5, 6, [Decision(1, ""), Decision(2, "b")]),
         Envelope(Kind.REPORT, "worker:a", "controller:a", 4, 5, 6,
-                 Report([Pending(1, "a", 2, 1e6, 1.0, 2.0, 1.0, 9.0, 3)], [7.5, 0.0])),
+                 Report([Pending(1, "a", 2, TaskSize(1e6, 1.0, 2.0, 1.0, 9.0), 3)], [7.5, 0.0])),
         Envelope(Kind.STATE, "worker:a", "state/a", 5, 5, 6, NodeState("a", 2, 3)),
     ]
     msg = Batch(0, 5, "node-a", envs)
@@ -46,7 +46,7 @@ def test_tick_and_done_roundtrip():
                 {4: (2, 3, 16, 9), 7: (0, 1, 12, 3)})
     assert codec.decode(codec.encode(tick)) == tick
     obs = Observation(5, "a", NodeView("a", 1, 2, 3, 4e6, 0, 0.0, 1, True), 2,
-                      [TaskView(7, 8e7, 1.0, 2.0, 1.0, 100.0, 95.0, 2, "a")],
+                      [TaskView(7, TaskSize(8e7, 1.0, 2.0, 1.0, 100.0), 95.0, 2, "a")],
                       [NodeView("b", 0, 0, 26, 4e6, 1, 3e7, 1, True, 2.5)])
     stats = [1, 0, 0, 0, 0, 0, 0, 0, 0, 0, 2.5, 0.0, 0.0, 0.0, 0.0, 1, 0, 0]
     done = Done("node-a", 2, 17, {1: 1}, {0: stats}, {1: [7.0]}, {0: {19: 2, 21: 1}}, 18, {2: obs},

@@ -12,7 +12,7 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from node_runtime.model.messages import Decision, Envelope, Kind, NodeState, Pending, Report, Result, Task
+from node_runtime.model.messages import Decision, Envelope, Kind, NodeState, Pending, Report, Result, Task, TaskSize
 from node_runtime.model.role import STAT_FIELDS
 from node_runtime.model.view import NodeView, Observation, TaskView
 from node_runtime.runtime import codec
@@ -22,9 +22,9 @@ from node_runtime.runtime.rejections import SCHEMA_VERSION as OTHER_SCHEMA
 
 FUZZ = settings(max_examples=200, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 
-TASK = Task((3 << 32) | 9, "rpi3_0", 12, 8e7, 1.5e8, 1.5e8, 1.0, 100.0, 1, ("rpi3_0", "nuc_0"))
+TASK = Task((3 << 32) | 9, "rpi3_0", 12, TaskSize(8e7, 1.5e8, 1.5e8, 1.0, 100.0), 1, ("rpi3_0", "nuc_0"))
 OBS = Observation(5, "a", NodeView("a", 1, 2, 3, 4e6, 0, 0.0, 1, True), 2,
-                  [TaskView(7, 8e7, 1.0, 2.0, 1.0, 100.0, 95.0, 2, "a")],
+                  [TaskView(7, TaskSize(8e7, 1.0, 2.0, 1.0, 100.0), 95.0, 2, "a")],
                   [NodeView("b", 0, 0, 26, 4e6, 1, 3e7, 1, True, 2.5)])
 GOOD = [
     Tick(2, 17, "run", {0: 2}, {"controller:a": 1, "controller:b": [0, 2]}),

@@ -90,6 +90,30 @@ def test_custom_policy_by_import_path(tmp_path, monkeypatch):
     assert run_summary(sc)["totals"]["offloaded"] > 0
 
 
+def test_a_task_source_may_give_sizes_as_plain_tuples(tmp_path, monkeypatch):
+    """A user's draws may return (instructions, input_bytes, output_bytes, cpi, deadline) tuples or TaskSizes:
+    both make the same tasks."""
+    (tmp_path / "mylab_source.py").write_text(textwrap.dedent('''
+        from node_runtime.model.messages import TaskSize
+        from node_runtime.model.workload import TaskSource
+
+        class Tuples(TaskSource):
+            def draws(self, tick):
+                return [(4e6 * (1 + tick % 3), 1e5, 1e4, 1.0, 30.0)] if tick % 4 == 0 else []
+
+        class Sizes(Tuples):
+            def draws(self, tick):
+                return [TaskSize(*size) for size in super().draws(tick)]
+    '''))
+    monkeypatch.syspath_prepend(str(tmp_path))
+    runs = [run_summary(load_scenario(write_scenario(tmp_path, small(tmp_path, simulation={"steps": 200},
+                                                                     workload={"source": f"mylab_source:{name}"}))))
+            for name in ("Tuples", "Sizes")]
+    assert runs[0]["totals"]["generated"] == 50 * len(load_scenario(write_scenario(tmp_path, small(tmp_path))).clients)
+    same = [{k: v for k, v in model_part(run).items() if k != "scenario_hash"} for run in runs]  # the source differs
+    assert same[0] == same[1]
+
+
 BAD = [
     ({"roles": {"worker": "no_such_module_xyz:Worker"}}, "roles.worker: cannot import module 'no_such_module_xyz'"),
     ({"roles": {"worker": "json:NoSuchClass"}}, "roles.worker: module 'json' has no 'NoSuchClass'"),

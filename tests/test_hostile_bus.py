@@ -17,7 +17,7 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from env import ZenohEdgeEnv
-from node_runtime.model.messages import Decision, Envelope, Kind, NodeState, Task
+from node_runtime.model.messages import Decision, Envelope, Kind, NodeState, Task, TaskSize
 from node_runtime.model.role import STAT_FIELDS
 from node_runtime.runtime import codec, remote
 from node_runtime.runtime.aggregator import DoneAggregator
@@ -33,7 +33,7 @@ from tests.test_codec_fuzz import values
 from tests.test_serve import play
 
 TICKS, SEED, AT = 300, 4, 20
-TASK = Task(1, "rpi3_0", 18, 8e7, 1.5e8, 1.5e8, 1.0, 100.0, 0, ("rpi3_0",))
+TASK = Task(1, "rpi3_0", 18, TaskSize(8e7, 1.5e8, 1.5e8, 1.0, 100.0), 0, ("rpi3_0",))
 STATS = [0] * len(STAT_FIELDS)
 
 

@@ -7,7 +7,7 @@ import math
 import pytest
 
 from node_runtime.model.energy import compute_energy, idle_energy, transmit_energy
-from node_runtime.model.messages import LONGEST_DEADLINE_TICKS, Task
+from node_runtime.model.messages import LONGEST_DEADLINE_TICKS, Task, TaskSize
 from node_runtime.model.radio import LinkTransmitter, dbm_to_watts, log_distance_gain_db, shannon_rate
 
 
@@ -91,39 +91,38 @@ def test_energy_models():
 
 
 def test_task_expiry_is_strictly_after_the_deadline():
-    task = Task(1, "a", created=10, instructions=1, input_bytes=1, output_bytes=1, cpi=1, deadline=4.0)
+    task = Task(1, "a", created=10, size=TaskSize(1, 1, 1, 1, 4.0))
     assert not task.expired(14, 1.0)  # age 4 s == deadline: still valid
     assert task.expired(15, 1.0)
     assert not task.expired(18, 0.5)  # age 4 s
     assert task.expired(19, 0.5)
-    assert task.cycles == 1
+    assert task.size.cycles == 1
 
 
 def test_execution_time_is_cycles_over_capacity():
     # rho * xi / (N * phi): 8e7 instructions * 1.5 cpi on 2 cores of 3e7 -> 2 s
-    task = Task(1, "a", 0, 8e7, 1, 1, 1.5, 100)
-    assert task.cycles / (2 * 3e7) == pytest.approx(2.0)
-    assert math.isclose(task.cycles, 1.2e8)
+    task = Task(1, "a", 0, TaskSize(8e7, 1, 1, 1.5, 100))
+    assert task.size.cycles / (2 * 3e7) == pytest.approx(2.0)
+    assert math.isclose(task.size.cycles, 1.2e8)
 
 
 def test_expiry_tick_agrees_with_expired():
     for dt in (1.0, 0.1, 0.25, 0.3, 2.0):
         for deadline in (0.5, 1.0, 4.0, 99.9, 100.0):
-            task = Task(1, "a", created=7, instructions=1, input_bytes=1, output_bytes=1, cpi=1, deadline=deadline)
+            task = Task(1, "a", created=7, size=TaskSize(1, 1, 1, 1, deadline))
             t = task.expires_at(dt)
             assert task.expired(t, dt) and not task.expired(t - 1, dt), (dt, deadline)
 
 
 def test_expiry_tick_is_exact_up_to_the_longest_deadline_and_never_past_it():
     # 2^50 ticks of 0.1 s: still exact, the first tick past the deadline
-    longest = Task(1, "a", created=3, instructions=1, input_bytes=1, output_bytes=1, cpi=1,
-                   deadline=LONGEST_DEADLINE_TICKS * 0.1)
+    longest = Task(1, "a", created=3, size=TaskSize(1, 1, 1, 1, LONGEST_DEADLINE_TICKS * 0.1))
     t = longest.expires_at(0.1)
     assert longest.expired(t, 0.1) and not longest.expired(t - 1, 0.1)
     # past it (1e300 s, or nan from a user's task source) consecutive ticks times dt round to the same
     # number, and the search used to loop for ever: now the task never expires within any run
     for deadline in (1e300, 2.0**60, math.nan):
-        task = Task(1, "a", created=3, instructions=1, input_bytes=1, output_bytes=1, cpi=1, deadline=deadline)
+        task = Task(1, "a", created=3, size=TaskSize(1, 1, 1, 1, deadline))
         assert task.expires_at(1.0) == 3 + LONGEST_DEADLINE_TICKS
         assert not task.expired(10**6, 1.0)
 

@@ -21,6 +21,7 @@ from typing import ClassVar
 import numpy as np
 import pytest
 
+from node_runtime.model.messages import TaskSize
 from node_runtime.model.policies import POLICIES, Greedy, LeastQueue, Policy, make_policy
 from node_runtime.model.spec import Scenario
 from node_runtime.model.view import NodeView, Observation, TaskView
@@ -250,7 +251,7 @@ def test_greedy_backlog_avoids_a_congested_link():
 
     # a task of 1e8 cycles and 1e6 + 1e3 bytes: locally 100 s; to b (1e9 cycles/s) 1.001 s of transfer +
     # 0.1 s; to c (1e8) 1.001 + 1 s. b's link already has 30 s queued.
-    task = TaskView(1, 1e8, 1e6, 1e3, 1.0, 200.0, 200.0, 0, "a")
+    task = TaskView(1, TaskSize(1e8, 1e6, 1e3, 1.0, 200.0), 200.0, 0, "a")
     obs = Observation(5, "a", node("a", 1e6), 1, [task], [node("b", 1e9, backlog=30.0), node("c", 1e8)])
     assert Greedy().decide(obs) == [1]  # b: 1.1 s, not seeing the queue
     assert make_policy("greedy_backlog").decide(obs) == [2]  # b: 31.1 s, c: 2.0 s

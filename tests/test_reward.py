@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 
 from env.reward import PaperWeights, paper_terms, reference_terms, shaped
+from node_runtime.model.messages import TaskSize
 from node_runtime.model.view import NodeView, Observation, TaskView
 from node_runtime.model.workload import nominal_arrivals
 
@@ -15,8 +16,8 @@ from node_runtime.model.workload import nominal_arrivals
 # nuc-like one (3.2e7 cycles/s, buffer 54, 5 tasks queued) over a 30 Mbit/s link.
 OWN = NodeView("a", queue=2, occupancy=3, buffer=3, capacity=4e6, tier=0, rate_bps=0.0, age=1, worker=True)
 NUC = NodeView("b", queue=5, occupancy=5, buffer=54, capacity=3.2e7, tier=1, rate_bps=3e7, age=1, worker=True)
-TASK = TaskView(1, instructions=8e7, input_bytes=1e7, output_bytes=5e6, cpi=1.0, deadline=100.0, time_left=97.0,
-                waited=1, origin="a")
+TASK = TaskView(1, TaskSize(instructions=8e7, input_bytes=1e7, output_bytes=5e6, cpi=1.0, deadline=100.0),
+                time_left=97.0, waited=1, origin="a")
 OBS = Observation(10, "a", OWN, 1, [TASK], [NUC])
 
 

@@ -10,7 +10,7 @@ import pytest
 
 from env import ZenohEdgeEnv
 from node_runtime.model.controller import Controller
-from node_runtime.model.messages import Envelope, Kind, Pending, Report, Task
+from node_runtime.model.messages import Envelope, Kind, Pending, Report, Task, TaskSize
 from node_runtime.model.role import STAT_FIELDS, Outbox, Role
 from node_runtime.model.spec import Scenario
 from node_runtime.model.worker import COAST_TICKS, Worker
@@ -201,7 +201,7 @@ def served_alone(tmp_path, cycles: float) -> tuple[Worker, Outbox]:
     worker = Worker(scenario.node["a"], scenario)
     out = Outbox(worker.id)
     out.tick = 1
-    task = Task(1, "a", 1, cycles, 1e3, 1e3, 1.0, 5e3)
+    task = Task(1, "a", 1, TaskSize(cycles, 1e3, 1e3, 1.0, 5e3))
     worker.tick(1, [Envelope(Kind.TASK, "client:a", worker.id, 1, 0, 1, task)], out)
     return worker, out
 
@@ -399,7 +399,7 @@ def test_a_controller_reads_later_only_a_report_that_brings_nothing_to_place(tmp
     controller that reads every state and report as it arrives."""
     scenario = tricky(tmp_path)
     controller = Controller(scenario.node["a"], scenario)
-    pending = [Pending(7, "a", 1, 3e6, 2e5, 2e5, 1.0, 12.0, 2)]
+    pending = [Pending(7, "a", 1, TaskSize(3e6, 2e5, 2e5, 1.0, 12.0), 2)]
     report = Envelope(Kind.REPORT, "worker:a", controller.id, 1, 2, 3, Report(pending, [4.0, 0.0]))
     assert not controller.reads_later(report)
     controller.decided.add(7)

@@ -23,6 +23,8 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from node_runtime.model.spec import TraceRow
+
 COLUMNS = ("task_name", "instance_num", "job_name", "task_type", "status", "start_time", "end_time", "plan_cpu",
            "plan_mem")
 
@@ -119,7 +121,6 @@ def convert(path: Path, clients: list[str], conversion: Conversion = Conversion(
 
 def write(rows: list[dict[str, float | str]], out: Path) -> None:
     with Path(out).open("w", newline="") as fh:
-        w = csv.DictWriter(fh, fieldnames=["time", "client", "instructions", "input_bytes", "output_bytes", "cpi",
-                                           "deadline"])
+        w = csv.DictWriter(fh, fieldnames=TraceRow.columns())
         w.writeheader()
         w.writerows(rows)

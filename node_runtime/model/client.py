@@ -7,7 +7,7 @@ uniformly at random per task.
 
 from __future__ import annotations
 
-from node_runtime.model.messages import Envelope, Kind, Task
+from node_runtime.model.messages import Envelope, Kind, Task, TaskSize
 from node_runtime.model.plugins import load
 from node_runtime.model.radio import Radio
 from node_runtime.model.registry import RoleKind, register
@@ -71,18 +71,17 @@ class Client(Role):
         if failed:
             return
         me = self.node.id
-        for instructions, in_bytes, out_bytes, cpi, deadline in self.source.draws(t):
-            task = Task(self.task_id(), me, t, instructions, in_bytes, out_bytes, cpi, deadline)
+        for size in self.source.draws(t):
+            task = Task(self.task_id(), me, t, TaskSize(*size))
             st.generated += 1
-            out.emit("created", me, task=task.id, instructions=instructions, input_bytes=in_bytes,
-                     output_bytes=out_bytes, cpi=cpi, deadline=deadline)
+            out.emit("created", me, task=task.id, **task.size._asdict())
             if self.local:
                 out.send(Kind.TASK, role_id("worker", me), task)
                 continue
             target = self.targets[0]
             if len(self.targets) > 1:
                 target = self.targets[int(self.target_rng.integers(len(self.targets)))]
-            self.transmit(t, Kind.TASK, target, role_id("worker", target), task, in_bytes * 8.0, out)
+            self.transmit(t, Kind.TASK, target, role_id("worker", target), task, task.size.input_bytes * 8.0, out)
 
     def wake(self, t: int) -> float:
         """At its next arrival: results come by mail, and nothing else happens in between."""

@@ -213,8 +213,7 @@ class Controller(Role):
             if p.id in self.decided:
                 continue
             age = (t - p.created) * dt
-            tasks.append(TaskView(p.id, p.instructions, p.input_bytes, p.output_bytes, p.cpi,
-                                  p.deadline, p.deadline - age, t - p.arrived, p.origin))
+            tasks.append(TaskView(p.id, p.size, p.size.deadline - age, t - p.arrived, p.origin))
             if len(tasks) == self.per_epoch:
                 break
         return Observation(

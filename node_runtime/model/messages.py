@@ -4,6 +4,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from enum import IntEnum
+from typing import NamedTuple
 
 # The longest deadline, in ticks, whose expiry tick is computed exactly: up to it, (tick - created) * dt
 # tells consecutive ticks apart whatever dt. Scenarios are held to it; past it (a user's task source)
@@ -11,9 +12,25 @@ from enum import IntEnum
 LONGEST_DEADLINE_TICKS = 2**50
 
 
+class TaskSize(NamedTuple):
+    """What one task asks of the network, <rho, alpha_in, alpha_out, xi, delta>: the one value that a
+    trace row, a task, a worker's snapshot of it and a controller's view of it all carry. A tuple, so
+    that a user's task source may give one as a plain tuple, and the codec writes it as its fields."""
+
+    instructions: float  # rho
+    input_bytes: float  # alpha_in
+    output_bytes: float  # alpha_out
+    cpi: float  # xi, cycles per instruction
+    deadline: float  # delta, seconds from creation until the result must be back
+
+    @property
+    def cycles(self) -> float:
+        return self.instructions * self.cpi
+
+
 @dataclass(slots=True)
 class Task:
-    """tau = <id, rho, alpha_in, alpha_out, xi, delta>, plus where it comes from and where it went.
+    """tau = <id, size>, plus where it comes from and where it went.
 
     ``path`` lists the worker nodes that have held the task, first the one its client handed it to;
     the result travels back along it. Ownership moves with the message that carries the task.
@@ -22,26 +39,18 @@ class Task:
     id: int
     origin: str  # node of the client that created it
     created: int  # tick
-    instructions: float
-    input_bytes: float
-    output_bytes: float
-    cpi: float
-    deadline: float  # seconds after creation
+    size: TaskSize
     hops: int = 0  # offloads so far
     path: tuple[str, ...] = ()
 
-    @property
-    def cycles(self) -> float:
-        return self.instructions * self.cpi
-
     def expired(self, tick: int, dt: float) -> bool:
         """Older than its deadline: (now - created) > delta."""
-        return (tick - self.created) * dt > self.deadline
+        return (tick - self.created) * dt > self.size.deadline
 
     def expires_at(self, dt: float) -> int:
         """The first tick at which ``expired`` holds (computed with ``expired`` itself, so that both
         always agree whatever the float rounding)."""
-        ticks = self.deadline // dt
+        ticks = self.size.deadline // dt
         if not ticks <= LONGEST_DEADLINE_TICKS:  # nan too; the loops below would never end
             return self.created + LONGEST_DEADLINE_TICKS
         t = self.created + int(ticks)
@@ -81,17 +90,12 @@ class Pending:
     id: int
     origin: str
     created: int
-    instructions: float
-    input_bytes: float
-    output_bytes: float
-    cpi: float
-    deadline: float
+    size: TaskSize
     arrived: int  # tick it entered the worker's buffer
 
     @classmethod
     def of(cls, task: Task, arrived: int) -> Pending:
-        return cls(task.id, task.origin, task.created, task.instructions, task.input_bytes, task.output_bytes,
-                   task.cpi, task.deadline, arrived)
+        return cls(task.id, task.origin, task.created, task.size, arrived)
 
 
 @dataclass(slots=True)

@@ -98,14 +98,14 @@ class Greedy(Policy):
     @staticmethod
     def estimate(obs: Observation, task: TaskView, action: int, extra: int) -> float:
         node = _target(obs, action)
-        cycles = task.cycles
+        cycles = task.size.cycles
         wait = (node.queue + extra) * cycles / node.capacity
         run = cycles / node.capacity
         if action == 0:
             return wait + run
         if node.occupancy + extra >= node.buffer:
             return math.inf
-        transfer = (task.input_bytes + task.output_bytes) * 8.0 / node.rate_bps
+        transfer = (task.size.input_bytes + task.size.output_bytes) * 8.0 / node.rate_bps
         return transfer + wait + run
 
 

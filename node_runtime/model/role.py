@@ -170,7 +170,7 @@ class Role:
     def urgency(self, task: Task) -> float:
         """What one second of waiting costs ``task``, in its own deadlines (a deadline under a tick counts
         one tick): the weight of the delay imposed on it (``Counters.delay_imposed``)."""
-        return 1.0 / max(task.deadline, self.scenario.dt)
+        return 1.0 / max(task.size.deadline, self.scenario.dt)
 
     def transmit(self, t: int, kind: Kind, dst_node: str, dst_role: str, body: Body, bits: float,
                  out: Outbox, charged: bool = False) -> None:
@@ -178,7 +178,7 @@ class Role:
         ``charged``: the message is this node's decision, and the waiting it imposes on the later messages
         of the link counts as this node's ``delay_imposed`` (and in the ledger, as its task's charge)."""
         task = body if kind == Kind.TASK else body.task
-        sent = self.radio.send(t, dst_node, bits, task.created + task.deadline / self.scenario.dt,
+        sent = self.radio.send(t, dst_node, bits, task.created + task.size.deadline / self.scenario.dt,
                                task.id if charged else None)
         if isinstance(sent, str):
             self.drop(out, sent, task.id)

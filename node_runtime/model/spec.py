@@ -20,6 +20,7 @@ import numpy as np
 from pydantic import Discriminator, Field, Tag, field_validator, model_validator
 
 from node_runtime.model.arrival import Arrival, Constant
+from node_runtime.model.messages import TaskSize
 from node_runtime.model.plugins import is_import_path
 from node_runtime.model.policies import POLICIES
 from node_runtime.model.rng import MAX_SEED
@@ -109,8 +110,12 @@ class TaskType(Strict):
 
     @property
     def cycles(self) -> float:
-        """CPU cycles one task of this type needs (as ``Task.cycles``)."""
-        return self.instructions * self.cpi
+        """CPU cycles one task of this type needs."""
+        return self.size(self.longest_deadline).cycles
+
+    def size(self, deadline: float) -> TaskSize:
+        """The size of one task of this type, with the deadline drawn for it."""
+        return TaskSize(self.instructions, self.input_bytes, self.output_bytes, self.cpi, deadline)
 
     @property
     def drawn(self) -> bool:
@@ -134,13 +139,16 @@ class TaskType(Strict):
 
 @dataclass(frozen=True, slots=True)
 class TraceRow:
+    """One task of a trace: when, which client creates it, and its size."""
+
     time: float  # seconds from the episode start
     client: str
-    instructions: float
-    input_bytes: float
-    output_bytes: float
-    cpi: float
-    deadline: float
+    size: TaskSize
+
+    @classmethod
+    def columns(cls) -> list[str]:
+        """A trace file's header: time, client, then the fields of a task's size."""
+        return ["time", "client", *TaskSize._fields]
 
 
 class Workload(Strict):
@@ -323,7 +331,8 @@ def _hashed(sc: Scenario) -> dict[str, Any]:
             "arrival": {"kind": wl.arrival.kind, **LEGACY_ARRIVAL, **wl.arrival.model_dump(exclude={"kind"})},
             "client_rates": [list(kv) for kv in wl.client_rates],
             "client_targets": [[c, list(ts)] for c, ts in wl.client_targets],
-            "trace": None if wl.trace is None else [asdict(r) for r in wl.trace],
+            "trace": None if wl.trace is None else [{"time": r.time, "client": r.client, **r.size._asdict()}
+                                                    for r in wl.trace],
             "source": wl.source,
         },
         "failures": [{"node": f.node, "start": f.at, "end": f.end} for f in sc.failures],

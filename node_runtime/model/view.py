@@ -10,22 +10,16 @@ from dataclasses import dataclass, field, fields
 from operator import attrgetter
 from typing import Any
 
+from node_runtime.model.messages import TaskSize
+
 
 @dataclass(slots=True)
 class TaskView:
     id: int
-    instructions: float
-    input_bytes: float
-    output_bytes: float
-    cpi: float
-    deadline: float  # seconds, as created
+    size: TaskSize  # the deadline in seconds, as created
     time_left: float  # seconds until the deadline passes
     waited: int  # ticks spent undecided
     origin: str
-
-    @property
-    def cycles(self) -> float:
-        return self.instructions * self.cpi
 
 
 @dataclass(slots=True)
@@ -60,13 +54,14 @@ class Observation:
 
     def to_wire(self) -> list[Any]:
         """Compact arrays (field order of the dataclasses), documented in docs/bus.md."""
-        return [self.tick, self.node, _node_fields(self.own), self.undecided, [_task_fields(t) for t in self.tasks],
+        return [self.tick, self.node, _node_fields(self.own), self.undecided,
+                [[t.id, *t.size, t.time_left, t.waited, t.origin] for t in self.tasks],
                 [_node_fields(n) for n in self.neighbours], self.busy_until]
 
     @classmethod
     def from_wire(cls, a: list[Any]) -> Observation:
-        return cls(a[0], a[1], NodeView(*a[2]), a[3], [TaskView(*t) for t in a[4]], [NodeView(*n) for n in a[5]], a[6])
+        tasks = [TaskView(t[0], TaskSize(*t[1:6]), t[6], t[7], t[8]) for t in a[4]]
+        return cls(a[0], a[1], NodeView(*a[2]), a[3], tasks, [NodeView(*n) for n in a[5]], a[6])
 
 
 _node_fields = attrgetter(*(f.name for f in fields(NodeView)))
-_task_fields = attrgetter(*(f.name for f in fields(TaskView)))

@@ -105,11 +105,11 @@ class Worker(Role):
             out.send(Kind.RESULT, role_id("client", origin), result)
         elif origin in self.radio:
             self.transmit(t, Kind.RESULT, origin, role_id("client", origin), result,
-                          task.output_bytes * 8.0, out)
+                          task.size.output_bytes * 8.0, out)
         else:
             result.hop -= 1
             prev = task.path[result.hop]
-            self.transmit(t, Kind.RESULT, prev, role_id("worker", prev), result, task.output_bytes * 8.0, out)
+            self.transmit(t, Kind.RESULT, prev, role_id("worker", prev), result, task.size.output_bytes * 8.0, out)
 
     def pending(self) -> list[Pending]:
         """The tasks the controller may place, oldest first."""
@@ -123,7 +123,7 @@ class Worker(Role):
         if not self.decides:
             return []
         max_hops = self.scenario.max_hops
-        return [e for e in self.queue if e[1] == e[0].cycles and not e[3] and e[0].hops < max_hops]
+        return [e for e in self.queue if e[1] == e[0].size.cycles and not e[3] and e[0].hops < max_hops]
 
     def transmit(self, t: int, kind: Kind, dst_node: str, dst_role: str, body: Task | Result, bits: float,
                  out: Outbox) -> None:
@@ -238,7 +238,7 @@ class Worker(Role):
         right), by the same float steps ``serve`` takes; 1 if it has not started (a task that starts changes
         what the controller may divert)."""
         task, remaining = self.queue[0][0], self.queue[0][1]
-        if task.id != self._serving or remaining == task.cycles:
+        if task.id != self._serving or remaining == task.size.cycles:
             return 1
         budget, ticks = self.budget, 1
         while remaining > budget + EPS_CYCLES and ticks < COAST_TICKS:
@@ -288,13 +288,13 @@ class Worker(Role):
                 continue
             task = held[0]
             if not d.target or d.target == self.node.id:
-                self.queue.append([task, task.cycles])
+                self.queue.append([task, task.size.cycles])
             else:
                 task.hops += 1
                 st.offloaded += 1
                 out.emit("offloaded", self.node.id, task=task.id, to=d.target)
                 self.transmit(t, Kind.TASK, d.target, role_id("worker", d.target), task,
-                              task.input_bytes * 8.0, out)
+                              task.size.input_bytes * 8.0, out)
 
     def divert(self, t: int, decisions: list[Decision], out: Outbox) -> None:
         """queue_first: a decision keeps a queued task here or takes it out of the queue to a neighbour,
@@ -303,7 +303,7 @@ class Worker(Role):
         for d in decisions:
             at = next((i for i, e in enumerate(self.queue) if e[0].id == d.task_id), None)
             entry = self.queue[at] if at is not None else None
-            if entry is None or entry[1] != entry[0].cycles or entry[3]:
+            if entry is None or entry[1] != entry[0].size.cycles or entry[3]:
                 st.stale_decisions += 1
                 continue
             if not d.target or d.target == self.node.id:
@@ -314,7 +314,7 @@ class Worker(Role):
             task.hops += 1
             st.offloaded += 1
             out.emit("offloaded", self.node.id, task=task.id, to=d.target)
-            self.transmit(t, Kind.TASK, d.target, role_id("worker", d.target), task, task.input_bytes * 8.0, out)
+            self.transmit(t, Kind.TASK, d.target, role_id("worker", d.target), task, task.size.input_bytes * 8.0, out)
 
     def admit(self, t: int, arrivals: list[Task], out: Outbox) -> None:
         buffer = self.node.buffer
@@ -327,12 +327,12 @@ class Worker(Role):
                 task.path = (*task.path, self.node.id)
                 self.next_expiry = min(self.next_expiry, task.expires_at(self.dt))
                 if self.queue_first:
-                    self.queue.append([task, task.cycles, t, False])
+                    self.queue.append([task, task.size.cycles, t, False])
                 elif self.decides and task.hops < self.scenario.max_hops:
                     self.undecided[task.id] = (task, t)
                     self.tasks_version += 1
                 else:
-                    self.queue.append([task, task.cycles])
+                    self.queue.append([task, task.size.cycles])
 
     def serve(self, t: int, out: Outbox) -> None:
         """Spend the tick's cycles on the queue, head first. While the head is served, every task behind it

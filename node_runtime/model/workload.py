@@ -13,6 +13,7 @@ from collections import defaultdict
 
 import numpy as np
 
+from node_runtime.model.messages import TaskSize
 from node_runtime.model.spec import Scenario, TaskType, TraceRow
 
 BLOCK = 256  # ticks of arrival counts drawn at once (a constant: part of the stream's definition)
@@ -124,11 +125,10 @@ class TaskSource:
         self._next = nxt
         return counts
 
-    def draws(self, tick: int) -> list[tuple[float, float, float, float, float]]:
-        """(instructions, input_bytes, output_bytes, cpi, deadline) of every task created at ``tick``."""
+    def draws(self, tick: int) -> list[TaskSize]:
+        """The size of every task created at ``tick`` (a plain tuple of its five fields will do)."""
         if self.trace is not None:
-            return [(r.instructions, r.input_bytes, r.output_bytes, r.cpi, r.deadline)
-                    for r in self.trace.get(tick, ())]
+            return [r.size for r in self.trace.get(tick, ())]
         n = self.count(tick)
         if n == 0:
             return []
@@ -136,8 +136,7 @@ class TaskSource:
             picks = [self.types[0]] * n
         else:
             picks = [self.types[i] for i in self.types_rng.choice(len(self.types), size=n, p=self.probs)]
-        return [(t.instructions, t.input_bytes, t.output_bytes, t.cpi, t.draw_deadline(self.deadlines_rng))
-                for t in picks]
+        return [t.size(t.draw_deadline(self.deadlines_rng)) for t in picks]
 
     def next_arrival(self, after: int) -> int:
         """The first tick after ``after`` with a task, or the end of the search window.

@@ -18,7 +18,7 @@ from typing import Any, NoReturn
 
 import msgpack
 
-from node_runtime.model.messages import Decision, Envelope, Kind, NodeState, Pending, Report, Result, Task
+from node_runtime.model.messages import Decision, Envelope, Kind, NodeState, Pending, Report, Result, Task, TaskSize
 from node_runtime.model.role import STAT_FIELDS
 from node_runtime.model.view import Observation
 from node_runtime.runtime.protocol import SCHEMA_VERSION, Batch, Done, Dones, Tick
@@ -194,14 +194,13 @@ def _diagnose(d: dict[str, Any], kind: str, fields: tuple) -> NoReturn:
 # ----- model bodies -----
 
 def _task(t: Task) -> list:
-    return [t.id, t.origin, t.created, t.instructions, t.input_bytes, t.output_bytes, t.cpi, t.deadline,
-            t.hops, list(t.path)]
+    return [t.id, t.origin, t.created, *t.size, t.hops, list(t.path)]
 
 
 def _untask(a: Any) -> Task:
     if not (_fits(a, TASK) and _str_list(a[9])):
         _malformed("a task that is not [id, origin, created, instructions, input, output, cpi, deadline, hops, path]")
-    return Task(a[0], a[1], a[2], a[3], a[4], a[5], a[6], a[7], a[8], tuple(a[9]))
+    return Task(a[0], a[1], a[2], TaskSize(a[3], a[4], a[5], a[6], a[7]), a[8], tuple(a[9]))
 
 
 def _body(kind: Kind, body: Any) -> Any:
@@ -212,8 +211,7 @@ def _body(kind: Kind, body: Any) -> Any:
     if kind == Kind.DECISION:
         return [[d.task_id, d.target] for d in body]
     if kind == Kind.REPORT:
-        return [[[p.id, p.origin, p.created, p.instructions, p.input_bytes, p.output_bytes, p.cpi, p.deadline,
-                  p.arrived] for p in body.pending], body.busy_until]
+        return [[[p.id, p.origin, p.created, *p.size, p.arrived] for p in body.pending], body.busy_until]
     if kind == Kind.STATE:
         return [body.node, body.queue, body.occupancy]
     raise CodecError(f"no encoding for message kind {kind!r}")
@@ -234,7 +232,7 @@ def _unbody(kind: Kind, a: Any) -> Any:
         if not (type(a) is list and len(a) == 2 and type(a[0]) is list and all(_fits(p, PENDING) for p in a[0])
                 and (a[1] is None or (type(a[1]) is list and all(isinstance(x, NUM) for x in a[1])))):
             _malformed("a report that is not [[pending task, ...], link busy-until ticks or nil]")
-        return Report([Pending(*p) for p in a[0]], a[1])
+        return Report([Pending(p[0], p[1], p[2], TaskSize(*p[3:8]), p[8]) for p in a[0]], a[1])
     if not _fits(a, STATE):  # Kind.STATE: the kinds are exhausted
         _malformed("a state that is not [node, queue, occupancy]")
     return NodeState(a[0], a[1], a[2])

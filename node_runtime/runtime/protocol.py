@@ -25,7 +25,7 @@ from typing import Any, Literal
 from node_runtime.model.messages import Envelope
 from node_runtime.model.view import Observation
 
-SCHEMA_VERSION = 10
+SCHEMA_VERSION = 11
 Command = Literal["run", "reset", "stop"]
 
 

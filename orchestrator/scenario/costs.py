@@ -76,7 +76,7 @@ def report(sc: Scenario) -> list[str]:
     rows = [("task type", "device", "nodes", "service", "input", "output", "deadline")]
     warnings = []
     for task in sc.workload.task_types:
-        deadline = f"{task.deadline:g} s" if not task.drawn else f"{task.deadline:g}-{task.longest_deadline:g} s"
+        deadline = f"{task.deadline:g} s" if not task.drawn else f"{task.deadline.low:g}-{task.longest_deadline:g} s"
         for d in kinds:
             service, up, down = d.service_s(task), d.transfer_s(task.input_bytes), d.transfer_s(task.output_bytes)
             rows.append((task.name, d.name, str(len(d.nodes)), seconds(service), seconds(up), seconds(down), deadline))

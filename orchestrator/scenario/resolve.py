@@ -17,7 +17,7 @@ from typing import Any
 import networkx as nx
 from pydantic import ConfigDict, ValidationError, validate_call
 
-from node_runtime.model.messages import LONGEST_DEADLINE_TICKS
+from node_runtime.model.messages import LONGEST_DEADLINE_TICKS, TaskSize
 from node_runtime.model.plugins import PluginError, extend_path, is_import_path, load
 from node_runtime.model.radio import free_space_loss_db, log_distance_gain_db, shannon_rate
 from node_runtime.model.registry import ROLE_KINDS
@@ -445,7 +445,8 @@ class _Resolver:
                 f"2^50 ({LONGEST_DEADLINE_TICKS:.2g}) ticks")
 
     def trace(self, path: Path, by_id: dict[str, NodeSpec]) -> tuple[TraceRow, ...] | None:
-        columns = ["time", "client", "instructions", "input_bytes", "output_bytes", "cpi", "deadline"]
+        columns = TraceRow.columns()
+        sizes = columns[2:]
         where = "workload.trace"
         try:
             with path.open(newline="") as fh:
@@ -456,23 +457,22 @@ class _Resolver:
                 rows = []
                 for line, rec in enumerate(reader, start=2):
                     try:
-                        row = TraceRow(float(rec["time"]), rec["client"].strip(), float(rec["instructions"]),
-                                       float(rec["input_bytes"]), float(rec["output_bytes"]), float(rec["cpi"]),
-                                       float(rec["deadline"]))
+                        row = TraceRow(float(rec["time"]), rec["client"].strip(),
+                                       TaskSize(*(float(rec[c]) for c in sizes)))
                     except (TypeError, ValueError, AttributeError):
                         self.error(where, f"{path}:{line}: expected numbers in every column but 'client'")
                         continue
-                    if not all(math.isfinite(getattr(row, c)) for c in ["time", *columns[2:]]):
+                    if not all(math.isfinite(x) for x in (row.time, *row.size)):
                         self.error(where, f"{path}:{line}: expected finite numbers in every column but 'client'")
                         continue
                     if row.client not in by_id or not by_id[row.client].has("client"):
                         self.error(where, f"{path}:{line}: {row.client!r} is not a task source node")
-                    bad = [c for c in columns[2:] if getattr(row, c) <= 0]
+                    bad = [c for c, x in zip(sizes, row.size, strict=True) if x <= 0]
                     if bad:
                         self.error(where, f"{path}:{line}: expected positive {', '.join(bad)}")
                     if row.time < 0:
                         self.error(where, f"{path}:{line}: expected time >= 0")
-                    if why := self.too_long(row.deadline):
+                    if why := self.too_long(row.size.deadline):
                         self.error(where, f"{path}:{line}: {why}")
                     rows.append(row)
         except FileNotFoundError:
