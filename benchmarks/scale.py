@@ -71,7 +71,7 @@ def rss_mb(*pids: int) -> float:
 
 def inproc(sc: Any, ticks: int) -> dict[str, float]:
     t0 = time.perf_counter()
-    with Simulation(sc, transport="inproc") as sim:
+    with Simulation.inproc(sc) as sim:
         sim.reset()
         build = time.perf_counter() - t0
         rate = ticks_per_s(sim)(ticks)
@@ -80,7 +80,7 @@ def inproc(sc: Any, ticks: int) -> dict[str, float]:
 
 def zenoh(sc: Any, groups: int, ticks: int, rounds: int) -> dict[str, float]:
     t0 = time.perf_counter()
-    with Simulation(sc, transport="zenoh", layout=f"groups:{groups}") as sim:
+    with Simulation.over_zenoh(sc, layout=f"groups:{groups}") as sim:
         sim.reset()
         startup = time.perf_counter() - t0
         barrier = BareBarrier(len(sim.plan.procs))

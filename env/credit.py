@@ -9,13 +9,14 @@ credit each task's whole account to the decisions that placed it, once it is kno
 
     credit(task) = [completed] (1 - response / P) - c * (waiting it imposed on others, in their deadlines)
 
-the ``marginal`` reward's two terms for that one task (``reward.timeliness``, c = ``CONGESTION_PRICE``,
-P the headline score's penalty). It reaches the agent as ``infos[agent]["credits"]``: (step, credit) pairs,
-``step`` counting the episode's steps from 0, one pair per decision whose every task has settled. A decision
-whose tasks are still in the network when the episode ends gets no credit: the episode was cut short, and
-crediting those tasks as lost (as the headline score counts them) would teach that whatever is slow near the
-end is bad, as a truncated return taken for a terminal one would. A decision on a task that had already
-settled (it expired while the agent looked at it) is credited 0 at once: nothing it chose changed anything.
+the ``marginal`` reward's two terms for that one task (``reward.timeliness``, c the environment's
+``RewardSettings.congestion_price``, P the headline score's penalty). It reaches the agent as
+``infos[agent]["credits"]``: (step, credit) pairs, ``step`` counting the episode's steps from 0, one pair per
+decision whose every task has settled. A decision whose tasks are still in the network when the episode ends
+gets no credit: the episode was cut short, and crediting those tasks as lost (as the headline score counts
+them) would teach that whatever is slow near the end is bad, as a truncated return taken for a terminal one
+would. A decision on a task that had already settled (it expired while the agent looked at it) is credited 0
+at once: nothing it chose changed anything.
 A charge that reaches a task after it settled (a lost transfer keeps its link busy) is not credited.
 """
 
@@ -23,7 +24,7 @@ from __future__ import annotations
 
 from collections.abc import Iterable
 
-from env.reward import CONGESTION_PRICE
+from env.reward import RewardSettings
 from node_runtime.model.role import CHARGED, COMPLETED
 
 Credits = dict[str, list[tuple[int, float]]]  # agent -> [(step of the decision, credit)]
@@ -36,9 +37,9 @@ SETTLED_MEMORY = 100_000
 class TaskCredit:
     """Which decisions placed each task, and what each task has cost so far."""
 
-    def __init__(self, penalty: float, price: float = CONGESTION_PRICE) -> None:
+    def __init__(self, penalty: float, settings: RewardSettings) -> None:
         self.penalty = penalty
-        self.price = price
+        self.settings = settings
         self.reset()
 
     def reset(self) -> None:
@@ -79,7 +80,7 @@ class TaskCredit:
 
     def _close(self, task: int, timely: float, out: Credits) -> None:
         charges, decisions = self._tasks.pop(task)
-        credit = timely - self.price * charges[0]
+        credit = timely - self.settings.congestion_price * charges[0]
         self._forget_after(task)
         for key in decisions:
             left = self._open[key]

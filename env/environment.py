@@ -17,9 +17,7 @@ action is ruled in ``env.actions``; penalties and shaping are wrappers (``env.wr
 
 from __future__ import annotations
 
-import math
 from collections.abc import Sequence
-from numbers import Integral, Real
 from pathlib import Path
 from typing import Any, ClassVar
 
@@ -29,47 +27,39 @@ from pettingzoo import ParallelEnv
 
 from env.actions import ActionRules
 from env.credit import TaskCredit
-from env.observations import DictObservation, FlatObservation, ObservationBuilder, ObservationLayout
+from env.observations import FlatObservation, ObservationBuilder, ObservationLayout
 from env.overrides import ScenarioOverrides
 from env.reward import (
-    CONGESTION_PRICE,
     PaperWeights,
     RewardContext,
     RewardFn,
+    RewardSettings,
     RewardTerms,
     resolve_reward,
     terms_for,
 )
+from env.settings import FLAT, Connection, EpisodeSettings, ObservationSettings, check_seed
 from node_runtime.model.plugins import load
-from node_runtime.model.rng import MAX_SEED
 from node_runtime.model.role import role_id
 from node_runtime.model.spec import Scenario
 from node_runtime.model.view import Observation
 from node_runtime.model.workload import nominal_arrivals
-from node_runtime.runtime.layout import Layout, check_layout
+from node_runtime.runtime.layout import Layout
 from orchestrator.catalogue import Out
 from orchestrator.metrics import output_values, penalty_s
-from orchestrator.scenario import load_scenario
 from orchestrator.session import Simulation
 
 AGENT_PREFIX = "ctrl_"
-FLAT = "flat"  # observation="flat": FlatObservation and numbers-only infos
 
 
 def agent_name(node: str) -> str:
     return f"{AGENT_PREFIX}{node}"
 
 
-def check_seed(seed: Any, call: str) -> None:
-    """None, or what a reset tick can carry as a msgpack integer: 0 to MAX_SEED."""
-    if seed is not None and (isinstance(seed, bool) or not isinstance(seed, Integral) or not 0 <= seed <= MAX_SEED):
-        raise ValueError(f"{call}(seed={seed!r}): expected an integer from 0 to {MAX_SEED} (2^62 - 1), or None")
-
-
 class ZenohEdgeEnv(ParallelEnv):
     """Multi-agent task offloading over a Zenoh-emulated edge network.
 
-    Args:
+    Args (sorted into the settings of ``env.settings`` and ``env.reward.RewardSettings``, each checked there):
         scenario: a bundled name ("aot1" … "aot4"), a YAML path, a dict in the scenario format, or a
             ``Scenario``.
         seed: seed of the first episode (later resets without a seed draw from a stream it seeds).
@@ -117,70 +107,51 @@ class ZenohEdgeEnv(ParallelEnv):
                  max_steps: int | None = None, agents: Sequence[str] | None = None, uniform_spaces: bool = False,
                  invalid_action: str = "local", render_mode: str | None = None, info_numbers: bool = True,
                  connect: str | None = None, sim_id: str | None = None, timeout: float = 30.0,
-                 security: str | Path | None = None, congestion_price: float = CONGESTION_PRICE) -> None:
-        if overrides is not None and not isinstance(overrides, ScenarioOverrides):
-            raise TypeError(f"overrides must be a ScenarioOverrides, not a {type(overrides).__name__}")
-        if connect is not None:  # the served simulation fixes the scenario
-            if sim_id is None:
-                raise ValueError("connect= needs sim_id= (both are printed by `orchestrator launch --serve`)")
-            if overrides is not None:
-                raise ValueError("overrides cannot change a served simulation; set them in its scenario file")
-            from node_runtime.runtime.security import Security
-            from orchestrator.serve import describe
-
-            self.security = Security.from_dir(security) if security is not None else None
-            sc = Scenario.from_dict(describe(connect, sim_id, timeout=timeout, security=self.security)["scenario"])
-        else:
-            sc = scenario if isinstance(scenario, Scenario) else load_scenario(scenario)
-        if overrides is not None:
-            sc = overrides.apply(sc)
-        if max_steps is not None and (isinstance(max_steps, bool) or not isinstance(max_steps, Integral)
-                                      or max_steps < 1):
-            raise ValueError(f"max_steps must be an integer >= 1, not {max_steps!r}")
-        if transport not in ("zenoh", "inproc"):
-            raise ValueError(f"transport must be 'zenoh' or 'inproc', not {transport!r}")
-        if layout is not None:
-            layout = check_layout(layout)
-        if isinstance(congestion_price, bool) or not isinstance(congestion_price, Real) or not (
-                0 <= congestion_price < math.inf):
-            raise ValueError(f"congestion_price must be a finite number >= 0, not {congestion_price!r}")
+                 security: str | Path | None = None, congestion_price: float | None = None) -> None:
+        self.connection = Connection(transport=transport, layout=layout, timeout=timeout, connect=connect,
+                                     sim_id=sim_id, security=security)
+        self.episode = EpisodeSettings(max_steps=max_steps, agents=agents, seed=seed)
+        self.observing = ObservationSettings(observation=observation, uniform_spaces=uniform_spaces,
+                                             info_numbers=info_numbers)
+        self.reward_settings = RewardSettings(**_given(weights=reward_weights, congestion_price=congestion_price))
         if render_mode is not None and render_mode not in self.metadata["render_modes"]:
             raise ValueError(f"render_mode must be one of {self.metadata['render_modes']} or None")
-        self.scenario = sc
-        self.transport = transport
-        self.layout = layout
+        self.render_mode = render_mode
+        self.scenario = self.connection.scenario(scenario, overrides)
+        self.max_steps = self.episode.steps(self.scenario)
+        self._set_reward(reward)
+        self._set_agents()
+        self._set_spaces(invalid_action)
+        self._set_episode_state()
+
+    def _set_reward(self, reward: str | RewardFn | None) -> None:
+        """The reward function (the argument, else the scenario's ``reward`` key, else "paper"), what it needs
+        of the scenario, and the credits per task (infos[agent]["credits"])."""
+        sc = self.scenario
         self.reward_fn = resolve_reward(reward or sc.extra.get("reward") or "paper")
         self.terms_fn = terms_for(self.reward_fn)  # what infos["reward_terms"] shows
-        self.weights = reward_weights or PaperWeights()
         self.arrivals = nominal_arrivals(sc)
         self.penalty = penalty_s(sc)  # what the headline score charges a task that does not complete
-        self.price = float(congestion_price)
-        self.credit = TaskCredit(self.penalty, self.price)  # infos[agent]["credits"]
-        self.max_steps = max_steps or sc.steps
-        self.render_mode = render_mode
-        self.connect = connect
-        self.sim_id = sim_id
-        self.timeout = timeout
+        self.credit = TaskCredit(self.penalty, self.reward_settings)
 
-        nodes = list(agents) if agents is not None else list(sc.controllers)
-        unknown = [n for n in nodes if n not in sc.controllers]
-        if unknown:
-            raise ValueError(f"not controllers of {sc.name}: {', '.join(unknown)} "
-                             f"(controllers: {', '.join(sc.controllers)})")
-        self.node_of = {agent_name(n): n for n in sorted(nodes, key=sc.index.__getitem__)}
+    def _set_agents(self) -> None:
+        """One agent per driven controller, named ``ctrl_<node>``, in the scenario's order."""
+        sc = self.scenario
+        self.node_of = {agent_name(n): n for n in self.episode.nodes(sc)}
         self.possible_agents = list(self.node_of)
         self._role = {a: role_id("controller", n) for a, n in self.node_of.items()}
         self._row = {a: sc.index[n] for a, n in self.node_of.items()}
         self.agents: list[str] = []
+
+    def _set_spaces(self, invalid_action: str) -> None:
+        """Every agent's observation layout, builder and spaces, and the rules its actions follow."""
+        sc = self.scenario
         degrees = {a: len(sc.neighbours[n]) for a, n in self.node_of.items()}
         slots = max(degrees.values(), default=0)
         batch = None if sc.mode == "binary" else sc.batch_size
-        builder = observation or sc.extra.get("observation") or DictObservation
+        builder = self.observing.builder(sc)
         self.flat = builder == FLAT
-        if not info_numbers and not self.flat:
-            raise ValueError('info_numbers=False applies to observation="flat" only (its infos are numbers)')
-        self.info_numbers = info_numbers
-        padded = uniform_spaces or self.flat
+        padded = self.observing.uniform_spaces or self.flat
         self.layouts = {a: ObservationLayout(d, slots if padded else d, batch) for a, d in degrees.items()}
         if self.flat:
             n = len(self.possible_agents)
@@ -194,10 +165,11 @@ class ZenohEdgeEnv(ParallelEnv):
         targets = {a: ("local", *sc.neighbours[n]) for a, n in self.node_of.items()}
         self.action_rules = ActionRules(self.layouts, targets, invalid_action)
 
+    def _set_episode_state(self) -> None:
+        """No simulation until the first reset; the seeds of the episodes to come."""
         self.sim: Simulation | None = None
-        check_seed(seed, "ZenohEdgeEnv")
-        self._seeds = np.random.default_rng(seed)
-        self._next_seed = seed
+        self._seeds = np.random.default_rng(self.episode.seed)
+        self._next_seed = self.episode.seed
         self._raw: dict[str, Observation | None] = {}
         self._obs: dict[str, dict[str, np.ndarray]] = {}
         self._steps = 0
@@ -249,7 +221,7 @@ class ZenohEdgeEnv(ParallelEnv):
         if not self.agents:
             self._not_running()
         resolved = self.action_rules.resolve(actions, self.agents, self._raw)
-        dt = self.scenario.dt
+        dt, weights = self.scenario.dt, self.reward_settings.weights
         controller_actions: dict[str, Any] = {}
         terms: dict[str, tuple[RewardTerms, ...]] = {}
         credits: dict[str, list[tuple[int, float]]] = {}
@@ -257,10 +229,10 @@ class ZenohEdgeEnv(ParallelEnv):
             raw = self._raw[agent]
             controller_actions[self._role[agent]] = action
             if isinstance(action, int):
-                terms[agent] = (self.terms_fn(raw, raw.tasks[0], action, dt, self.weights, self.arrivals),)
+                terms[agent] = (self.terms_fn(raw, raw.tasks[0], action, dt, weights, self.arrivals),)
                 placed = (raw.tasks[0].id,)
             else:
-                terms[agent] = tuple(self.terms_fn(raw, t, a, dt, self.weights, self.arrivals)
+                terms[agent] = tuple(self.terms_fn(raw, t, a, dt, weights, self.arrivals)
                                      for t, a in zip(raw.tasks, action, strict=True))
                 placed = tuple(t.id for t in raw.tasks)
             credits.update(self.credit.place(agent, self._steps, placed))
@@ -289,9 +261,10 @@ class ZenohEdgeEnv(ParallelEnv):
             row = self._row[agent]
             delta = deltas[row]
             agent_terms = terms.get(agent, ())
-            ctx = RewardContext(agent, self.node_of[agent], before[agent], resolved.actions[agent], self._raw[agent],
-                                agent_terms, delta, dt, self.weights, self.arrivals, network_delta, self.penalty,
-                                self.price)
+            ctx = RewardContext(agent=agent, node=self.node_of[agent], obs=before[agent],
+                                action=resolved.actions[agent], next_obs=self._raw[agent], terms=agent_terms,
+                                node_delta=delta, network_delta=network_delta, dt=dt, arrivals=self.arrivals,
+                                penalty=self.penalty, settings=self.reward_settings)
             rewards[agent] = float(self.reward_fn(ctx))
             infos[agent] = {**self._info(agent, nodes, agent_terms, credits.get(agent, [])),
                             "invalid_action": agent in resolved.invalid, "invalid_action_count": self._invalid[agent]}
@@ -349,10 +322,7 @@ class ZenohEdgeEnv(ParallelEnv):
                            "call reset() to start a new one")
 
     def _open(self) -> Simulation:
-        if self.connect is not None:
-            sim = Simulation.attach(self.connect, self.sim_id, timeout=self.timeout, security=self.security)
-        else:
-            sim = Simulation(self.scenario, transport=self.transport, layout=self.layout, timeout=self.timeout)
+        sim = self.connection.open(self.scenario)
         sim.metrics.history = False  # infos need the running totals only: memory stays flat over long episodes
         return sim
 
@@ -371,7 +341,7 @@ class ZenohEdgeEnv(ParallelEnv):
     def _numbers(self, infos: dict[str, dict[str, Any]]) -> dict[str, dict[str, float]]:
         """Flat mode's infos: the same keys at every reset and step, each a number (libraries stack them);
         none at all with ``info_numbers=False``."""
-        if not self.info_numbers:
+        if not self.observing.info_numbers:
             return {agent: {} for agent in infos}
         out = {}
         for agent, info in infos.items():
@@ -400,3 +370,8 @@ def _by_node(values: dict[str, Any]) -> list[dict[str, Any]]:
     infos[agent]["node"]; Out.ENV_DELTA: their change during the step, the reward's ``node_delta``)."""
     columns = [_by_node(v) if isinstance(v, dict) else v for v in values.values()]
     return [dict(zip(values, row, strict=True)) for row in zip(*columns, strict=True)]
+
+
+def _given(**values: Any) -> dict[str, Any]:
+    """The keyword arguments a user gave (not None): the settings' own defaults stand for the others."""
+    return {k: v for k, v in values.items() if v is not None}

@@ -28,6 +28,7 @@ from __future__ import annotations
 import math
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass
+from numbers import Real
 from typing import Any
 
 from node_runtime.model.plugins import is_import_path, load
@@ -108,12 +109,32 @@ def reference_terms(obs: Observation, task: TaskView, action: int, dt: float, ar
 
 
 CONGESTION_PRICE = 2.0  # what marginal_reward charges for a deadline's worth of delay imposed, in completions
-# (the default of ZenohEdgeEnv(congestion_price=...) and of the experiments' --price; docs/reward.md says why 2)
+# (RewardSettings' default, so ZenohEdgeEnv's and the experiments' --price; docs/reward.md says why 2)
 
 
-@dataclass(slots=True)
+@dataclass(frozen=True, kw_only=True)
+class RewardSettings:
+    """The numbers an environment's rewards and credits are computed with, checked once, here.
+
+    ``weights``: the paper's r_u and chi weights (``ZenohEdgeEnv(reward_weights=...)``). ``congestion_price``:
+    the price c that the ``marginal`` reward and the credits per task (env.credit) charge for a deadline's
+    worth of waiting imposed on another task (``ZenohEdgeEnv(congestion_price=...)``, ``--price``)."""
+
+    weights: PaperWeights = PaperWeights()
+    congestion_price: float = CONGESTION_PRICE
+
+    def __post_init__(self) -> None:
+        if not isinstance(self.weights, PaperWeights):
+            raise TypeError(f"reward_weights must be a PaperWeights, not a {type(self.weights).__name__}")
+        c = self.congestion_price
+        if isinstance(c, bool) or not isinstance(c, Real) or not 0 <= c < math.inf:
+            raise ValueError(f"congestion_price must be a finite number >= 0, not {c!r}")
+        object.__setattr__(self, "congestion_price", float(c))
+
+
+@dataclass(slots=True, kw_only=True)
 class RewardContext:
-    """Everything a reward function may look at for one agent and one step."""
+    """Everything a reward function may look at for one agent and one step (docs/reward.md, "Your own reward")."""
 
     agent: str
     node: str
@@ -121,13 +142,22 @@ class RewardContext:
     action: Any  # int, or a list of ints in batch mode; a choice the mask forbade reads 0 (kept local)
     next_obs: Observation | None
     terms: tuple[RewardTerms, ...]  # paper terms of each task placed by this action
-    node_delta: dict[str, float]  # change of the node's counters during the step (completed, dropped, ...)
+    node_delta: Mapping[str, float]  # change of the node's counters during the step (completed, dropped, ...)
+    network_delta: Mapping[str, float]  # the same changes as node_delta, network-wide
     dt: float
-    weights: PaperWeights  # the env's r_u and chi weights
     arrivals: Mapping[str, float]  # each node's nominal task arrival rate, tasks/s (``nominal_arrivals``)
-    network_delta: dict[str, float]  # the same changes as node_delta, network-wide
     penalty: float  # seconds the headline score charges a task that does not complete (its P)
-    price: float = CONGESTION_PRICE  # ``marginal``'s congestion price c (the environment's ``congestion_price``)
+    settings: RewardSettings = RewardSettings()  # the environment's weights and congestion price
+
+    @property
+    def weights(self) -> PaperWeights:
+        """The environment's r_u and chi weights (``settings.weights``)."""
+        return self.settings.weights
+
+    @property
+    def price(self) -> float:
+        """``marginal``'s congestion price c (``settings.congestion_price``)."""
+        return self.settings.congestion_price
 
 
 RewardFn = Callable[[RewardContext], float]
@@ -176,7 +206,7 @@ def score_reward(ctx: RewardContext) -> float:
 def marginal_reward(ctx: RewardContext) -> float:
     """``score`` minus the congestion the agent's decisions caused: the waiting they imposed on other tasks
     (in CPU queues, and on the links they offloaded over), each wait in deadlines of the task that waited,
-    times the price c (``ctx.price``: ``CONGESTION_PRICE`` unless the environment sets another).
+    times the price c (``ctx.price``: the environment's ``RewardSettings.congestion_price``).
 
     A difference reward (Wolpert and Tumer 2002; marginal-cost pricing in congestion games): a decision is
     charged what it takes from the others, so that agents each maximising their own reward maximise the

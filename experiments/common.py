@@ -15,9 +15,8 @@ from typing import Any, NoReturn
 import torch
 
 from agents import LEARNERS, LearnerConfig
-from env import ScenarioOverrides, ZenohEdgeEnv
-from env.reward import CONGESTION_PRICE, REWARDS
-from node_runtime.model.rng import MAX_SEED
+from env import MAX_SEED, ScenarioOverrides, ZenohEdgeEnv
+from env.reward import REWARDS, RewardSettings
 from orchestrator.scenario.errors import ScenarioError
 
 
@@ -60,8 +59,13 @@ def rate(text: str) -> float:
     return _number(text, float, lambda v: 0 <= v < float("inf"), "an arrival rate >= 0 (tasks/s per source)")
 
 
-def price(text: str) -> float:
-    return _number(text, float, lambda v: 0 <= v < float("inf"), "a congestion price >= 0")
+def congestion_price(text: str) -> float:
+    """``--price``: a number that ``RewardSettings`` takes (the environment's own, and only, check of it)."""
+    value = _number(text, float, lambda v: True, "a number")
+    try:
+        return RewardSettings(congestion_price=value).congestion_price
+    except ValueError as e:
+        raise argparse.ArgumentTypeError(str(e)) from None
 
 
 def add_env_arguments(parser: argparse.ArgumentParser, scenario: bool = True, reward: str | None = "paper",
@@ -85,10 +89,11 @@ def add_env_arguments(parser: argparse.ArgumentParser, scenario: bool = True, re
                         "credited to the origin), team_score (the same, network-wide) or marginal (score minus "
                         "the delay the agent's decisions imposed on other tasks, priced: a difference reward); "
                         "docs/reward.md")
-    g.add_argument("--price", type=price, default=CONGESTION_PRICE,
+    g.add_argument("--price", dest="congestion_price", type=congestion_price,
+                   default=RewardSettings().congestion_price,
                    help=f"the congestion price c of the marginal reward and of the credits per task: what a "
                         f"deadline's worth of waiting imposed on another task costs, in completions (default "
-                        f"{CONGESTION_PRICE:g}; docs/reward.md)")
+                        f"{RewardSettings().congestion_price:g}; docs/reward.md)")
     g.add_argument("--transport", default="inproc", choices=["inproc", "zenoh"],
                    help="inproc (default: one process, same results as zenoh) or zenoh (node processes)")
 
@@ -113,10 +118,12 @@ def add_learner_arguments(parser: argparse.ArgumentParser, seeds: bool = False) 
 
 
 def make_env(scenario: str, lam: float | None, max_steps: int | None, reward: str = "paper",
-             transport: str = "inproc", seed: int = 0, price: float = CONGESTION_PRICE) -> ZenohEdgeEnv:
-    """The environment every agent of a study runs in: padded spaces, so one network can serve all agents."""
+             transport: str = "inproc", seed: int = 0, congestion_price: float | None = None) -> ZenohEdgeEnv:
+    """The environment every agent of a study runs in: padded spaces, so one network can serve all agents.
+    ``congestion_price``: None for the environment's default."""
     return ZenohEdgeEnv(scenario, transport=transport, overrides=ScenarioOverrides(arrival_rate=lam),
-                        max_steps=max_steps, reward=reward, uniform_spaces=True, seed=seed, congestion_price=price)
+                        max_steps=max_steps, reward=reward, uniform_spaces=True, seed=seed,
+                        congestion_price=congestion_price)
 
 
 def coerce(text: str, default: Any) -> Any:

@@ -39,7 +39,7 @@ class Episode:
     max_steps: int | None
     reward: str
     transport: str
-    price: float
+    congestion_price: float
 
     def __str__(self) -> str:
         return f"episode {self.k}"
@@ -54,7 +54,7 @@ def run_episode(job: Episode, scratch: Path) -> dict[str, Any]:
         (scratch / "policy.pt").write_bytes(job.checkpoint)
         policy = load_learner(scratch / "policy.pt", job.device)
         (scratch / "policy.pt").unlink()  # not an output
-    env = make_env(job.scenario, job.lam, job.max_steps, job.reward, job.transport, job.seed, job.price)
+    env = make_env(job.scenario, job.lam, job.max_steps, job.reward, job.transport, job.seed, job.congestion_price)
     try:
         (row,) = evaluate(env, policy, 1, seed=EVAL_SEED + job.k)
     finally:
@@ -98,11 +98,12 @@ def main(argv: Sequence[str] | None = None) -> None:
     if wants_ray(args):
         weights = Path(args.policy).read_bytes() if checkpoint else None
         jobs = [Episode(k, None if checkpoint else args.policy, weights, args.seed, args.device,
-                        args.scenario, args.lam, args.max_steps, args.reward, args.transport, args.price)
+                        args.scenario, args.lam, args.max_steps, args.reward, args.transport, args.congestion_price)
                 for k in range(args.episodes)]
         rows = run_on_ray(run_episode, jobs, Path.cwd(), args)
     else:
-        env = make_env(args.scenario, args.lam, args.max_steps, args.reward, args.transport, args.seed, args.price)
+        env = make_env(args.scenario, args.lam, args.max_steps, args.reward, args.transport, args.seed,
+                       args.congestion_price)
         progress = progress_bar() if args.progress else None
         with progress or nullcontext():
             rows = evaluate(env, policy, args.episodes, progress=progress, label=f"evaluate {policy.name}")

@@ -96,7 +96,7 @@ class SweepRun:
     transport: str
     device: str
     threads: int
-    price: float
+    congestion_price: float
 
     def __str__(self) -> str:
         return f"{self.point.label} seed {self.seed} {self.agent}"
@@ -165,12 +165,13 @@ def run_study(study: str, points: Sequence[Point], x_key: str, xlabel: str, args
     out.mkdir(parents=True, exist_ok=True)
     (out / "config.json").write_text(json.dumps({
         "study": study, "quick": args.quick, "settings": dataclasses.asdict(settings), "seeds": args.seeds,
-        "reward": args.reward, "price": args.price, "transport": args.transport, "device": args.device,
+        "reward": args.reward, "congestion_price": args.congestion_price, "transport": args.transport,
+        "device": args.device,
         "points": [dataclasses.asdict(p) for p in points],
         "learners": {a: {k: v for k, v in dataclasses.asdict(configs[a, args.seeds[0]]).items() if k != "seed"}
                      for a in learners}}, indent=1))
     runs = [SweepRun(study, point, agent, seed, settings, configs.get((agent, seed)), args.reward, args.transport,
-                args.device, args.threads, args.price)
+                     args.device, args.threads, args.congestion_price)
             for seed in args.seeds for point in points for agent in args.agents
             if agent in LEARNERS or seed == args.seeds[0]]
     if wants_ray(args):
@@ -206,7 +207,8 @@ def run_one(run: SweepRun, out: Path, progress: Progress | None = None) -> RunRe
     """One run of the grid, writing its training log and checkpoint under ``out``."""
     set_threads(run.threads)
     s = run.settings
-    env = make_env(run.point.scenario, run.point.lam, s.max_steps, run.reward, run.transport, run.seed, run.price)
+    env = make_env(run.point.scenario, run.point.lam, s.max_steps, run.reward, run.transport, run.seed,
+                   run.congestion_price)
     timings = []
     trained_steps = 0
     try:

@@ -51,10 +51,12 @@ def main(argv: Sequence[str] | None = None) -> None:
     set_threads(args.threads)
     out = args.out or Path("runs") / f"{args.algo}-{Path(args.scenario).stem}"
     out.mkdir(parents=True, exist_ok=True)
-    env = make_env(args.scenario, args.lam, args.max_steps, args.reward, args.transport, args.seed, args.price)
+    env = make_env(args.scenario, args.lam, args.max_steps, args.reward, args.transport, args.seed,
+                   args.congestion_price)
     learner = LEARNERS[args.algo].for_env(env, config, args.device)
     (out / "config.json").write_text(json.dumps({"algo": args.algo, "scenario": args.scenario, "lambda": args.lam,
-                                                 "max_steps": env.max_steps, "reward": args.reward, "price": env.price,
+                                                 "max_steps": env.max_steps, "reward": args.reward,
+                                                 "congestion_price": env.reward_settings.congestion_price,
                                                  "episodes": args.episodes, "config": dataclasses.asdict(config)},
                                                 indent=1))
     progress = progress_bar() if args.progress else None

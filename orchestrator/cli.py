@@ -40,7 +40,14 @@ from orchestrator.clock import ClockError, ProcessFailed
 from orchestrator.metrics import ConservationError, TickReport
 from orchestrator.placement import load_placement
 from orchestrator.scenario import ScenarioError, costs, load_scenario
-from orchestrator.session import RouterUnavailable, SimIdInUse, Simulation, node_policies
+from orchestrator.session import (
+    RemoteHosts,
+    RouterSettings,
+    RouterUnavailable,
+    SimIdInUse,
+    Simulation,
+    node_policies,
+)
 from orchestrator.version import version_line
 from orchestrator.viewers import monitor
 from orchestrator.viewers.progress import progress_steps
@@ -116,11 +123,13 @@ def cmd_launch(args: argparse.Namespace) -> int:
             login = f" --security <dir of {group}>" if security is not None else ""
             console.print(f"  zenohedge-node --connect {where} --sim {sim_id} --group {group}{login}", markup=False)
 
+    router = RouterSettings(listen_host=host, port=port, join=tuple(args.connect or ()), security=security,
+                            zenoh_settings=zenoh_settings)
+    remote = None if placement is None else RemoteHosts(placement=placement, on_waiting=waiting)
     t0 = time.perf_counter()
     with output_dir(out, needed=args.episodes > 0), \
-            Simulation(scenario, transport=args.transport, layout=layout, timeout=args.timeout, listen_host=host,
-                       port=port, sim_id=sim_id, placement=placement, on_waiting=waiting, join=args.connect,
-                       security=security, zenoh_settings=zenoh_settings) as sim, \
+            Simulation.open(scenario, args.transport, layout=layout, timeout=args.timeout, sim_id=sim_id,
+                            router=router, remote=remote) as sim, \
             listed(sim, console):
         if args.transport == "zenoh":
             console.print(f"router {sim.endpoint}, simulation id [bold]{sim.keys.sim_id}[/], "

@@ -2,15 +2,16 @@
 
 This is what ``orchestrator launch`` drives and what ``ZenohEdgeEnv`` holds:
 
-    with Simulation(load_scenario("aot2"), transport="zenoh") as sim:
+    with Simulation.over_zenoh(load_scenario("aot2")) as sim:
         sim.reset(seed=1)
         for _ in range(999):
             report = sim.step()
 
-``transport="inproc"`` runs the same node code in this process over an in-memory bus (layout
-``single`` by default: one host holding every role); ``"zenoh"`` starts one OS process per role
-(``per-role``, the default while it fits the machine, else ``groups:K``: node_runtime.runtime.layout.layout_for),
-per node (``per-node``) or per block of nodes around a Zenoh router owned by this object.
+``Simulation.inproc`` runs the same node code in this process over an in-memory bus (layout ``single`` by
+default: one host holding every role); ``Simulation.over_zenoh`` starts one OS process per role (``per-role``,
+the default while it fits the machine, else ``groups:K``: node_runtime.runtime.layout.layout_for), per node
+(``per-node``) or per block of nodes around a Zenoh router owned by this object; ``Simulation.attach`` drives
+one served elsewhere.
 Either way the bus carries the same liveliness tokens and answers the same requests (``serve``), so
 monitors and drivers work on both.
 """
@@ -21,7 +22,8 @@ import contextlib
 import datetime as dt
 import logging
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass
 from typing import Any, Literal
 
 from node_runtime.model.controller import Action, observation_at
@@ -30,7 +32,7 @@ from node_runtime.model.spec import Scenario
 from node_runtime.model.view import Observation
 from node_runtime.runtime.access import access_control
 from node_runtime.runtime.driver import HostDriver
-from node_runtime.runtime.forkserver import account
+from node_runtime.runtime.failure import account
 from node_runtime.runtime.host import Host, role_class
 from node_runtime.runtime.inproc import InprocBus
 from node_runtime.runtime.keys import DEFAULT_PREFIX, Keys, new_sim_id
@@ -52,6 +54,21 @@ log = logging.getLogger(__name__)
 ROUTER_ATTEMPTS = 5
 LEASE_MARGIN_S = 5.0  # a node's Zenoh session outlives the clock's timeout by this much
 QUERY_TIMEOUT_S = 5.0  # upper bound of the liveliness query at start; it answers at once when no other has the id
+
+
+def check_transport(name: str) -> TransportName:
+    """``name`` if it names a transport; a ValueError saying what is expected otherwise."""
+    if name not in ("zenoh", "inproc"):
+        raise ValueError(f"transport must be 'zenoh' or 'inproc', not {name!r}")
+    return name
+
+
+def default_layout(scenario: Scenario, transport: TransportName, placed: bool) -> Layout:
+    """The default: per-role over Zenoh while it fits this machine, said when it does not (``layout_for``)."""
+    choice = layout_for(scenario, transport, placed=placed)
+    if choice.note is not None:
+        log.warning(choice.note)
+    return choice.layout
 
 
 class RouterUnavailable(Exception):
@@ -95,86 +112,49 @@ def refuse_taken_id(router: ZenohTransport, keys: Keys) -> None:
                          "with that id runs at a joined router): choose another --sim-id")
 
 
+@dataclass(frozen=True, kw_only=True)
+class RouterSettings:
+    """Where a Zenoh simulation's router listens and whom it lets in.
+
+    ``listen_host``/``port``: the router's address (``port`` None: a free one); ``join``: other routers'
+    endpoints to connect to, making one Zenoh network; ``security``: TLS, logins and access control on the
+    router (node_runtime/runtime/access.py), and the identity of the local processes; ``zenoh_settings``:
+    merged last into the router's configuration."""
+
+    listen_host: str = "127.0.0.1"
+    port: int | None = None
+    join: tuple[str, ...] = ()
+    security: Security | None = None
+    zenoh_settings: Mapping[str, Any] | None = None
+
+
+@dataclass(frozen=True, kw_only=True)
+class RemoteHosts:
+    """Node processes left to ``zenohedge-node`` on other hosts: ``placement`` (group -> processes). Their
+    start is awaited up to ``join_timeout`` seconds, after calling ``on_waiting(placement, endpoint)`` (the
+    router's endpoint, where they connect)."""
+
+    placement: Mapping[str, list[str]]
+    join_timeout: float = 600.0
+    on_waiting: Callable[[Mapping[str, list[str]], str], None] | None = None
+
+
 class Simulation:
-    def __init__(self, scenario: Scenario, *, transport: TransportName = "inproc", layout: Layout | None = None,
-                 sim_id: str | None = None, prefix: str = DEFAULT_PREFIX, timeout: float = 30.0,
-                 listen_host: str = "127.0.0.1", port: int | None = None,
-                 placement: dict[str, list[str]] | None = None, join_timeout: float = 600.0,
-                 on_waiting: Callable[[dict[str, list[str]], str], None] | None = None,
-                 join: list[str] | None = None, security: Security | None = None,
-                 zenoh_settings: dict[str, Any] | None = None) -> None:
-        """``placement`` (group -> processes) leaves those processes to ``zenohedge-node`` on other hosts;
-        their start is awaited up to ``join_timeout`` seconds, after calling ``on_waiting(placement, endpoint)``
-        (the router's endpoint, where they connect).
-        ``security``: TLS, logins and access control on the router (node_runtime/runtime/access.py), and the
-        identity of the local processes; ``zenoh_settings``: merged last into the router's configuration."""
-        if transport not in ("zenoh", "inproc"):
-            raise ValueError(f"transport must be 'zenoh' or 'inproc', not {transport!r}")
-        if layout is None:  # the default: per-role over Zenoh while it fits this machine, said when it does not
-            choice = layout_for(scenario, transport, placed=bool(placement))
-            if choice.note is not None:
-                log.warning(choice.note)
-            layout = choice.layout
-        self._common(scenario, transport, layout, Keys(sim_id or new_sim_id(), prefix))
-        if transport == "inproc":
-            bus = InprocBus()
-            for proc in self.plan.procs:
-                host = bus.endpoint()
-                self.drivers.append(HostDriver(self._host(proc), host, self.keys))
-                host.declare_token(self.keys.alive(proc))  # ready, as a node process says once it is
-            self.transport: Transport = bus.endpoint()
-            self.transport.declare_token(self.keys.alive(ORCHESTRATOR))
-            self.transport.rejections.who = ORCHESTRATOR
-            self.clock = Clock(self.transport, self.keys, self.plan, timeout)
-            self.live = self.transport.monitored(self.keys.metrics())
-            self.server = Server(self.transport, self.keys, self.plan, self.clock)
-        else:
-            settings = dict(zenoh_settings or {})
-            if security is not None:
-                settings = {"access_control": access_control(self.keys, self.plan, placement or {}), **settings}
-            router, self.endpoint = open_router(listen_host, port, join, security, settings or None)
-            self.transport = router
-            router.rejections.who = ORCHESTRATOR
-            try:
-                refuse_taken_id(router, self.keys)
-                self.supervisor = Supervisor(router, self.keys, self.plan)
-                self.clock = Clock(router, self.keys, self.plan, timeout, health=self.supervisor.check,
-                                   why_silent=self.supervisor.hung, placement=placement)
-                self.live = router.monitored(self.keys.metrics())
-                remote = {p for procs in (placement or {}).values() for p in procs}
-                local = tuple(p for p in self.plan.procs if p not in remote)
-                # readiness may take longer than a tick on a big scenario, never less than --timeout, and waits
-                # for hosts that join later; the lease outlives the clock's timeout, so a paused process is
-                # reported hung, not died. Processes on other hosts are told the same (the session answer).
-                timing = {"ready_timeout": join_timeout if remote else max(READY_TIMEOUT, timeout),
-                          "lease_s": timeout + LEASE_MARGIN_S}
-                self.server = Server(router, self.keys, self.plan, self.clock, self.supervisor.check, placement,
-                                     timing)
-                if remote and on_waiting is not None:
-                    on_waiting(placement, self.endpoint)
-                self.startup_s = self.supervisor.start(scenario, self.layout, local_endpoint(self.endpoint), local,
-                                                       timeout=timing["ready_timeout"], security=security,
-                                                       lease_s=timing["lease_s"])
-            except BaseException:
-                self.close()
-                raise
+    """A running simulation. Open one with ``Simulation.inproc``, ``Simulation.over_zenoh`` or ``Simulation.attach``
+    (``Simulation.open``: the first two by the transport's name); each wires a bus, a clock and the processes
+    around the common core that ``__init__`` makes."""
 
-    def _host(self, proc: str) -> Host:
-        """An in-process host; a role that fails as it is built (a user's class) fails it as it would fail
-        a node process: named, with the role's own account."""
-        try:
-            return Host(proc, self.plan)
-        except Exception as exc:
-            why = account(exc)
-            raise ProcessFailed(proc, self.plan.node_of_proc(proc), f"failed to start: {why.splitlines()[0]}",
-                                why) from None
+    transport: Transport  # the orchestrator's (or the attached driver's) end of the bus
+    clock: Clock
 
-    def _common(self, scenario: Scenario, transport: TransportName, layout: Layout, keys: Keys) -> None:
-        """What every simulation has, however it was opened."""
+    def __init__(self, scenario: Scenario, *, transport: TransportName, keys: Keys, layout: Layout | None,
+                 placed: bool = False) -> None:
+        """What every simulation has, however it is opened: the plan, the metrics, the episode's state.
+        ``placed``: some processes run on other hosts (the default layout then stays per-role)."""
         self.scenario = scenario
         self.transport_name = transport
-        self.layout = layout
-        self.plan = ProcessLayout(scenario, layout)
+        self.layout = layout or default_layout(scenario, transport, placed)
+        self.plan = ProcessLayout(scenario, self.layout)
         self.keys = keys
         self.metrics = Metrics(self.plan)
         self.supervisor: Supervisor | None = None
@@ -199,6 +179,91 @@ class Simulation:
         self._ticks_run = 0
 
     @classmethod
+    def open(cls, scenario: Scenario, transport: TransportName = "inproc", *, layout: Layout | None = None,
+             sim_id: str | None = None, prefix: str = DEFAULT_PREFIX, timeout: float = 30.0,
+             router: RouterSettings = RouterSettings(), remote: RemoteHosts | None = None) -> Simulation:
+        """``inproc`` or ``over_zenoh`` by the transport's name, for callers that take it from a user (``launch
+        --transport``, the environment); ``router`` and ``remote`` apply to Zenoh only."""
+        if check_transport(transport) == "inproc":
+            return cls.inproc(scenario, layout=layout, sim_id=sim_id, prefix=prefix, timeout=timeout)
+        return cls.over_zenoh(scenario, layout=layout, sim_id=sim_id, prefix=prefix, timeout=timeout, router=router,
+                              remote=remote)
+
+    @classmethod
+    def inproc(cls, scenario: Scenario, *, layout: Layout | None = None, sim_id: str | None = None,
+               prefix: str = DEFAULT_PREFIX, timeout: float = 30.0) -> Simulation:
+        """The node code in this process, over an in-memory bus: one host per process of the layout (one
+        holding every role by default), each driven in this thread."""
+        self = cls(scenario, transport="inproc", keys=Keys(sim_id or new_sim_id(), prefix), layout=layout)
+        bus = InprocBus()
+        for proc in self.plan.procs:
+            host = bus.endpoint()
+            self.drivers.append(HostDriver(self._host(proc), host, self.keys))
+            host.declare_token(self.keys.alive(proc))  # ready, as a node process says once it is
+        self.transport = bus.endpoint()
+        self.transport.declare_token(self.keys.alive(ORCHESTRATOR))
+        self.transport.rejections.who = ORCHESTRATOR
+        self.clock = Clock(self.transport, self.keys, self.plan, timeout)
+        self.live = self.transport.monitored(self.keys.metrics())
+        self.server = Server(self.transport, self.keys, self.plan, self.clock)
+        return self
+
+    @classmethod
+    def over_zenoh(cls, scenario: Scenario, *, layout: Layout | None = None, sim_id: str | None = None,
+                   prefix: str = DEFAULT_PREFIX, timeout: float = 30.0, router: RouterSettings = RouterSettings(),
+                   remote: RemoteHosts | None = None) -> Simulation:
+        """One OS process per process of the layout (per role by default) around a Zenoh router this object
+        owns; those of ``remote`` are left to other hosts."""
+        placement = dict(remote.placement) if remote is not None else {}
+        self = cls(scenario, transport="zenoh", keys=Keys(sim_id or new_sim_id(), prefix), layout=layout,
+                   placed=bool(placement))
+        settings = dict(router.zenoh_settings or {})
+        if router.security is not None:
+            settings = {"access_control": access_control(self.keys, self.plan, placement), **settings}
+        self.transport, self.endpoint = open_router(router.listen_host, router.port, list(router.join) or None,
+                                                    router.security, settings or None)
+        self.transport.rejections.who = ORCHESTRATOR
+        try:
+            self._start_processes(timeout, router.security, remote)
+        except BaseException:
+            self.close()
+            raise
+        return self
+
+    def _start_processes(self, timeout: float, security: Security | None, remote: RemoteHosts | None) -> None:
+        """Supervise, clock and serve the Zenoh simulation, then start its local processes and wait for all."""
+        refuse_taken_id(self.transport, self.keys)
+        placement = dict(remote.placement) if remote is not None else None
+        self.supervisor = Supervisor(self.transport, self.keys, self.plan)
+        self.clock = Clock(self.transport, self.keys, self.plan, timeout, health=self.supervisor.check,
+                           why_silent=self.supervisor.hung, placement=placement)
+        self.live = self.transport.monitored(self.keys.metrics())
+        elsewhere = {p for procs in (placement or {}).values() for p in procs}
+        local = tuple(p for p in self.plan.procs if p not in elsewhere)
+        # readiness may take longer than a tick on a big scenario, never less than --timeout, and waits
+        # for hosts that join later; the lease outlives the clock's timeout, so a paused process is
+        # reported hung, not died. Processes on other hosts are told the same (the session answer).
+        timing = {"ready_timeout": remote.join_timeout if elsewhere else max(READY_TIMEOUT, timeout),
+                  "lease_s": timeout + LEASE_MARGIN_S}
+        self.server = Server(self.transport, self.keys, self.plan, self.clock, self.supervisor.check, placement,
+                             timing)
+        if elsewhere and remote.on_waiting is not None:
+            remote.on_waiting(placement, self.endpoint)
+        self.startup_s = self.supervisor.start(self.scenario, self.layout, local_endpoint(self.endpoint), local,
+                                               timeout=timing["ready_timeout"], security=security,
+                                               lease_s=timing["lease_s"])
+
+    def _host(self, proc: str) -> Host:
+        """An in-process host; a role that fails as it is built (a user's class) fails it as it would fail
+        a node process: named, with the role's own account."""
+        try:
+            return Host(proc, self.plan)
+        except Exception as exc:
+            why = account(exc)
+            raise ProcessFailed(proc, self.plan.node_of_proc(proc), f"failed to start: {why.splitlines()[0]}",
+                                why) from None
+
+    @classmethod
     def attach(cls, endpoint: str | Transport, sim_id: str, prefix: str = DEFAULT_PREFIX,
                timeout: float = 30.0, security: Security | None = None) -> Simulation:
         """Drive a simulation served by ``orchestrator launch --serve`` (possibly on another host).
@@ -208,7 +273,6 @@ class Simulation:
         that requires TLS and logins, the ``driver`` identity (deploy/make-certs.sh).
         The served processes stay up when this object closes; the server gets its clock back.
         """
-        self = cls.__new__(cls)
         keys = Keys(sim_id, prefix)
         transport = ZenohTransport.reach(endpoint, security) if isinstance(endpoint, str) else endpoint
         try:
@@ -216,8 +280,8 @@ class Simulation:
         except BaseException:
             transport.close()
             raise
-        self._common(Scenario.from_dict(info["scenario"]), "zenoh" if isinstance(transport, ZenohTransport)
-                     else "inproc", info["layout"], keys)
+        self = cls(Scenario.from_dict(info["scenario"]), keys=keys, layout=info["layout"],
+                   transport="zenoh" if isinstance(transport, ZenohTransport) else "inproc")
         self.endpoint = endpoint if isinstance(endpoint, str) else None
         self._run_started = time.perf_counter()
         self.transport = transport

@@ -59,7 +59,7 @@ def write_scenario(tmp_path: Path, data: dict[str, Any], name: str = "scenario.y
 
 def run_summary(scenario, ticks: int | None = None, transport: str = "inproc", layout: str | None = None,
                 seed: int | None = None, policy: str | None = None, out: Path | None = None) -> dict[str, Any]:
-    with Simulation(scenario, transport=transport, layout=layout) as sim:
+    with Simulation.open(scenario, transport, layout=layout) as sim:
         summary = sim.run(ticks, seed=seed, policy=policy)
         if out is not None:
             sim.metrics.write(out, summary)

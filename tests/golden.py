@@ -121,7 +121,7 @@ def _model_infos(infos: dict[str, Any]) -> dict[str, Any]:
 def _launch(case: Case, scenario: Any) -> dict[str, Any]:
     from orchestrator.session import Simulation
 
-    with tempfile.TemporaryDirectory() as tmp, Simulation(scenario, transport="inproc", layout=case.layout) as sim:
+    with tempfile.TemporaryDirectory() as tmp, Simulation.inproc(scenario, layout=case.layout) as sim:
         summary = sim.run(case.steps, seed=case.seed, policy=case.policy)
         sim.metrics.write(Path(tmp), summary)
         tables = {name: _sha((Path(tmp) / name).read_bytes()) for name in ("ticks.csv", "nodes.csv")}

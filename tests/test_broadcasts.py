@@ -29,7 +29,7 @@ def test_listeners_are_the_processes_hosting_a_subscriber_and_broadcasters_their
 def broadcast_batches(scenario, layout: str) -> tuple[Counter, Counter, dict]:
     """50 ticks: the broadcast batches published, by (process, tick); the states they carried, by process; the
     summary."""
-    sim = Simulation(scenario, layout=layout)
+    sim = Simulation.inproc(scenario, layout=layout)
     seen: Counter[tuple[str, int]] = Counter()
     states: Counter[str] = Counter()
 

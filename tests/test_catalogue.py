@@ -42,7 +42,7 @@ def read_csv(path: Path) -> tuple[list[str], list[dict[str, str]]]:
 def run(tmp_path: Path) -> dict[str, Any]:
     """One short in-process run, with every output it writes or publishes."""
     records: list[dict] = []
-    with Simulation(load_scenario(SCENARIO)) as sim:
+    with Simulation.inproc(load_scenario(SCENARIO)) as sim:
         sim.transport.subscribe(sim.keys.metrics(), lambda key, m: records.append(m))
         summary = sim.run(TICKS)
         sim.metrics.write(tmp_path, summary)

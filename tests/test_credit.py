@@ -16,12 +16,12 @@ from agents.onpolicy import Record, credited, uncredited_removed
 from agents.ppo import PPO, PPOConfig
 from env import ZenohEdgeEnv
 from env.credit import TaskCredit
-from env.reward import CONGESTION_PRICE
+from env.reward import CONGESTION_PRICE, RewardSettings
 from node_runtime.model.role import CHARGED, COMPLETED, LOST
 
 
 def test_a_completed_task_is_credited_its_timeliness_less_its_charges():
-    credit = TaskCredit(penalty=100.0, price=3.0)
+    credit = TaskCredit(100.0, RewardSettings(congestion_price=3.0))
     assert credit.place("a", 3, [11]) == {}
     assert credit.place("b", 4, [12]) == {}
     # 11 imposed 0.1 + 0.05 deadlines of waiting; it completes in 20 s: 1 - 20/100 - 3 * 0.15 = 0.35
@@ -32,21 +32,21 @@ def test_a_completed_task_is_credited_its_timeliness_less_its_charges():
 
 
 def test_a_decision_is_credited_once_all_its_tasks_settle():
-    credit = TaskCredit(penalty=50.0)
+    credit = TaskCredit(50.0, RewardSettings())
     credit.place("a", 0, [1, 2])  # batch mode: one decision places two tasks
     assert credit.settle([(1, COMPLETED, 10.0)]) == {}
     assert credit.settle([(2, COMPLETED, 25.0)]) == {"a": [(0, pytest.approx(0.8 + 0.5))]}
 
 
 def test_a_task_placed_twice_credits_both_decisions():
-    credit = TaskCredit(penalty=100.0)
+    credit = TaskCredit(100.0, RewardSettings())
     credit.place("a", 0, [7])  # offloaded by a ...
     credit.place("b", 2, [7])  # ... and placed again by b (max_hops 2)
     assert credit.settle([(7, COMPLETED, 40.0)]) == {"a": [(0, pytest.approx(0.6))], "b": [(2, pytest.approx(0.6))]}
 
 
 def test_a_decision_on_a_task_already_gone_is_credited_zero_at_once():
-    credit = TaskCredit(penalty=100.0)
+    credit = TaskCredit(100.0, RewardSettings())
     assert credit.settle([(9, LOST, 0.0), (8, CHARGED, 1.0)]) == {}  # nobody placed them: nothing to credit
     assert credit.place("a", 1, [9]) == {"a": [(1, 0.0)]}
     credit.place("a", 2, [8])  # a charge alone does not settle a task
@@ -56,7 +56,7 @@ def test_a_decision_on_a_task_already_gone_is_credited_zero_at_once():
 
 def test_memory_of_settled_tasks_stays_flat_and_keeps_the_latest(monkeypatch):
     monkeypatch.setattr("env.credit.SETTLED_MEMORY", 4)
-    credit = TaskCredit(penalty=100.0)
+    credit = TaskCredit(100.0, RewardSettings())
     credit.settle([(task, LOST, 0.0) for task in range(1, 11)])
     assert len(credit._settled) + len(credit._settled_before) <= 2 * 4
     assert credit.place("a", 0, [10]) == {"a": [(0, 0.0)]}  # among the latest: gone, credited 0 at once
@@ -82,7 +82,7 @@ class Recording(TaskCredit):
 
 def episode(scenario, steps, policy="greedy_backlog", seed=5):
     env = ZenohEdgeEnv(scenario, transport="inproc", reward="marginal", max_steps=steps)
-    env.credit = Recording(env.penalty)
+    env.credit = Recording(env.penalty, env.reward_settings)
     obs, _ = env.reset(seed=seed)
     rule = BASELINES[policy](0)
     rule.reset(seed)

@@ -97,14 +97,14 @@ def test_launch_of_a_large_scenario_chooses_groups_and_says_so(grid, tmp_path):
 
 @pytest.mark.zenoh
 def test_simulation_and_environment_default_is_the_same_rule(grid, caplog):
-    """Simulation(layout=None) and ZenohEdgeEnv(layout=None) choose by the same rule and log the same line;
+    """Simulation.over_zenoh(layout=None) and ZenohEdgeEnv(layout=None) choose by the same rule and log the same line;
     an explicit layout is obeyed however large the scenario."""
     from env import ZenohEdgeEnv
 
     _, sc, inproc = grid
     with two_cores(), caplog.at_level(logging.WARNING, logger="orchestrator.session"):
         expected = layout_for(sc, "zenoh")
-        with Simulation(sc, transport="zenoh") as sim:
+        with Simulation.over_zenoh(sc) as sim:
             assert sim.layout == expected.layout != "per-role"
             summary = sim.run(STEPS * sc.decision_interval)
         env = ZenohEdgeEnv(sc, transport="zenoh", max_steps=2)
@@ -118,5 +118,5 @@ def test_simulation_and_environment_default_is_the_same_rule(grid, caplog):
     assert said == [expected.note.split(" and ")[0]] * 2
     assert expected.note.startswith(f"layout {expected.layout}: 900 processes (per-role) would not fit ")
     assert model_part(summary) == inproc
-    with Simulation(sc, transport="inproc", layout="per-node") as sim:
+    with Simulation.inproc(sc, layout="per-node") as sim:
         assert len(sim.plan.procs) == 300

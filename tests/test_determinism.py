@@ -44,7 +44,7 @@ def test_zenoh_agrees_with_inproc(tmp_path, request, scenario_name):
 def test_a_policy_override_lasts_one_episode(aot1):
     from orchestrator.session import Simulation
 
-    with Simulation(aot1, transport="inproc") as sim:
+    with Simulation.inproc(aot1) as sim:
         first = model_part(sim.run(200))
         overridden = sim.run(200, policy="random")
         again = model_part(sim.run(200))

@@ -104,7 +104,7 @@ def test_topology_without_png_writes_under_runs_not_in_the_current_directory(tmp
 def run_dir(tmp_path_factory) -> Path:
     out = tmp_path_factory.mktemp("runs") / "aot2"
     scenario = load_scenario(ROOT / "topologies" / "aot2.yaml")
-    with Simulation(scenario, transport="inproc") as sim:
+    with Simulation.inproc(scenario) as sim:
         summary = sim.run(200, policy="random")
         sim.metrics.write(out, summary)
     return out

@@ -243,6 +243,26 @@ def test_bad_environment_arguments_say_what_was_expected():
         ZenohEdgeEnv("aot1", transport="tcp")
     with pytest.raises(ValueError, match=r"^unknown layout 'per-x': expected per-role, per-node, single or groups:K"):
         ZenohEdgeEnv("aot1", transport="inproc", layout="per-x")
+    with pytest.raises(ValueError, match=r"^connect= needs sim_id="):
+        ZenohEdgeEnv(connect="tcp/127.0.0.1:7447")
+
+
+def test_the_arguments_are_sorted_into_settings_checked_before_the_scenario_is_read():
+    """Each group of settings checks its own arguments as it is made: a bad one is refused before the scenario
+    file is even looked for, and the good ones land in their group."""
+    from env.reward import PaperWeights, RewardSettings
+
+    with pytest.raises(ValueError, match=r"^congestion_price must be a finite number >= 0, not nan$"):
+        ZenohEdgeEnv("no/such/scenario.yaml", transport="inproc", congestion_price=float("nan"))
+    weights = PaperWeights(utility=3.0)
+    env = ZenohEdgeEnv("aot1", transport="inproc", layout="groups:2", max_steps=7, agents=["rpi3_0"], seed=4,
+                       observation="flat", info_numbers=False, reward_weights=weights, congestion_price=1)
+    assert (env.episode.max_steps, env.episode.agents, env.episode.seed) == (7, ("rpi3_0",), 4)
+    assert (env.flat, env.observing.info_numbers, env.observing.uniform_spaces) == (True, False, False)
+    assert (env.connection.transport, env.connection.layout, env.connection.connect) == ("inproc", "groups:2", None)
+    assert env.reward_settings == RewardSettings(weights=weights, congestion_price=1.0)
+    assert env.credit.settings is env.reward_settings  # one object, held once
+    assert ZenohEdgeEnv("aot1", transport="inproc").reward_settings == RewardSettings()
 
 
 @pytest.mark.parametrize("seed", [-1, 1.5, True, "3", 2**62])

@@ -47,7 +47,7 @@ def test_there_are_examples():
 def test_example_loads_and_runs(path):
     scenario = load_scenario(path)
     assert scenario.name == path.stem
-    with Simulation(scenario, transport="inproc") as sim:
+    with Simulation.inproc(scenario) as sim:
         summary = sim.run(50)
     totals = summary["totals"]
     assert totals["generated"] > 0
@@ -86,7 +86,7 @@ def test_the_first_scenario_in_the_doc_validates_as_shown_and_drops_nothing(tmp_
     shown = blocks["console"].split("$ orchestrator validate my.yaml\n", 1)[1].split("$ ")[0]
     assert main(["validate", str(path)]) == 0
     assert capsys.readouterr().out == shown
-    with Simulation(load_scenario(path), transport="inproc") as sim:
+    with Simulation.inproc(load_scenario(path)) as sim:
         totals = sim.run()["totals"]
     assert (totals["completed"], totals["generated"], totals["dropped"]["total"]) == (492, 494, 0)
     assert "It completes 492 of 494 tasks (2 still in the system at the end)" in section

@@ -126,10 +126,10 @@ def test_train_then_evaluate_command_lines(tmp_path, capsys):
     train.main(["ppo", "--scenario", "aot1", "--episodes", "1", "--max-steps", "20", "--out", str(tmp_path / "ppo"),
                 "--no-progress", "--price", "1.5"])
     config = json.loads((tmp_path / "ppo" / "config.json").read_text())
-    assert (config["reward"], config["price"]) == ("marginal", 1.5)
+    assert (config["reward"], config["congestion_price"]) == ("marginal", 1.5)
     with pytest.raises(SystemExit):
         train.main(["ppo", "--price", "-1"])
-    assert "--price: expected a congestion price >= 0, not '-1'" in capsys.readouterr().err
+    assert "--price: congestion_price must be a finite number >= 0, not -1.0" in capsys.readouterr().err
 
 
 def test_evaluate_takes_a_rule_of_your_own_by_import_path(tmp_path, monkeypatch, capsys):

@@ -68,8 +68,8 @@ def node_counts_of(drivers) -> dict[str, int]:
 
 
 def test_every_refusal_in_process_leaves_the_results_alone(aot1):
-    clean = model_part(Simulation(aot1, layout="per-role").run(TICKS, seed=SEED, policy="least_queue"))
-    sim = Simulation(aot1, layout="per-role")
+    clean = model_part(Simulation.inproc(aot1, layout="per-role").run(TICKS, seed=SEED, policy="least_queue"))
+    sim = Simulation.inproc(aot1, layout="per-role")
     keys, plan = sim.keys, sim.plan
     victim = next(d for d in sim.drivers if d.proc == "worker-rpi3_0")
     hosted_elsewhere = plan.role_index["worker:rpi3_5"]
@@ -153,7 +153,7 @@ def test_every_refusal_in_process_leaves_the_results_alone(aot1):
 
 def test_mail_beyond_what_the_clock_announced_stops_the_run(aot1):
     """A forgery that passes every check cannot be told from the genuine mail: the run stops, loudly."""
-    sim = Simulation(aot1, layout="per-role")
+    sim = Simulation.inproc(aot1, layout="per-role")
 
     def attack(out, e):  # client-rpi3_0 may write to controller-rpi3_0, but never does
         out.publish(sim.keys.inbox("controller-rpi3_0"), Batch(e, AT, "client-rpi3_0", [
@@ -176,7 +176,7 @@ def wired():
     so that bytes published there take the real path: the transport's decoding, then the handlers."""
     from orchestrator.scenario import load_scenario
 
-    sim = Simulation(load_scenario("aot1"), layout="per-node")
+    sim = Simulation.inproc(load_scenario("aot1"), layout="per-node")
     sim.reset(SEED)
     for _ in range(10):
         sim.step()
@@ -225,8 +225,8 @@ def test_handlers_take_anything(wired, data, payload):
 def test_garbage_on_every_kind_of_key_over_zenoh(aot1):
     """Real processes; an outside session on the router publishes on clock/done, a tick key, an inbox
     key and a broadcast key. Every message is refused and counted; the results are a clean run's."""
-    clean = model_part(Simulation(aot1).run(TICKS, seed=SEED, policy="random"))
-    with Simulation(aot1, transport="zenoh", layout="per-node") as sim:  # offloads: the listeners get work
+    clean = model_part(Simulation.inproc(aot1).run(TICKS, seed=SEED, policy="random"))
+    with Simulation.over_zenoh(aot1, layout="per-node") as sim:  # offloads: the listeners get work
         keys, plan = sim.keys, sim.plan
         report = sim.reset(SEED, policy="random")
         outsider = ZenohTransport.client(sim.endpoint)

@@ -57,7 +57,7 @@ def recorded() -> tuple[list[dict], list[dict]]:
     The in-process bus carries the same messages a Zenoh run publishes; subscribing to it switches
     them on exactly as a monitor's subscription does."""
     records, offloads = [], []
-    with Simulation(load_scenario(ROOT / "topologies" / "examples" / "failures.yaml")) as sim:
+    with Simulation.inproc(load_scenario(ROOT / "topologies" / "examples" / "failures.yaml")) as sim:
         sim.transport.subscribe(sim.keys.metrics(), lambda key, m: records.append(codec.decode(codec.encode(m))))
         sim.transport.subscribe(sim.keys.events("offloaded"),
                                 lambda key, e: offloads.append(codec.decode(codec.encode(e))))
@@ -170,7 +170,7 @@ def test_new_episode_restarts_the_windows(recorded):
 def test_monitor_follows_an_in_process_simulation():
     """Discovery, the session query, metrics and offload events into the dashboard, detaching and the
     end of the simulation: the monitor's whole bus side, on the in-process bus."""
-    with Simulation(load_scenario(ROOT / "topologies" / "examples" / "failures.yaml")) as sim:
+    with Simulation.inproc(load_scenario(ROOT / "topologies" / "examples" / "failures.yaml")) as sim:
         sim.reset(seed=3)
         for _ in range(20):
             sim.step()

@@ -38,7 +38,7 @@ def test_opening_ahead_gives_the_same_ticks(aot2, layout):
     the clock must take them as the next tick's, and nothing may differ."""
     runs = []
     for ahead in (False, True):
-        with Simulation(aot2, layout=layout) as sim:
+        with Simulation.inproc(aot2, layout=layout) as sim:
             runs.append((drive(sim, ahead), model_part(sim.summary()), sim.summary()["run"]["rejected_messages"]))
     (plain, plain_summary, _), (early, early_summary, rejected) = runs
     assert same(plain_summary, early_summary)
@@ -48,7 +48,7 @@ def test_opening_ahead_gives_the_same_ticks(aot2, layout):
 
 
 def test_actions_for_a_process_opened_ahead_are_refused(aot2):
-    with Simulation(aot2, layout="per-node") as sim:
+    with Simulation.inproc(aot2, layout="per-node") as sim:
         controllers = [role_id("controller", n) for n in aot2.controllers]
         sim.reset(1, external=controllers)
         sim.clock.open_next()  # holds nobody back
@@ -59,14 +59,14 @@ def test_actions_for_a_process_opened_ahead_are_refused(aot2):
 
 
 def test_a_reset_after_opening_ahead_takes_that_ticks_reports_first(aot2):
-    with Simulation(aot2, layout="per-node") as sim:
+    with Simulation.inproc(aot2, layout="per-node") as sim:
         drive(sim, ahead=True)
         sim.clock.open_next()
         assert sim.clock.early
         again = drive(sim, ahead=False, seed=4)
         assert not sim.clock.early
         assert sim.summary()["run"]["rejected_messages"] == {"orchestrator": {}, "nodes": {}}
-    with Simulation(aot2, layout="per-node") as sim:
+    with Simulation.inproc(aot2, layout="per-node") as sim:
         assert all(same(a, b) for a, b in zip(drive(sim, ahead=False, seed=4), again, strict=True))
 
 

@@ -90,7 +90,7 @@ def test_a_run_that_fails_before_its_first_tick_still_says_why(tmp_path):
     from orchestrator.scenario import load_scenario
     from orchestrator.session import Simulation
 
-    with Simulation(load_scenario("aot1"), transport="inproc") as sim:
+    with Simulation.inproc(load_scenario("aot1")) as sim:
         keep_partial(sim, tmp_path / "run", ClockError("tick 0: worker-rpi3_1 hung"), 0.0, Console(quiet=True))
     summary = json.loads((tmp_path / "run" / "summary.json").read_text())
     assert summary == {"scenario": "aot1", "ticks": 0,
@@ -106,7 +106,7 @@ def test_streamed_tables_equal_the_tables_built_at_the_end_and_memory_stays_boun
 
     ticks = 2 * STREAM_BLOCK + 37
     for name in ("streamed", "history"):
-        with Simulation(load_scenario("aot1"), transport="inproc") as sim:
+        with Simulation.inproc(load_scenario("aot1")) as sim:
             if name == "streamed":
                 sim.metrics.stream(tmp_path / name)
             summary = sim.run(ticks, seed=5, policy="least_queue")

@@ -365,7 +365,7 @@ def test_an_agent_decides_with_the_timing_of_a_node_policy(latency):
     ticks = 150
     node_side = model_part(run_summary(scenario, ticks=ticks, seed=2, policy="least_queue"))
     rule = LeastQueue()
-    with Simulation(scenario, transport="inproc", layout="per-role") as sim:
+    with Simulation.inproc(scenario, layout="per-role") as sim:
         roles = [f"controller:{n}" for n in scenario.controllers]
         sim.reset(seed=2, external=roles)
         for _ in range(ticks - 1):

@@ -201,23 +201,35 @@ def test_the_score_reward_weighs_each_completion_by_its_timeliness():
     team version reads the network's changes (3 completions summing 90 s: 3 - 0.9 = 2.1)."""
     from env.reward import RewardContext, score_reward, team_score_reward
 
-    ctx = RewardContext("ctrl_a", "a", OBS, 0, OBS, (), {"completed": 2, "response_time_total": 40.0}, 1.0,
-                        PaperWeights(), {}, {"completed": 3, "response_time_total": 90.0}, penalty=100.0)
+    ctx = RewardContext(agent="ctrl_a", node="a", obs=OBS, action=0, next_obs=OBS, terms=(),
+                        node_delta={"completed": 2, "response_time_total": 40.0},
+                        network_delta={"completed": 3, "response_time_total": 90.0}, dt=1.0, arrivals={},
+                        penalty=100.0)
     assert score_reward(ctx) == pytest.approx(1.6)
     assert team_score_reward(ctx) == pytest.approx(2.1)
 
 
 def test_the_marginal_reward_charges_the_delay_imposed_at_the_congestion_price():
     """The score reward of the node's completions (1.6, above) minus 2 x 0.2 deadlines of delay imposed."""
-    from env.reward import CONGESTION_PRICE, RewardContext, marginal_reward
+    from env.reward import CONGESTION_PRICE, RewardContext, RewardSettings, marginal_reward
 
-    assert CONGESTION_PRICE == 2.0
-    ctx = RewardContext("ctrl_a", "a", OBS, 0, OBS, (),
-                        {"completed": 2, "response_time_total": 40.0, "delay_imposed": 0.2}, 1.0, PaperWeights(),
-                        {}, {"completed": 3, "response_time_total": 90.0, "delay_imposed": 0.5}, penalty=100.0)
+    assert CONGESTION_PRICE == RewardSettings().congestion_price == 2.0
+    ctx = RewardContext(agent="ctrl_a", node="a", obs=OBS, action=0, next_obs=OBS, terms=(),
+                        node_delta={"completed": 2, "response_time_total": 40.0, "delay_imposed": 0.2},
+                        network_delta={"completed": 3, "response_time_total": 90.0, "delay_imposed": 0.5}, dt=1.0,
+                        arrivals={}, penalty=100.0)
+    assert (ctx.price, ctx.weights) == (2.0, PaperWeights())  # the names a user's reward reads
     assert marginal_reward(ctx) == pytest.approx(1.6 - 0.4)
-    ctx.price = 1.0  # the environment's congestion_price
+    ctx.settings = RewardSettings(congestion_price=1.0)  # the environment's congestion_price
+    assert ctx.price == 1.0
     assert marginal_reward(ctx) == pytest.approx(1.6 - 0.2)
+
+
+def test_reward_context_takes_keywords_only():
+    from env.reward import RewardContext
+
+    with pytest.raises(TypeError):
+        RewardContext("ctrl_a", "a", OBS, 0, OBS, (), {}, {}, 1.0, {}, 100.0)  # the positionals of old
 
 
 def test_at_price_zero_marginal_is_the_score_reward_and_credits_are_timeliness_alone():

@@ -69,7 +69,7 @@ def test_attach_drive_detach_and_stop(tmp_path):
 
 
 def test_serving_over_the_in_process_bus(aot1):
-    with Simulation(aot1) as served_sim:
+    with Simulation.inproc(aot1) as served_sim:
         bus, keys = served_sim.transport.bus, served_sim.keys
         served_sim.run(10, seed=5)  # the server's own episode 0
         info = session_of(bus.endpoint(), keys, 1.0)

@@ -67,7 +67,7 @@ def test_an_idle_network_wakes_nobody(tmp_path):
         "topology": {"nodes": [{"id": "a", "frequency": 1e6, "client": True, "controller": True},
                                {"id": "b", "frequency": 1e6}], "links": [["a", "b"]]},
     }))
-    with Simulation(scenario, transport="inproc", layout="per-role") as sim:
+    with Simulation.inproc(scenario, layout="per-role") as sim:
         sim.reset()
         assert len(sim.last) == len(sim.plan.procs)  # a reset runs everyone
         woken = []
@@ -416,7 +416,7 @@ def test_states_go_with_the_ticks_only_from_processes_whose_every_listener_holds
     which every controller reads every state as mail."""
     aot2 = load_scenario("aot2")
     mixed = with_class(aot2, "controller", HearsEveryState, {"rpi3_0"})
-    with Simulation(mixed, layout="per-node") as sim:
+    with Simulation.inproc(mixed, layout="per-node") as sim:
         by_clock = {sim.plan.roles[w] for w in sim.clock.state_listeners}
     neighbours = {f"worker:{n}" for n in aot2.neighbours["rpi3_0"]}
     workers = {r for r in sim.plan.roles if r.startswith("worker:")}

@@ -21,7 +21,7 @@ from __future__ import annotations
 from collections import defaultdict
 
 from node_runtime.model.messages import Kind
-from node_runtime.runtime.forkserver import account
+from node_runtime.runtime.failure import account
 from node_runtime.runtime.host import Host
 from node_runtime.runtime.keys import Keys
 from node_runtime.runtime.protocol import Batch, Done, Tick

@@ -9,10 +9,9 @@ forkserver it never runs the caller's main module, so a training script needs no
 Hygiene: the server exits, killing its children, when its stdin reaches EOF — which happens however
 the orchestrator ends, even by SIGKILL. Children also get PR_SET_PDEATHSIG from the server.
 
-A child that fails says why: when ``target`` raises, the child writes its account (the exception,
-then the traceback; for ``ChildFailed``, its message) to a pipe its server reads when it exits, and
-the exit notice carries it. The orchestrator's error then shows the node's own reason, not just a
-status.
+A child that fails says why: when ``target`` raises, the child writes its account (``failure.account``:
+the exception, then the traceback) to a pipe its server reads when it exits, and the exit notice carries
+it. The orchestrator's error then shows the node's own reason, not just a status.
 
 Wire format on the pipes: 4-byte big-endian length, then a pickle. Requests: ("start", name, job)
 where ``job`` pickles (target, args) and ``target`` is an importable module-level function that ends
@@ -32,17 +31,14 @@ import struct
 import subprocess
 import sys
 import threading
-import traceback
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
+from node_runtime.runtime.failure import account
+
 HEADER = struct.Struct(">I")
 ACCOUNT_BYTES = 8192  # at most this much of a child's account: it must fit the pipe, which is read after the exit
-
-
-class ChildFailed(Exception):
-    """Raised by a target whose failure is already written up: its message is the whole account."""
 
 
 def _write(fd: int, obj: Any) -> None:
@@ -66,13 +62,6 @@ def _read(fd: int) -> Any | None:
         return None
     body = _read_exact(fd, HEADER.unpack(head)[0])
     return None if body is None else pickle.loads(body)
-
-
-def account(exc: BaseException) -> str:
-    """What a failed child tells its parent: 'Type: message', then the traceback."""
-    if isinstance(exc, ChildFailed):
-        return str(exc)
-    return f"{type(exc).__name__}: {exc}\n{''.join(traceback.format_exception(exc))}"
 
 
 def _report(fd: int, text: str) -> None:
@@ -251,7 +240,5 @@ class ForkServer:
         self._reader.join(2.0)
 
 
-if __name__ == "__main__":  # run the importable module's server: its ChildFailed is the one children raise
-    from node_runtime.runtime import forkserver
-
-    forkserver.serve()
+if __name__ == "__main__":
+    serve()

@@ -19,7 +19,7 @@ from typing import Any
 from node_runtime.model.plugins import extend_path
 from node_runtime.model.spec import Scenario
 from node_runtime.runtime.driver import HostDriver
-from node_runtime.runtime.forkserver import ChildFailed
+from node_runtime.runtime.failure import ChildFailed
 from node_runtime.runtime.host import Host
 from node_runtime.runtime.keys import Keys
 from node_runtime.runtime.layout import Layout, ProcessLayout

@@ -160,7 +160,7 @@ def ticks_per_s(sim: Simulation) -> Callable[[int], float]:
 def measure(name: str, transport: str, layout: str, ticks: int, rounds: int) -> tuple[int, float, float | None,
                                                                                          float | None]:
     """(processes, emulator ticks/s, barrier ticks/s, ratio), from ``alternate``."""
-    with Simulation(load_scenario(name), transport=transport, layout=layout) as sim:
+    with Simulation.open(load_scenario(name), transport, layout=layout) as sim:
         sim.reset(policy="random")
         ticks_per_s(sim)(min(50, ticks))  # warm-up
         procs = len(sim.plan.procs)

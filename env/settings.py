@@ -1,0 +1,124 @@
+"""The settings of a ``ZenohEdgeEnv``, grouped by what they decide, each group checked once as it is made.
+
+``ZenohEdgeEnv(...)`` keeps PettingZoo's keyword arguments for its users; it sorts them into these groups:
+what an episode is (``EpisodeSettings``), what the agents see (``ObservationSettings``), how the simulation
+is reached (``Connection``); the reward's numbers are ``env.reward.RewardSettings``. A wrong value is a
+``ValueError`` (or ``TypeError``) naming the keyword argument, before any process starts.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from numbers import Integral
+from pathlib import Path
+from typing import Any
+
+from env.observations import DictObservation, ObservationBuilder
+from env.overrides import ScenarioOverrides
+from node_runtime.model.rng import MAX_SEED
+from node_runtime.model.spec import Scenario
+from node_runtime.runtime.layout import Layout, check_layout
+from node_runtime.runtime.security import Security
+from orchestrator.scenario import load_scenario
+from orchestrator.serve import describe
+from orchestrator.session import Simulation, check_transport
+
+FLAT = "flat"  # observation="flat": FlatObservation and numbers-only infos
+
+
+def check_seed(seed: Any, call: str) -> None:
+    """None, or what a reset tick can carry as a msgpack integer: 0 to MAX_SEED."""
+    if seed is not None and (isinstance(seed, bool) or not isinstance(seed, Integral) or not 0 <= seed <= MAX_SEED):
+        raise ValueError(f"{call}(seed={seed!r}): expected an integer from 0 to {MAX_SEED} (2^62 - 1), or None")
+
+
+@dataclass(frozen=True, kw_only=True)
+class EpisodeSettings:
+    """What an episode is: ``max_steps`` decision epochs after the reset tick (None: the scenario's), the
+    controllers the agents drive (``agents``, node ids; None: all), and the first episode's ``seed``."""
+
+    max_steps: int | None = None
+    agents: tuple[str, ...] | None = None
+    seed: int | None = None
+
+    def __post_init__(self) -> None:
+        m = self.max_steps
+        if m is not None and (isinstance(m, bool) or not isinstance(m, Integral) or m < 1):
+            raise ValueError(f"max_steps must be an integer >= 1, not {m!r}")
+        check_seed(self.seed, "ZenohEdgeEnv")
+        if self.agents is not None:
+            object.__setattr__(self, "agents", tuple(self.agents))
+
+    def steps(self, sc: Scenario) -> int:
+        return self.max_steps or sc.steps
+
+    def nodes(self, sc: Scenario) -> list[str]:
+        """The driven controllers' nodes, in the scenario's order."""
+        nodes = list(self.agents) if self.agents is not None else list(sc.controllers)
+        unknown = [n for n in nodes if n not in sc.controllers]
+        if unknown:
+            raise ValueError(f"not controllers of {sc.name}: {', '.join(unknown)} "
+                             f"(controllers: {', '.join(sc.controllers)})")
+        return sorted(nodes, key=sc.index.__getitem__)
+
+
+@dataclass(frozen=True, kw_only=True)
+class ObservationSettings:
+    """What the agents see: ``observation`` (an ``ObservationBuilder`` subclass, its import path, ``FLAT``, or
+    None for the scenario's or the Dict observation), ``uniform_spaces`` (every agent padded to the largest
+    degree) and ``info_numbers`` (flat mode only: False leaves the infos empty). Checked in ``builder``,
+    against the scenario."""
+
+    observation: type[ObservationBuilder] | str | None = None
+    uniform_spaces: bool = False
+    info_numbers: bool = True
+
+    def builder(self, sc: Scenario) -> type[ObservationBuilder] | str:
+        """The builder asked for, else the scenario's ``observation`` key, else the Dict observation (``FLAT``
+        for flat mode); ``info_numbers`` is checked against it, since the scenario may be what asks for flat."""
+        builder = self.observation or sc.extra.get("observation") or DictObservation
+        if not self.info_numbers and builder != FLAT:
+            raise ValueError('info_numbers=False applies to observation="flat" only (its infos are numbers)')
+        return builder
+
+
+@dataclass(frozen=True, kw_only=True)
+class Connection:
+    """How the environment reaches its simulation: one it starts on ``transport`` ("zenoh" or "inproc") with
+    ``layout`` (None: the transport's default), or, with ``connect`` and ``sim_id``, one served by ``orchestrator
+    launch --serve``, reached with the ``driver`` identity in the directory ``security`` (TLS and logins).
+    ``timeout``: seconds the clock waits for a tick."""
+
+    transport: str = "zenoh"
+    layout: Layout | None = None
+    timeout: float = 30.0
+    connect: str | None = None
+    sim_id: str | None = None
+    security: Security | str | Path | None = None
+
+    def __post_init__(self) -> None:
+        check_transport(self.transport)
+        if self.layout is not None:
+            object.__setattr__(self, "layout", check_layout(self.layout))
+        if self.connect is not None and self.sim_id is None:
+            raise ValueError("connect= needs sim_id= (both are printed by `orchestrator launch --serve`)")
+        if self.connect is not None and isinstance(self.security, (str, Path)):
+            object.__setattr__(self, "security", Security.from_dir(self.security))
+
+    def scenario(self, scenario: str | Path | dict | Scenario, overrides: ScenarioOverrides | None) -> Scenario:
+        """The served simulation's scenario when attached, else ``scenario`` loaded, with ``overrides``."""
+        if overrides is not None and not isinstance(overrides, ScenarioOverrides):
+            raise TypeError(f"overrides must be a ScenarioOverrides, not a {type(overrides).__name__}")
+        if self.connect is not None:  # the served simulation fixes the scenario
+            if overrides is not None:
+                raise ValueError("overrides cannot change a served simulation; set them in its scenario file")
+            return Scenario.from_dict(describe(self.connect, self.sim_id, timeout=self.timeout,
+                                               security=self.security)["scenario"])
+        sc = scenario if isinstance(scenario, Scenario) else load_scenario(scenario)
+        return overrides.apply(sc) if overrides is not None else sc
+
+    def open(self, sc: Scenario) -> Simulation:
+        """Attach to the served simulation, or start ``sc`` on this transport."""
+        if self.connect is not None:
+            return Simulation.attach(self.connect, self.sim_id, timeout=self.timeout, security=self.security)
+        return Simulation.open(sc, self.transport, layout=self.layout, timeout=self.timeout)
