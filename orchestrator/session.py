@@ -56,6 +56,12 @@ LEASE_MARGIN_S = 5.0  # a node's Zenoh session outlives the clock's timeout by t
 QUERY_TIMEOUT_S = 5.0  # upper bound of the liveliness query at start; it answers at once when no other has the id
 
 
+def lease_ms(timeout: float) -> int:
+    """The Zenoh lease every session of a simulation announces, in milliseconds: beyond the clock's timeout, so
+    that a stalled party is reported by the clock (or the supervisor), not lost to a lapsed session first."""
+    return round((timeout + LEASE_MARGIN_S) * 1000)
+
+
 def check_transport(name: str) -> TransportName:
     """``name`` if it names a transport; a ValueError saying what is expected otherwise."""
     if name not in ("zenoh", "inproc"):
@@ -217,11 +223,13 @@ class Simulation:
         placement = dict(remote.placement) if remote is not None else {}
         self = cls(scenario, transport="zenoh", keys=Keys(sim_id or new_sim_id(), prefix), layout=layout,
                    placed=bool(placement))
-        settings = dict(router.zenoh_settings or {})
+        # the router's own lease follows the clock's timeout too: processes keep a paused orchestrator as long
+        # as it keeps them (Zenoh's default, 10 s, ended runs whose orchestrator stood still that long)
+        settings = {"transport/link/tx/lease": lease_ms(timeout), **(router.zenoh_settings or {})}
         if router.security is not None:
             settings = {"access_control": access_control(self.keys, self.plan, placement), **settings}
         self.transport, self.endpoint = open_router(router.listen_host, router.port, list(router.join) or None,
-                                                    router.security, settings or None)
+                                                    router.security, settings)
         self.transport.rejections.who = ORCHESTRATOR
         try:
             self._start_processes(timeout, router.security, remote)
@@ -244,7 +252,7 @@ class Simulation:
         # for hosts that join later; the lease outlives the clock's timeout, so a paused process is
         # reported hung, not died. Processes on other hosts are told the same (the session answer).
         timing = {"ready_timeout": remote.join_timeout if elsewhere else max(READY_TIMEOUT, timeout),
-                  "lease_s": timeout + LEASE_MARGIN_S}
+                  "lease_s": lease_ms(timeout) / 1000}
         self.server = Server(self.transport, self.keys, self.plan, self.clock, self.supervisor.check, placement,
                              timing)
         if elsewhere and remote.on_waiting is not None:
@@ -274,7 +282,8 @@ class Simulation:
         The served processes stay up when this object closes; the server gets its clock back.
         """
         keys = Keys(sim_id, prefix)
-        transport = ZenohTransport.reach(endpoint, security) if isinstance(endpoint, str) else endpoint
+        transport = ZenohTransport.reach(endpoint, security, {"transport/link/tx/lease": lease_ms(timeout)}) \
+            if isinstance(endpoint, str) else endpoint
         try:
             info, driver, secret = claim(transport, keys, timeout)
         except BaseException:

@@ -13,6 +13,7 @@ import contextlib
 import os
 import signal
 import sys
+import threading
 import time
 
 import psutil
@@ -25,9 +26,44 @@ from node_runtime.runtime.layout import Layout, ProcessLayout
 from node_runtime.runtime.process import ORCHESTRATOR, ProcSpec
 from node_runtime.runtime.security import Security
 from node_runtime.runtime.transport import Transport
-from orchestrator.clock import ProcessFailed
+from orchestrator.clock import ClockError, ProcessFailed
 
 EXIT_NOTICE_S = 2.0  # how long a vanished token waits for its local process's exit notice, which says why
+# A process drops the router once it heard nothing for a lease; Zenoh sends keep-alives every quarter lease,
+# so its count may start that much before the orchestrator stood still
+LEASE_SLACK = 0.75
+
+
+BEAT_S = 0.25  # how often ``StallWatch`` looks at the time
+
+
+class StallWatch:
+    """Measures how long this process stood still (SIGSTOP, a starved machine): a thread that looks at the
+    monotonic clock every ``BEAT_S``, which goes on while the process is stopped."""
+
+    def __init__(self) -> None:
+        self.longest = 0.0
+        self._last = time.monotonic()
+        self._stop = threading.Event()
+        threading.Thread(target=self._run, daemon=True, name="stall-watch").start()
+
+    def _run(self) -> None:
+        while not self._stop.wait(BEAT_S):
+            now = time.monotonic()
+            self.longest = max(self.longest, now - self._last - BEAT_S)
+            self._last = now
+
+    def stalled_s(self) -> float:
+        """The longest stall so far, the one under way included (the thread may not have run since it ended)."""
+        return max(self.longest, time.monotonic() - self._last - BEAT_S)
+
+    def stop(self) -> None:
+        self._stop.set()
+
+
+class Stalled(ClockError):
+    """The orchestrator itself stood still (stopped, starved of CPU) past its processes' Zenoh lease: they
+    took it for gone and left, and none of them is to blame."""
 
 
 def how(status: int) -> str:
@@ -66,6 +102,8 @@ class Supervisor:
         self.forks: ForkServer | None = None
         self.ready: set[str] = set()
         self.stopping = False
+        self.lease_s: float | None = None  # the lease the local processes announce (``start``)
+        self.watch: StallWatch | None = None  # how long we stood still (``start``)
         transport.declare_token(keys.alive(token))
         transport.watch_tokens(keys.alive(), self.on_token)
 
@@ -86,7 +124,16 @@ class Supervisor:
                     self._exited(proc, pid)  # a local child: its exit notice says why
                 if state := paused(pid):
                     raise ProcessFailed(proc, self.nodes(proc), f"hung: {state}; its Zenoh session lapsed")
+            self._unless_we_stalled(proc)
             raise ProcessFailed(proc, self.nodes(proc), "died: its liveliness token vanished")
+
+    def _unless_we_stalled(self, proc: str) -> None:
+        """Raise ``Stalled`` if this process stood still for about a lease: ``proc`` left because of that."""
+        stalled = self.watch.stalled_s() if self.watch is not None else 0.0
+        if self.lease_s is not None and stalled >= LEASE_SLACK * self.lease_s:
+            raise Stalled(f"the orchestrator itself stood still for {stalled:.0f} s (stopped, or starved of CPU), "
+                          f"about the {self.lease_s:g} s Zenoh lease of its processes: they took it for gone and left "
+                          f"({proc} first); none of them failed")
 
     def hung(self, procs: list[str]) -> str:
         """Why these processes sent no report: what their OS state says, for the local ones."""
@@ -104,6 +151,8 @@ class Supervisor:
     def _exited(self, proc: str, pid: int) -> None:
         """Raise the error for a local child that exited: its status, and its own reason when it gave one."""
         status = self.forks.exit_status(pid)
+        if status == node_process.EXIT_ORPHANED:
+            self._unless_we_stalled(proc)
         why = self.forks.account(pid)
         first = f": {why.strip().splitlines()[0]}" if why.strip() else ""
         raise ProcessFailed(proc, self.nodes(proc), f"exited unexpectedly ({how(status)}){first}", why)
@@ -117,6 +166,8 @@ class Supervisor:
         Returns the seconds it took.
         """
         t0 = time.perf_counter()
+        self.lease_s = lease_s
+        self.watch = StallWatch()
         self.forks = ForkServer.shared()
         for proc in procs if procs is not None else self.plan.procs:
             spec = ProcSpec(proc, scenario, layout, endpoint, self.keys, tuple(sys.path), security, lease_s=lease_s,
@@ -142,6 +193,8 @@ class Supervisor:
         Returns the names of processes that had to be forced.
         """
         self.stopping = True
+        if self.watch is not None:
+            self.watch.stop()
         if self.forks is None:
             return []
         pids = list(self.children.values())

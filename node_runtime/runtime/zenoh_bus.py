@@ -30,6 +30,7 @@ from node_runtime.runtime.transport import Handler, Monitored, RequestHandler, T
 Mode = Literal["router", "client", "peer"]
 ENDPOINT = re.compile(r"^[a-z0-9]+/\S+$")  # Zenoh's <protocol>/<address>
 IDLE_SLICE = 0.1  # seconds between idle checks while dispatching
+STALL_S = 1.0  # seconds a wait in ``dispatch`` may overrun its slice before this process counts as stalled
 
 # Zenoh's thread pools for a node process: receive, network and transmit work handed over to a
 # single application thread. Dozens of processes share two cores here, and fewer threads per process
@@ -246,18 +247,25 @@ class ZenohTransport(Transport):
 
     def dispatch(self, until: Callable[[], bool], timeout: float | None = None,
                  idle: Callable[[], None] | None = None) -> None:
+        """A time this process stood still (SIGSTOP, a starved machine) does not count against ``timeout``: what
+        others sent meanwhile waits in buffers, and they were not silent."""
         deadline = None if timeout is None else time.monotonic() + timeout
         get = self._queue.get
         while not until():
             wait = IDLE_SLICE
+            now = time.monotonic()
             if deadline is not None:
-                left = deadline - time.monotonic()
+                left = deadline - now
                 if left <= 0:
                     raise TimeoutError(f"nothing satisfied the wait within {timeout:.1f} s")
                 wait = min(wait, left)
             try:
                 handler, key, data = get(timeout=wait)
             except queue.Empty:
+                handler = None
+            if deadline is not None and (late := time.monotonic() - now - wait) > STALL_S:
+                deadline += late
+            if handler is None:
                 if idle is not None:
                     idle()
                 continue
