@@ -157,8 +157,21 @@ def cmd_launch(args: argparse.Namespace) -> int:
                     screen.print(note, soft_wrap=True)
             console.print(f"results: {where}/summary.json, ticks.csv, nodes.csv")
         if args.serve:
-            sim.server.wait(ready=lambda: console.print("serving until Ctrl-C"))
+            try:
+                sim.server.wait(ready=lambda: console.print("serving until Ctrl-C"))
+            finally:
+                if args.episodes:
+                    record_serving(sim, where / "summary.json")
     return EXIT_OK
+
+
+def record_serving(sim: Simulation, path: Path) -> None:
+    """Bring the last episode's summary.json up to date once serving ends: what drivers did to the clock, and
+    what the orchestrator refused, while it served (docs/bus.md, "Rejected messages")."""
+    summary = json.loads(path.read_text())
+    summary["run"]["control"] = dict(sim.server.counts)
+    summary["run"]["rejected_messages"]["orchestrator"] = dict(sorted(sim.transport.rejections.counts.items()))
+    path.write_text(json.dumps(summary, indent=2) + "\n")
 
 
 @contextlib.contextmanager

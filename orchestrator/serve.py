@@ -11,27 +11,38 @@ in-process bus for code in the same process):
   claimant receives (a query's reply goes to the querier alone) and that is never published: a release
   must carry it, so knowing the driver's name (the session description shows it) is not enough.
 
-A driver announces itself with the liveliness token ``…/alive/driver/<id>``; if it vanishes (the driver
-crashed), the server takes the clock back. Episode numbers only grow, whoever drives, so node
-processes can always tell late mail of an old episode from the current one.
+A claim holds only while its driver lives: the driver declares the liveliness token
+``…/alive/driver/<id>`` of the name it claims before it claims, and the server frees the clock when that
+token vanishes (the driver exited or was killed without releasing, or its Zenoh session lapsed) or, for a
+claim whose token never appeared, ``TOKEN_GRACE_S`` after the grant. Episode numbers only grow, whoever
+drives, so node processes can always tell late mail of an old episode from the current one.
+
+A request that is no claim or release (an empty one, garbage, a wrong field) gets an error reply; it and
+every refused claim or release is counted and logged (node_runtime/runtime/rejections.py), and ``counts``
+(summary.json's ``run.control``) says what happened to the clock.
 """
 
 from __future__ import annotations
 
 import contextlib
+import logging
 import secrets
 import threading
+import time
 from collections.abc import Callable, Iterator
 from typing import Any
 
-from node_runtime.runtime.keys import DEFAULT_PREFIX, Keys
+from node_runtime.runtime.keys import CHUNK, DEFAULT_PREFIX, Keys
 from node_runtime.runtime.layout import ProcessLayout
+from node_runtime.runtime.rejections import CLOCK_TAKEN, NOT_HOLDER, WRONG_SHAPE
 from node_runtime.runtime.security import Security
-from node_runtime.runtime.transport import Transport, TransportError
+from node_runtime.runtime.transport import Refused, Transport, TransportError
 from node_runtime.runtime.zenoh_bus import ZenohTransport
 from orchestrator.clock import Clock, ClockError
 
 DRIVER_PREFIX = "driver/"
+TOKEN_GRACE_S = 5.0  # how long a claim holds before its driver's liveliness token is seen (it is declared first)
+log = logging.getLogger(__name__)
 
 
 class Busy(ClockError):
@@ -57,43 +68,94 @@ class Server:
         self.timing = timing or {}
         self.driver: str | None = None
         self.secret: str | None = None  # the attached driver's token
-        self.refused = 0  # releases with a wrong or missing token
+        self.unseen_until: float | None = None  # while the driver's liveliness token is not seen: when its claim ends
+        self.alive: set[str] = set()  # drivers whose liveliness token is up
+        # what happened to the clock: claims granted, releases taken, claims freed because their driver
+        # vanished, claims and releases refused
+        self.counts = {"granted": 0, "released": 0, "vanished": 0, "refused_claims": 0, "refused_releases": 0}
         self.serving = False  # remote drivers may take the clock (launch --serve, after its episodes)
         self._lock = threading.Lock()
         transport.serve(keys.session(), self._session)
         transport.serve(keys.control(), self._control)
         transport.watch_tokens(keys.alive(f"{DRIVER_PREFIX}*"), self._on_driver_token)
 
-    def _session(self, _: Any) -> dict[str, Any]:
+    def _session(self, msg: Any) -> dict[str, Any]:
+        if type(msg) is not dict or msg.get("type") != "session?":
+            raise Refused(WRONG_SHAPE, "a session request is the map {type: 'session?'}")
         with self._lock:
+            self._expire()
             return {"type": "session", "sim": self.keys.sim_id, "scenario": self.plan.scenario.to_dict(),
                     "layout": self.plan.layout, "episode": self.clock.latest, "driver": self.driver,
                     "procs": list(self.plan.procs), "placement": self.placement, **self.timing}
 
-    def _control(self, msg: dict[str, Any]) -> dict[str, Any]:
+    def _control(self, msg: Any) -> dict[str, Any]:
+        if type(msg) is not dict or msg.get("type") != "control" or ("claim" in msg) == ("release" in msg):
+            raise Refused(WRONG_SHAPE, "a control request is a map of type 'control' with either 'claim' or 'release'")
+        if "claim" in msg:
+            name = msg["claim"]
+            driver_id = name.removeprefix(DRIVER_PREFIX) if type(name) is str and name.startswith(DRIVER_PREFIX) else ""
+            if not CHUNK.match(driver_id):
+                raise Refused(WRONG_SHAPE, "a claim names its driver 'driver/<id>', the key of its liveliness token")
+            return self._claim(name)
+        if type(msg["release"]) is not str or type(msg.get("episode", -1)) is not int:
+            raise Refused(WRONG_SHAPE, "a release names its driver and gives its last episode (an integer)")
+        return self._release(msg["release"], msg.get("token"), msg.get("episode", -1))
+
+    def _claim(self, name: str) -> dict[str, Any]:
         with self._lock:
-            if "claim" in msg:
-                if self.driver is not None or not self.serving:
-                    who = self.driver or "the orchestrator (it is not serving: launch it with --serve)"
-                    return {"type": "control", "granted": False, "reason": f"the clock is held by {who}"}
-                self.driver = msg["claim"]
-                self.secret = secrets.token_hex(16)
-                return {"type": "control", "granted": True, "episode": self.clock.latest, "token": self.secret}
-            if "release" in msg:
-                if self.driver is None or msg["release"] != self.driver or not isinstance(msg.get("token"), str) \
-                        or not secrets.compare_digest(msg["token"], self.secret or ""):
-                    self.refused += 1
-                    return {"type": "control", "released": False}
-                self.driver = self.secret = None
-                self.clock.catch_up(int(msg.get("episode", -1)))
-                return {"type": "control", "released": True}
-        return {"type": "control", "released": False}
+            self._expire()
+            if self.driver is not None or not self.serving:
+                who = self.driver or "the orchestrator (it is not serving: launch it with --serve)"
+                self.counts["refused_claims"] += 1
+                self.transport.rejections.add(self.keys.control(), CLOCK_TAKEN, f"a claim of {name}: held by {who}")
+                return {"type": "control", "granted": False, "reason": f"the clock is held by {who}"}
+            self.driver = name
+            self.secret = secrets.token_hex(16)
+            self.unseen_until = None if name in self.alive else time.monotonic() + TOKEN_GRACE_S
+            self.counts["granted"] += 1
+            return {"type": "control", "granted": True, "episode": self.clock.latest, "token": self.secret}
+
+    def _release(self, name: str, token: Any, episode: int) -> dict[str, Any]:
+        with self._lock:
+            if self.driver is None or name != self.driver or not isinstance(token, str) \
+                    or not secrets.compare_digest(token, self.secret or ""):
+                self.counts["refused_releases"] += 1
+                self.transport.rejections.add(self.keys.control(), NOT_HOLDER,
+                                              f"a release of {name[:40]!r} without the holder's name and token")
+                return {"type": "control", "released": False}
+            self.driver = self.secret = self.unseen_until = None
+            self.counts["released"] += 1
+            self.clock.catch_up(episode)
+            return {"type": "control", "released": True}
 
     def _on_driver_token(self, key: str, alive: bool) -> None:
         name = DRIVER_PREFIX + key.rsplit("/", 1)[-1]
         with self._lock:
-            if not alive and name == self.driver:  # the driver died without releasing
-                self.driver = self.secret = None
+            if alive:
+                self.alive.add(name)
+                if name == self.driver:
+                    self.unseen_until = None
+                return
+            self.alive.discard(name)
+            if name == self.driver:
+                self._free("its liveliness token vanished: it exited or was killed, or its Zenoh session lapsed")
+
+    def _expire(self) -> None:
+        """Free the clock of a claim whose driver never showed its liveliness token (call with the lock held)."""
+        if self.unseen_until is not None and time.monotonic() > self.unseen_until:
+            self._free(f"its liveliness token did not appear within {TOKEN_GRACE_S:g} s of its claim")
+
+    def _free(self, why: str) -> None:
+        log.warning("zenohedge: driver %s left without releasing the clock (%s); the clock is free again",
+                    self.driver, why)
+        self.driver = self.secret = self.unseen_until = None
+        self.counts["vanished"] += 1
+
+    def _idle(self) -> None:
+        with self._lock:
+            self._expire()
+        if self.health is not None:
+            self.health()
 
     @contextlib.contextmanager
     def accepting(self) -> Iterator[None]:
@@ -105,7 +167,7 @@ class Server:
         finally:
             with self._lock:
                 self.serving = False
-                self.driver = self.secret = None
+                self.driver = self.secret = self.unseen_until = None
 
     def wait(self, stop: threading.Event | None = None, ready: Callable[[], None] | None = None) -> None:
         """Serve remote drivers until ``stop`` is set (or Ctrl-C), noticing dead processes meanwhile.
@@ -114,7 +176,7 @@ class Server:
         with self.accepting():
             if ready is not None:
                 ready()
-            self.transport.dispatch(until=stop.is_set, idle=self.health)
+            self.transport.dispatch(until=stop.is_set, idle=self._idle)
 
 
 def session_of(transport: Transport, keys: Keys, timeout: float, where: str = "this endpoint") -> dict[str, Any]:
@@ -137,9 +199,10 @@ def describe(endpoint: str, sim_id: str, prefix: str = DEFAULT_PREFIX, timeout: 
 
 def claim(transport: Transport, keys: Keys, timeout: float) -> tuple[dict[str, Any], str, str]:
     """Take the clock of a served simulation; returns its session description, our driver name and the
-    token that releases it."""
+    token that releases it. The driver's liveliness token goes up first: the claim holds while it lives."""
     info = session_of(transport, keys, timeout)
     name = f"{DRIVER_PREFIX}{secrets.token_hex(3)}"
+    transport.declare_token(keys.alive(name))
     try:
         answer = transport.request(keys.control(), {"type": "control", "claim": name}, timeout=timeout)
     except TransportError as exc:  # with access control, the router drops queries of other identities

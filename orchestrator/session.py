@@ -298,7 +298,7 @@ class Simulation:
         transport.rejections.who = driver
         self._secret = secret
         try:
-            self.supervisor = Supervisor(transport, keys, self.plan, token=driver)
+            self.supervisor = Supervisor(transport, keys, self.plan, token=None)  # ``claim`` declared ours
             self.supervisor.wait_ready(timeout)
             self.clock = Clock(transport, keys, self.plan, timeout, health=self.supervisor.check,
                                placement=info.get("placement"))
@@ -427,6 +427,8 @@ class Simulation:
             # end-of-tick reports taken, and the messages of hosts that forwarded theirs together (docs/protocol.md)
             "reports": dict(self.clock.reports),
         }
+        if self.server is not None:  # what happened to the clock (docs/bus.md, "Rejected messages")
+            s["run"]["control"] = dict(self.server.counts)
         return s
 
     # ----- lifetime -----

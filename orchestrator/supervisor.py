@@ -91,10 +91,10 @@ class Supervisor:
     """Watches the processes of a simulation; starts the local ones when asked.
 
     ``token`` is this side's own liveliness: the orchestrator's (node processes exit when it
-    vanishes), or a remote driver's when it attaches to a served simulation.
+    vanishes); None for a remote driver, which declared its own as it claimed the clock.
     """
 
-    def __init__(self, transport: Transport, keys: Keys, plan: ProcessLayout, token: str = ORCHESTRATOR) -> None:
+    def __init__(self, transport: Transport, keys: Keys, plan: ProcessLayout, token: str | None = ORCHESTRATOR) -> None:
         self.transport = transport
         self.keys = keys
         self.plan = plan
@@ -104,7 +104,8 @@ class Supervisor:
         self.stopping = False
         self.lease_s: float | None = None  # the lease the local processes announce (``start``)
         self.watch: StallWatch | None = None  # how long we stood still (``start``)
-        transport.declare_token(keys.alive(token))
+        if token is not None:
+            transport.declare_token(keys.alive(token))
         transport.watch_tokens(keys.alive(), self.on_token)
 
     def nodes(self, proc: str) -> tuple[str, ...]:

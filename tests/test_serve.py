@@ -6,18 +6,22 @@ Transport interface: describe, claim, release, a vanished driver.
 
 from __future__ import annotations
 
+import json
 import signal
+import sys
 
 import numpy as np
 import pytest
 
 from env import ZenohEdgeEnv
+from node_runtime.runtime.keys import Keys
 from node_runtime.runtime.transport import TransportError
-from node_runtime.runtime.zenoh_bus import free_port
-from orchestrator.serve import Busy, claim, session_of
+from node_runtime.runtime.zenoh_bus import ZenohTransport, free_port
+from orchestrator import serve
+from orchestrator.serve import Busy, claim, describe, session_of
 from orchestrator.session import Simulation
 from tests.conftest import model_part, run_summary
-from tests.launcher import Launch, assert_all_gone, served
+from tests.launcher import Launch, Output, assert_all_gone, served
 
 
 def play(env, seed, steps, actions_seed=0):
@@ -68,6 +72,84 @@ def test_attach_drive_detach_and_stop(tmp_path):
     assert_all_gone(children)
 
 
+DRIVER = """
+import sys, threading
+from orchestrator.session import Simulation
+sim = Simulation.attach(sys.argv[1], sys.argv[2], timeout=30)
+print(sim.attached, flush=True)
+if sys.argv[3] == "hold":
+    threading.Event().wait()  # until it is killed
+sys.exit(0)  # without sim.close(): the clock is never released
+"""
+
+
+def driver(endpoint: str, sim: str, how: str) -> tuple[Output, str]:
+    """A driver in its own process that claims the clock, then holds it until killed or exits without releasing."""
+    proc = Output(sys.executable, "-c", DRIVER, endpoint, sim, how)
+    return proc, proc.line()
+
+
+@pytest.mark.zenoh
+def test_a_claim_ends_with_its_driver(tmp_path):
+    """A driver killed (SIGKILL) or exiting without releasing held the clock of a served simulation for good."""
+    run = Launch("aot1", "--serve", "--episodes", "1", "--steps", "5", "--out", str(tmp_path))
+    run.wait_for("serving until Ctrl-C")
+    endpoint, sim = served(run)
+    killed, name = driver(endpoint, sim, "hold")
+    assert describe(endpoint, sim)["driver"] == name
+    killed.proc.send_signal(signal.SIGKILL)
+    run.wait_for(f"driver {name} left without releasing the clock (its liveliness token vanished")
+    killed.proc.wait(10)
+
+    left, name = driver(endpoint, sim, "exit")  # the clock is free again: a second driver gets it
+    assert left.proc.wait(30) == 0
+    run.wait_for(f"driver {name} left without releasing the clock")
+    again = Simulation.attach(endpoint, sim)  # and a third
+    again.close()
+    run.proc.send_signal(signal.SIGTERM)
+    assert run.finish(30) == 130
+    control = json.loads((tmp_path / "summary.json").read_text())["run"]["control"]
+    assert control == {"granted": 3, "released": 1, "vanished": 2, "refused_claims": 0, "refused_releases": 0}
+
+
+@pytest.mark.zenoh
+def test_serving_refuses_garbage_and_counts_every_refusal(tmp_path):
+    """An empty query on …/control raised a traceback in the orchestrator (and got no reply); refused releases
+    were counted but reported nowhere."""
+    run = Launch("aot1", "--serve", "--episodes", "1", "--steps", "5", "--out", str(tmp_path))
+    run.wait_for("serving until Ctrl-C")
+    endpoint, sim = served(run)
+    keys = Keys(sim)
+    asker = ZenohTransport.client(endpoint)
+    try:
+        replies = {what: [(r.ok is None, r.err.payload.to_bytes().decode() if r.err else "")
+                          for r in asker.session.get(key, payload=payload, timeout=10)]
+                   for what, key, payload in (("empty", keys.control(), None),
+                                              ("garbage", keys.control(), b"\xc1garbage"),
+                                              ("a number", keys.control(), b"\x07"),  # msgpack's 7
+                                              ("empty session", keys.session(), None))}
+        assert {what: len(r) == 1 and r[0][0] for what, r in replies.items()} == dict.fromkeys(replies, True), replies
+        assert "an empty request" in replies["empty"][0][1]
+        holder = Simulation.attach(asker, sim)  # the clock is held: a release from anyone else is refused
+        outsider = ZenohTransport.client(endpoint)
+        answer = outsider.request(keys.control(), {"type": "control", "release": holder.attached, "episode": 1}, 10)
+        assert answer["released"] is False
+        with pytest.raises(Busy):
+            claim(outsider, keys, 10)
+        outsider.close()
+        holder.close()  # closes ``asker`` too
+    finally:
+        asker.close()
+    run.proc.send_signal(signal.SIGTERM)
+    assert run.finish(30) == 130
+    assert not [line for line in run.err if "Traceback" in line], "".join(run.err)
+    summary = json.loads((tmp_path / "summary.json").read_text())
+    assert summary["run"]["control"] == {"granted": 1, "released": 1, "vanished": 0, "refused_claims": 1,
+                                         "refused_releases": 1}
+    assert summary["run"]["rejected_messages"]["orchestrator"] == {"bad_msgpack": 1, "clock_taken": 1,
+                                                                   "not_holder": 1, "wrong_shape": 3}
+
+
 def test_serving_over_the_in_process_bus(aot1):
     with Simulation.inproc(aot1) as served_sim:
         bus, keys = served_sim.transport.bus, served_sim.keys
@@ -91,7 +173,7 @@ def test_serving_over_the_in_process_bus(aot1):
                            {"release": driver.attached, "token": 7}):
                 answer = outsider.request(keys.control(), {"type": "control", "episode": 99, **forged}, 1.0)
                 assert answer["released"] is False
-            assert served_sim.server.refused == 3
+            assert served_sim.server.counts["refused_releases"] == 3
             assert session_of(outsider, keys, 1.0)["driver"] == driver.attached
             summary = driver.run(40, seed=7)
             assert driver.clock.episode == 1
@@ -100,14 +182,51 @@ def test_serving_over_the_in_process_bus(aot1):
 
             # a driver that vanishes without releasing: the server takes the clock back
             lost = bus.endpoint()
-            _, name, _ = claim(lost, keys, 1.0)
-            lost.declare_token(keys.alive(name))
+            _, name, _ = claim(lost, keys, 1.0)  # its liveliness token goes up first
             assert session_of(bus.endpoint(), keys, 1.0)["driver"] == name
             lost.close()
             assert session_of(bus.endpoint(), keys, 1.0)["driver"] is None
+            assert served_sim.server.counts["vanished"] == 1
         served_sim.reset(seed=1)
         assert served_sim.clock.episode == 2  # numbered after the driver's episode
     assert model_part(summary) == model_part(run_summary(aot1, 40, seed=7))  # attached: the same emulation
+
+
+def test_a_claim_without_its_drivers_token_ends(aot1, monkeypatch):
+    """A bare claim (no liveliness token ever declared) locked a served simulation for good."""
+    monkeypatch.setattr(serve, "TOKEN_GRACE_S", 0.0)  # its claim ends at the first look after the grant
+    with Simulation.inproc(aot1) as served_sim, served_sim.server.accepting():
+        keys, bare = served_sim.keys, served_sim.transport.bus.endpoint()
+        answer = bare.request(keys.control(), {"type": "control", "claim": "driver/bare"}, 1.0)
+        assert answer["granted"] is True
+        driver = Simulation.attach(served_sim.transport.bus.endpoint(), keys.sim_id)  # the bare claim is gone
+        assert served_sim.server.counts == {"granted": 2, "released": 0, "vanished": 1, "refused_claims": 0,
+                                            "refused_releases": 0}
+        driver.close()
+
+
+def test_malformed_requests_get_an_error_and_are_counted(aot1):
+    """Requests that are no claim, release or session request: each refused with a reason, none raises."""
+    with Simulation.inproc(aot1) as served_sim:
+        keys, asker = served_sim.keys, served_sim.transport.bus.endpoint()
+        # (what is no map, or no msgpack at all, cannot cross this bus: test_serving_refuses_garbage sends it)
+        bad = [(keys.control(), {"type": "control"}), (keys.control(), {"type": "control", "claim": 7}),
+               (keys.control(), {"type": "control", "claim": "driver/x", "release": "driver/x"}),
+               (keys.control(), {"type": "control", "claim": "x/../y"}),
+               (keys.control(), {"type": "control", "release": "driver/x", "episode": "9"}),
+               (keys.session(), {"type": "session"})]
+        for key, message in bad:
+            with pytest.raises(TransportError, match="refused the request"):
+                asker.request(key, message, 1.0)
+        assert served_sim.transport.rejections.counts == {"wrong_shape": len(bad)}
+        asker.request(keys.control(), {"type": "control", "release": "driver/x", "token": "0" * 32, "episode": 1}, 1.0)
+        with pytest.raises(Busy, match="not serving"):
+            claim(asker, keys, 1.0)
+        summary = served_sim.run(5)
+    assert summary["run"]["rejected_messages"]["orchestrator"] == {"clock_taken": 1, "not_holder": 1,
+                                                                   "wrong_shape": len(bad)}
+    assert summary["run"]["control"] == {"granted": 0, "released": 0, "vanished": 0, "refused_claims": 1,
+                                         "refused_releases": 1}
 
 
 def test_connect_requires_the_sim_id():

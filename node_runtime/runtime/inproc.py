@@ -15,7 +15,15 @@ from typing import Any
 
 from node_runtime.runtime import codec
 from node_runtime.runtime.rejections import Rejections
-from node_runtime.runtime.transport import Handler, Monitored, RequestHandler, TokenHandler, Transport, TransportError
+from node_runtime.runtime.transport import (
+    Handler,
+    Monitored,
+    Refused,
+    RequestHandler,
+    TokenHandler,
+    Transport,
+    TransportError,
+)
 
 
 def key_matches(a: str, b: str) -> bool:
@@ -233,7 +241,14 @@ class InprocEndpoint(Transport):
         return self.bus.alive(key_expr)
 
     def serve(self, key: str, handler: RequestHandler) -> None:
-        self.bus.serve(key, handler)
+        def answer(message: Any) -> Any:
+            try:
+                return handler(message)
+            except Refused as exc:  # the asker gets it raised, as a Zenoh error reply raises it there
+                self.rejections.add(key, exc.reason, exc.why)
+                raise TransportError(f"{key} refused the request: {exc.why}") from None
+
+        self.bus.serve(key, answer)
         self._served.append(key)
 
     def request(self, key: str, message: Any, timeout: float) -> Any:

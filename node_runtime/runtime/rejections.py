@@ -18,7 +18,9 @@ SCHEMA_VERSION = "schema_version"  # no schema version, or another one (another 
 WRONG_SHAPE = "wrong_shape"  # not a map, a missing field or one of the wrong type, or a message not meant for the key
 UNKNOWN_SENDER = "unknown_sender"  # a process or role that is not of this layout, or that may not send this
 WRONG_TICK = "wrong_tick"  # an episode or tick that is not the current one, a duplicate, or too late
-REASONS = (BAD_MSGPACK, SCHEMA_VERSION, WRONG_SHAPE, UNKNOWN_SENDER, WRONG_TICK)
+CLOCK_TAKEN = "clock_taken"  # a claim of the clock while a driver holds it, or while the orchestrator keeps it
+NOT_HOLDER = "not_holder"  # a release of the clock without the name and token of the driver that holds it
+REASONS = (BAD_MSGPACK, SCHEMA_VERSION, WRONG_SHAPE, UNKNOWN_SENDER, WRONG_TICK, CLOCK_TAKEN, NOT_HOLDER)
 
 LOG_INTERVAL = 10.0  # seconds: at most one line per key in this interval
 MAX_KEYS = 256  # keys tracked one by one; past that, further keys share one line (senders choose keys)

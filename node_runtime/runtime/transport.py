@@ -24,6 +24,16 @@ class TransportError(RuntimeError):
     pass
 
 
+class Refused(TransportError):
+    """Raised by a request handler (``serve``) for a request it will not answer: the asker gets an error
+    reply saying ``why``, and the serving side counts and logs it under ``reason`` (rejections.py)."""
+
+    def __init__(self, reason: str, why: str) -> None:
+        super().__init__(why)
+        self.reason = reason
+        self.why = why
+
+
 class Transport(ABC):
     rejections: Rejections  # messages refused: undecodable ones by ``dispatch``, untrusted ones by handlers
 
@@ -58,7 +68,8 @@ class Transport(ABC):
 
         The handler does not run in ``dispatch``: over Zenoh it runs in a Zenoh thread, in-process in
         the requester's ``request`` call. It may thus run while another thread dispatches, so it must
-        guard what it reads and must neither publish nor dispatch."""
+        guard what it reads and must neither publish nor dispatch. A request that cannot be decoded, an
+        empty one, or one the handler ``Refused``, gets an error reply and is counted in ``rejections``."""
 
     @abstractmethod
     def request(self, key: str, message: Any, timeout: float) -> Any:

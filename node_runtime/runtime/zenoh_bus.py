@@ -23,9 +23,17 @@ from typing import Any, Literal
 import zenoh
 
 from node_runtime.runtime import codec
-from node_runtime.runtime.rejections import Rejections
+from node_runtime.runtime.rejections import WRONG_SHAPE, Rejections
 from node_runtime.runtime.security import Security
-from node_runtime.runtime.transport import Handler, Monitored, RequestHandler, TokenHandler, Transport, TransportError
+from node_runtime.runtime.transport import (
+    Handler,
+    Monitored,
+    Refused,
+    RequestHandler,
+    TokenHandler,
+    Transport,
+    TransportError,
+)
 
 Mode = Literal["router", "client", "peer"]
 ENDPOINT = re.compile(r"^[a-z0-9]+/\S+$")  # Zenoh's <protocol>/<address>
@@ -192,12 +200,14 @@ class ZenohTransport(Transport):
 
         def on_query(query: zenoh.Query) -> None:  # answer on our own key: a wildcard query learns who answered
             try:
-                message = codec.decode(query.payload.to_bytes()) if query.payload is not None else None
-            except codec.CodecError as exc:  # plain text: the asker may not read our msgpack either
+                if query.payload is None:
+                    raise Refused(WRONG_SHAPE, "an empty request")
+                answer = codec.encode(handler(codec.decode(query.payload.to_bytes())))
+            except (codec.CodecError, Refused) as exc:  # plain text: the asker may not read our msgpack either
                 self.rejections.add(key, exc.reason, str(exc))
                 query.reply_err(str(exc).encode())
                 return
-            query.reply(key, codec.encode(handler(message)))
+            query.reply(key, answer)
 
         self._entities.append(self.session.declare_queryable(key, on_query))
 
