@@ -80,8 +80,8 @@ class Server:
         transport.watch_tokens(keys.alive(f"{DRIVER_PREFIX}*"), self._on_driver_token)
 
     def _session(self, msg: Any) -> dict[str, Any]:
-        if type(msg) is not dict or msg.get("type") != "session?":
-            raise Refused(WRONG_SHAPE, "a session request is the map {type: 'session?'}")
+        if msg is not None and (type(msg) is not dict or msg.get("type") != "session?"):
+            raise Refused(WRONG_SHAPE, "a session request has no payload, or is the map {type: 'session?'}")
         with self._lock:
             self._expire()
             return {"type": "session", "sim": self.keys.sim_id, "scenario": self.plan.scenario.to_dict(),
@@ -89,6 +89,8 @@ class Server:
                     "procs": list(self.plan.procs), "placement": self.placement, **self.timing}
 
     def _control(self, msg: Any) -> dict[str, Any]:
+        if msg is None:
+            raise Refused(WRONG_SHAPE, "an empty request: a control request is a claim or a release")
         if type(msg) is not dict or msg.get("type") != "control" or ("claim" in msg) == ("release" in msg):
             raise Refused(WRONG_SHAPE, "a control request is a map of type 'control' with either 'claim' or 'release'")
         if "claim" in msg:

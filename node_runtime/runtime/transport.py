@@ -68,8 +68,9 @@ class Transport(ABC):
 
         The handler does not run in ``dispatch``: over Zenoh it runs in a Zenoh thread, in-process in
         the requester's ``request`` call. It may thus run while another thread dispatches, so it must
-        guard what it reads and must neither publish nor dispatch. A request that cannot be decoded, an
-        empty one, or one the handler ``Refused``, gets an error reply and is counted in ``rejections``."""
+        guard what it reads and must neither publish nor dispatch. ``message`` is None for a request without
+        payload. A request that cannot be decoded, or that the handler ``Refused``, gets an error reply and is
+        counted in ``rejections``."""
 
     @abstractmethod
     def request(self, key: str, message: Any, timeout: float) -> Any:

@@ -23,7 +23,7 @@ from typing import Any, Literal
 import zenoh
 
 from node_runtime.runtime import codec
-from node_runtime.runtime.rejections import WRONG_SHAPE, Rejections
+from node_runtime.runtime.rejections import Rejections
 from node_runtime.runtime.security import Security
 from node_runtime.runtime.transport import (
     Handler,
@@ -200,9 +200,8 @@ class ZenohTransport(Transport):
 
         def on_query(query: zenoh.Query) -> None:  # answer on our own key: a wildcard query learns who answered
             try:
-                if query.payload is None:
-                    raise Refused(WRONG_SHAPE, "an empty request")
-                answer = codec.encode(handler(codec.decode(query.payload.to_bytes())))
+                message = codec.decode(query.payload.to_bytes()) if query.payload is not None else None
+                answer = codec.encode(handler(message))
             except (codec.CodecError, Refused) as exc:  # plain text: the asker may not read our msgpack either
                 self.rejections.add(key, exc.reason, str(exc))
                 query.reply_err(str(exc).encode())
