@@ -42,20 +42,24 @@ class StallWatch:
     monotonic clock every ``BEAT_S``, which goes on while the process is stopped."""
 
     def __init__(self) -> None:
-        self.longest = 0.0
-        self._last = time.monotonic()
+        self.last = (0.0, 0.0)  # the latest stall: (its length, when it ended)
+        self._beat = time.monotonic()
         self._stop = threading.Event()
         threading.Thread(target=self._run, daemon=True, name="stall-watch").start()
 
     def _run(self) -> None:
         while not self._stop.wait(BEAT_S):
             now = time.monotonic()
-            self.longest = max(self.longest, now - self._last - BEAT_S)
-            self._last = now
+            if (gap := now - self._beat - BEAT_S) > BEAT_S:
+                self.last = (gap, now)
+            self._beat = now
 
-    def stalled_s(self) -> float:
-        """The longest stall so far, the one under way included (the thread may not have run since it ended)."""
-        return max(self.longest, time.monotonic() - self._last - BEAT_S)
+    def stalled_s(self, within: float) -> float:
+        """How long the stall under way, or one that ended less than ``within`` seconds ago, lasted (the thread
+        may not have run since a stall ended); 0 if none."""
+        now = time.monotonic()
+        gap, ended = self.last
+        return max(gap if now - ended < within else 0.0, now - self._beat - BEAT_S)
 
     def stop(self) -> None:
         self._stop.set()
@@ -130,8 +134,10 @@ class Supervisor:
 
     def _unless_we_stalled(self, proc: str) -> None:
         """Raise ``Stalled`` if this process stood still for about a lease: ``proc`` left because of that."""
-        stalled = self.watch.stalled_s() if self.watch is not None else 0.0
-        if self.lease_s is not None and stalled >= LEASE_SLACK * self.lease_s:
+        if self.lease_s is None or self.watch is None:
+            return
+        stalled = self.watch.stalled_s(within=self.lease_s)  # they left during it: we hear of it once we run again
+        if stalled >= LEASE_SLACK * self.lease_s:
             raise Stalled(f"the orchestrator itself stood still for {stalled:.0f} s (stopped, or starved of CPU), "
                           f"about the {self.lease_s:g} s Zenoh lease of its processes: they took it for gone and left "
                           f"({proc} first); none of them failed")
