@@ -9,6 +9,7 @@ import subprocess
 import sys
 import threading
 import time
+from pathlib import Path
 from typing import Any, ClassVar
 
 import psutil
@@ -166,3 +167,23 @@ def drain(q: queue.SimpleQueue[str]) -> list[str]:
     while not q.empty():
         lines.append(q.get())
     return lines
+
+
+DRIVER = """
+import sys, threading
+from orchestrator.session import Simulation
+from node_runtime.runtime.security import Security
+security = Security.from_dir(sys.argv[4]) if len(sys.argv) > 4 else None
+sim = Simulation.attach(sys.argv[1], sys.argv[2], timeout=30, security=security)
+print(sim.attached, flush=True)
+if sys.argv[3] == "hold":
+    threading.Event().wait()  # until it is killed
+sys.exit(0)  # without sim.close(): the clock is never released
+"""
+
+
+def claiming_driver(endpoint: str, sim: str, how: str, security: Path | None = None) -> tuple[Output, str]:
+    """A driver in its own process that claims the clock of a served simulation, then holds it until killed
+    (``how`` "hold") or exits without releasing it ("exit"); and the name it claimed as."""
+    proc = Output(sys.executable, "-c", DRIVER, endpoint, sim, how, *([str(security)] if security else []))
+    return proc, proc.line()

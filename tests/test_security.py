@@ -18,7 +18,7 @@ from node_runtime.runtime.zenoh_bus import ZenohTransport
 from orchestrator.clock import ClockError
 from orchestrator.serve import describe, session_of
 from tests.conftest import ROOT
-from tests.launcher import Launch, served
+from tests.launcher import Launch, claiming_driver, served
 
 
 @pytest.fixture(scope="module")
@@ -49,6 +49,13 @@ def test_identities_decide_who_drives(tmp_path, secrets):
     assert env.sim.clock.tick == 4
     env.close()  # the release carries the driver's token: the clock is free again
     watcher = ZenohTransport.client(endpoint, Security.from_dir(secrets / "monitor"))
+    assert session_of(watcher, Keys(sim), 5.0)["driver"] is None
+
+    # a driver killed while it holds the clock frees it: the claim lasts while its liveliness token does
+    killed, name = claiming_driver(endpoint, sim, "hold", secrets / "driver")
+    assert session_of(watcher, Keys(sim), 5.0)["driver"] == name
+    killed.proc.send_signal(signal.SIGKILL)
+    run.wait_for(f"driver {name} left without releasing the clock")
     assert session_of(watcher, Keys(sim), 5.0)["driver"] is None
     watcher.close()
 

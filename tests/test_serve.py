@@ -8,7 +8,6 @@ from __future__ import annotations
 
 import json
 import signal
-import sys
 
 import numpy as np
 import pytest
@@ -21,7 +20,7 @@ from orchestrator import serve
 from orchestrator.serve import Busy, claim, describe, session_of
 from orchestrator.session import Simulation
 from tests.conftest import model_part, run_summary
-from tests.launcher import Launch, Output, assert_all_gone, served
+from tests.launcher import Launch, assert_all_gone, claiming_driver, served
 
 
 def play(env, seed, steps, actions_seed=0):
@@ -72,36 +71,19 @@ def test_attach_drive_detach_and_stop(tmp_path):
     assert_all_gone(children)
 
 
-DRIVER = """
-import sys, threading
-from orchestrator.session import Simulation
-sim = Simulation.attach(sys.argv[1], sys.argv[2], timeout=30)
-print(sim.attached, flush=True)
-if sys.argv[3] == "hold":
-    threading.Event().wait()  # until it is killed
-sys.exit(0)  # without sim.close(): the clock is never released
-"""
-
-
-def driver(endpoint: str, sim: str, how: str) -> tuple[Output, str]:
-    """A driver in its own process that claims the clock, then holds it until killed or exits without releasing."""
-    proc = Output(sys.executable, "-c", DRIVER, endpoint, sim, how)
-    return proc, proc.line()
-
-
 @pytest.mark.zenoh
 def test_a_claim_ends_with_its_driver(tmp_path):
     """A driver killed (SIGKILL) or exiting without releasing held the clock of a served simulation for good."""
     run = Launch("aot1", "--serve", "--episodes", "1", "--steps", "5", "--out", str(tmp_path))
     run.wait_for("serving until Ctrl-C")
     endpoint, sim = served(run)
-    killed, name = driver(endpoint, sim, "hold")
+    killed, name = claiming_driver(endpoint, sim, "hold")
     assert describe(endpoint, sim)["driver"] == name
     killed.proc.send_signal(signal.SIGKILL)
     run.wait_for(f"driver {name} left without releasing the clock (its liveliness token vanished")
     killed.proc.wait(10)
 
-    left, name = driver(endpoint, sim, "exit")  # the clock is free again: a second driver gets it
+    left, name = claiming_driver(endpoint, sim, "exit")  # the clock is free again: a second driver gets it
     assert left.proc.wait(30) == 0
     run.wait_for(f"driver {name} left without releasing the clock")
     again = Simulation.attach(endpoint, sim)  # and a third

@@ -56,6 +56,7 @@ def test_a_stall_longer_than_the_default_lease_and_the_timeout_costs_nothing(tmp
 
 
 @pytest.mark.zenoh
+@pytest.mark.slow
 def test_a_stall_past_the_lease_names_the_orchestrator(tmp_path):
     """--timeout 1: a 6 s lease; a 9 s stall (under Zenoh's default lease, which would have kept the processes)
     makes them leave, and the error says the orchestrator stood still."""
