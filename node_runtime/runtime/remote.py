@@ -82,9 +82,12 @@ def run_group(endpoint: str, keys: Keys, group: str, timeout: float = 30.0, secu
         except GroupError:
             transport.close()
             raise
+        transport.close()  # what follows announces the simulation's lease (as the orchestrator said it)
+        lease = {"transport/link/tx/lease": round(info.lease_s * 1000)}
         if direct:
+            transport = connect(lambda: ZenohTransport.client(endpoint, security, {**lease, **(settings or {})}),
+                                endpoint)
             return run_processes(transport, info, endpoint, keys, security, settings)
-        transport.close()  # this host's router, configured from what the orchestrator said, takes over
         with tempfile.TemporaryDirectory(prefix="zenohedge-node-") as folder:  # mode 0700: this user's only
             local = f"{LOCAL_LINK}/{folder}/router.sock"
             rules = {}
@@ -92,7 +95,8 @@ def run_group(endpoint: str, keys: Keys, group: str, timeout: float = 30.0, secu
                 plan = ProcessLayout(info.scenario, info.layout)
                 rules = {"access_control": access_control(keys, plan, info.placement, on_host=True)}
             router = connect(lambda: ZenohTransport.router(local, [endpoint], host_login(security, Path(folder)),
-                                                           {**FAIL_FAST, **rules, **(settings or {})}), endpoint)
+                                                           {**FAIL_FAST, **lease, **rules, **(settings or {})}),
+                             endpoint)
             return run_processes(router, info, local, keys, security, settings, aggregate)
     except GroupError as exc:
         print(f"zenohedge-node: {exc}", file=sys.stderr)
