@@ -147,11 +147,11 @@ def cmd_launch(args: argparse.Namespace) -> int:
             sim.metrics.stream(where)  # ticks.csv and nodes.csv grow as the episode runs
             try:
                 summary = run_episode(sim, ticks, None if seed is None else seed + episode, args, console)
+                summary["run"]["total_wall_s"] = round(time.perf_counter() - t0, 3)
+                sim.metrics.write(where, summary)
             except (KeyboardInterrupt, Terminated, ClockError, ConservationError) as exc:
                 keep_partial(sim, where, exc, t0, console)
                 raise
-            summary["run"]["total_wall_s"] = round(time.perf_counter() - t0, 3)
-            sim.metrics.write(where, summary)
             if args.json:
                 print(json.dumps(summary, indent=2))
             else:
