@@ -106,7 +106,8 @@ def measure(n: int, procs: int, hosts: int, ticks: int, work: Path, aggregate: b
     t0 = time.perf_counter()
     with open(log, "w") as err:
         launch = subprocess.Popen([sys.executable, "-m", "orchestrator.cli", "launch", str(work / "scenario.yaml"),
-                                   "--layout", f"groups:{procs}", "--listen", f"0.0.0.0:{port}", "--sim-id", SIM,
+                                   "--layout", f"groups:{procs}", "--listen", f"0.0.0.0:{port}", "--insecure",
+                                   "--sim-id", SIM,
                                    "--placement", str(work / "placement.yaml"), "--steps", str(ticks),
                                    "--timeout", "600", "--out", str(work / f"run-{n}")],
                                   stdout=subprocess.DEVNULL, stderr=err, cwd=ROOT)

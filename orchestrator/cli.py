@@ -41,6 +41,7 @@ from orchestrator.clock import ClockError, ProcessFailed
 from orchestrator.metrics import SUMMARY, ConservationError, TickReport, unfinished, write_summary
 from orchestrator.placement import load_placement
 from orchestrator.scenario import ScenarioError, costs, load_scenario
+from orchestrator.serve import is_loopback, reachable
 from orchestrator.session import (
     RemoteHosts,
     RouterSettings,
@@ -105,6 +106,10 @@ def cmd_launch(args: argparse.Namespace) -> int:
             raise UsageError("--placement needs --transport zenoh")
         placement = load_placement(args.placement, ProcessLayout(scenario, layout))
     security, zenoh_settings = cli_options.security_options(args)
+    if security is None and not is_loopback(host) and not args.insecure:
+        raise UsageError(f"--listen {args.listen}: without --security anyone who reaches this host can drive the "
+                         "simulation and pose as its processes; add --security DIR (deploy/README.md), or "
+                         "--insecure on a network you trust")
     if security is not None and (clash := sorted(set(placement or {}) & set(access.IDENTITIES))):
         raise UsageError(f"--placement: group {clash[0]!r} is reserved with --security (identities "
                          f"{', '.join(access.IDENTITIES)} exist already); rename the group")
@@ -119,8 +124,7 @@ def cmd_launch(args: argparse.Namespace) -> int:
         console.print(choice.note, markup=False, soft_wrap=True)
 
     def waiting(groups: dict[str, list[str]], endpoint: str) -> None:
-        proto, address = endpoint.split("/", 1)
-        where = f"{proto}/<this host's address>:{address.rsplit(':', 1)[1]}" if host in ("0.0.0.0", "::") else endpoint
+        where = reachable(endpoint)[0]
         console.print(f"waiting for {sum(map(len, groups.values()))} processes on other hosts; run there:")
         for group in groups:
             login = f" --security <dir of {group}>" if security is not None else ""
@@ -136,12 +140,18 @@ def cmd_launch(args: argparse.Namespace) -> int:
                             router=router, remote=remote) as sim, \
             listed(sim, console):
         if args.transport == "zenoh":
-            console.print(f"router {sim.endpoint}, simulation id [bold]{sim.keys.sim_id}[/], "
+            addresses = reachable(sim.endpoint)
+            also = f" (reached at {', '.join(addresses)})" if addresses != [sim.endpoint] else ""
+            console.print(f"router {sim.endpoint}{also}, simulation id [bold]{sim.keys.sim_id}[/], "
                           f"{len(sim.plan.procs)} processes ready in {sim.startup_s:.2f} s")
+            if security is None and not is_loopback(host):  # said even with --quiet
+                fail(f"warning: --insecure: plain TCP on {host}, no TLS, no login: whoever reaches this host can "
+                     "drive the simulation")
         if args.serve:
+            at = reachable(sim.endpoint)[0]
             console.print(f"serving: watch it with `orchestrator monitor` (from another host: `orchestrator monitor "
-                          f"--connect {sim.endpoint} --sim {sim.keys.sim_id}`); attach an environment with "
-                          f"ZenohEdgeEnv(connect=\"{sim.endpoint}\", sim_id=\"{sim.keys.sim_id}\")", markup=False)
+                          f"--connect {at} --sim {sim.keys.sim_id}`); attach an environment with "
+                          f"ZenohEdgeEnv(connect=\"{at}\", sim_id=\"{sim.keys.sim_id}\")", markup=False)
         for episode in range(args.episodes):
             where = out if args.episodes == 1 else out / f"episode-{episode}"
             sim.metrics.stream(where)  # ticks.csv and nodes.csv grow as the episode runs
@@ -410,7 +420,10 @@ def build_parser() -> argparse.ArgumentParser:
                         "attach from other processes or hosts until Ctrl-C")
     p.add_argument("--listen", metavar="HOST:PORT",
                    help="where the router listens (default 127.0.0.1 on a free port); e.g. 0.0.0.0:7447 to serve "
-                        "other hosts")
+                        "other hosts, which needs --security or --insecure")
+    p.add_argument("--insecure", action="store_true",
+                   help="let --listen on an address other hosts reach go without --security: plain TCP, no TLS, no "
+                        "login, so that anyone who reaches the port can drive the simulation (a trusted network only)")
     p.add_argument("--placement", metavar="FILE",
                    help="run the nodes listed in FILE's groups on other hosts with zenohedge-node (see deploy/); "
                         "use with --listen")

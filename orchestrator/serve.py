@@ -19,10 +19,14 @@ processes can always tell late mail of an old episode from the current one.
 from __future__ import annotations
 
 import contextlib
+import ipaddress
 import secrets
+import socket
 import threading
 from collections.abc import Callable, Iterator
 from typing import Any
+
+import psutil
 
 from node_runtime.runtime.keys import DEFAULT_PREFIX, Keys
 from node_runtime.runtime.layout import ProcessLayout
@@ -32,6 +36,32 @@ from node_runtime.runtime.zenoh_bus import ZenohTransport
 from orchestrator.clock import Clock, ClockError
 
 DRIVER_PREFIX = "driver/"
+WILDCARDS = {"0.0.0.0": socket.AF_INET, "::": socket.AF_INET6, "[::]": socket.AF_INET6}
+
+
+def is_loopback(host: str) -> bool:
+    """Whether a listener on ``host`` can be reached from this machine only."""
+    if host == "localhost":
+        return True
+    try:
+        return ipaddress.ip_address(host.strip("[]")).is_loopback
+    except ValueError:  # a host name: it may name any interface
+        return False
+
+
+def reachable(endpoint: str) -> list[str]:
+    """Where other processes reach a router listening at ``endpoint``: the endpoint itself, or for one on every
+    interface (0.0.0.0, ::), which no client can connect to, this host's addresses of that family (but
+    link-local ones, which need an interface named), loopback last."""
+    proto, _, address = endpoint.partition("/")
+    host, _, port = address.rpartition(":")
+    family = WILDCARDS.get(host)
+    if family is None:
+        return [endpoint]
+    hosts = {a.address for addrs in psutil.net_if_addrs().values() for a in addrs
+             if a.family == family and not ipaddress.ip_address(a.address.split("%")[0]).is_link_local}
+    ordered = sorted(hosts, key=lambda h: (is_loopback(h), ipaddress.ip_address(h)))
+    return [f"{proto}/{h if family == socket.AF_INET else f'[{h}]'}:{port}" for h in ordered] or [endpoint]
 
 
 class Busy(ClockError):

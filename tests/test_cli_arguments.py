@@ -179,3 +179,25 @@ def test_the_help_names_every_bundled_scenario(command, capsys):
     names = bundled_scenarios()
     assert len(names) >= 31 and "examples/minimal" in names
     assert not set(names) - words
+
+
+@pytest.mark.parametrize("listen", ["0.0.0.0:7447", "[::]:7447", "10.0.0.1:7447", "myhost:7447"])
+def test_listening_beyond_this_host_without_security_needs_insecure(listen, tmp_path, capsys):
+    """It started silently, plain TCP for anyone who reaches the port; now one line and nothing started."""
+    out = tmp_path / "out"
+    assert main(["launch", "aot1", "--listen", listen, "--serve", "-q", "--out", str(out)]) == 2
+    assert capsys.readouterr().err.strip() == (
+        f"orchestrator: --listen {listen}: without --security anyone who reaches this host can drive the simulation "
+        "and pose as its processes; add --security DIR (deploy/README.md), or --insecure on a network you trust")
+    assert not out.exists()
+
+
+def test_loopback_needs_neither_security_nor_insecure():
+    from orchestrator.serve import is_loopback, reachable
+
+    assert is_loopback("127.0.0.1") and is_loopback("[::1]") and is_loopback("localhost") and is_loopback("127.3.2.1")
+    assert not is_loopback("0.0.0.0") and not is_loopback("::") and not is_loopback("192.168.1.4")
+    assert reachable("tcp/127.0.0.1:7447") == ["tcp/127.0.0.1:7447"]
+    assert reachable("tls/10.0.0.1:7447") == ["tls/10.0.0.1:7447"]
+    assert reachable("tcp/0.0.0.0:7447")[-1] == "tcp/127.0.0.1:7447"
+    assert reachable("tcp/[::]:7447")[-1] in ("tcp/[::1]:7447", "tcp/[::]:7447")  # [::] where IPv6 is off
