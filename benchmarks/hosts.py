@@ -6,7 +6,7 @@ processes run on H "hosts", each behind the router `zenohedge-node` runs there.
 Needs root and iproute2 (deploy/netns.sh makes the namespaces and removes them at the end). Each N is
 benchmarks/scale.py's random-geometric network, written to a scenario file, with the layout groups:K;
 host h runs processes group-(h·K/H) … of it, placed by a placement file, and the orchestrator runs none.
-The orchestrator is the real CLI (`orchestrator launch --listen 0.0.0.0:PORT --placement …`), each host a
+The orchestrator is the real CLI (`orchestrator launch --listen 0.0.0.0:PORT --insecure --placement …`), each host a
 real `zenohedge-node` inside its namespace; the figures are the run's own (summary.json: start-up until
 every process is ready, ticks/s) and the peak resident memory summed over every process. All hosts
 share this machine's cores, so this measures the protocol and the routers at N, not H machines' speed.
@@ -106,7 +106,8 @@ def measure(n: int, procs: int, hosts: int, ticks: int, work: Path, aggregate: b
     t0 = time.perf_counter()
     with open(log, "w") as err:
         launch = subprocess.Popen([sys.executable, "-m", "orchestrator.cli", "launch", str(work / "scenario.yaml"),
-                                   "--layout", f"groups:{procs}", "--listen", f"0.0.0.0:{port}", "--sim-id", SIM,
+                                   "--layout", f"groups:{procs}", "--listen", f"0.0.0.0:{port}", "--insecure",
+                                   "--sim-id", SIM,
                                    "--placement", str(work / "placement.yaml"), "--steps", str(ticks),
                                    "--timeout", "600", "--out", str(work / f"run-{n}")],
                                   stdout=subprocess.DEVNULL, stderr=err, cwd=ROOT)

@@ -16,7 +16,7 @@ from typing import Any
 from env.observations import DictObservation, ObservationBuilder
 from env.overrides import ScenarioOverrides
 from node_runtime.model.rng import MAX_SEED
-from node_runtime.model.spec import Scenario
+from node_runtime.model.spec import Scenario, episode_too_long
 from node_runtime.runtime.layout import Layout, check_layout
 from node_runtime.runtime.security import Security
 from orchestrator.scenario import load_scenario
@@ -50,6 +50,8 @@ class EpisodeSettings:
             object.__setattr__(self, "agents", tuple(self.agents))
 
     def steps(self, sc: Scenario) -> int:
+        if self.max_steps and (why := episode_too_long(self.max_steps, sc.decision_interval)):
+            raise ValueError(f"max_steps={self.max_steps}: {why}")
         return self.max_steps or sc.steps
 
     def nodes(self, sc: Scenario) -> list[str]:

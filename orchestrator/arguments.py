@@ -9,6 +9,7 @@ from __future__ import annotations
 import argparse
 
 from node_runtime.model.policies import POLICIES, Policy
+from node_runtime.model.spec import MAX_EPISODE_TICKS
 from node_runtime.runtime.cli_options import builtin_or_import, integer, number
 from node_runtime.runtime.layout import check_layout
 
@@ -24,5 +25,6 @@ def layout_name(text: str) -> str:
 # a built-in node-side policy, or a user's Policy subclass as module:Class
 POLICY = builtin_or_import(sorted(POLICIES), Policy)
 COUNT = integer(1)
+STEPS = integer(1, MAX_EPISODE_TICKS)  # an episode's length (node_runtime.model.spec)
 POSITIVE = number(0, strict=True)
 NON_NEGATIVE = number(0, strict=False)

@@ -30,16 +30,18 @@ from rich.table import Table
 
 from node_runtime.model.policies import POLICIES
 from node_runtime.model.rng import MAX_SEED
+from node_runtime.model.spec import episode_too_long
 from node_runtime.runtime import access, cli_options
 from node_runtime.runtime.keys import new_sim_id
 from node_runtime.runtime.layout import DEFAULT_LAYOUT_HELP, LAYOUT_HELP, Choice, ProcessLayout, layout_for
 from node_runtime.runtime.security import SecurityError
 from orchestrator import local_sims
-from orchestrator.arguments import COUNT, NON_NEGATIVE, POLICY, POSITIVE, integer, layout_name
+from orchestrator.arguments import COUNT, NON_NEGATIVE, POLICY, POSITIVE, STEPS, integer, layout_name
 from orchestrator.clock import ClockError, ProcessFailed
-from orchestrator.metrics import ConservationError, TickReport
+from orchestrator.metrics import SUMMARY, ConservationError, TickReport, unfinished, write_summary
 from orchestrator.placement import load_placement
 from orchestrator.scenario import ScenarioError, costs, load_scenario
+from orchestrator.serve import is_loopback, reachable
 from orchestrator.session import (
     RemoteHosts,
     RouterSettings,
@@ -87,6 +89,8 @@ def run_dir(name: str) -> Path:
 
 def cmd_launch(args: argparse.Namespace) -> int:
     scenario = load_scenario(args.scenario)
+    if args.steps and (why := episode_too_long(args.steps, scenario.decision_interval)):
+        raise UsageError(f"--steps {args.steps}: {why} (decision_interval {scenario.decision_interval})")
     ticks = (args.steps or scenario.steps) * scenario.decision_interval
     out = Path(args.out) if args.out else run_dir(scenario.name)
     if args.serve and args.transport != "zenoh":
@@ -102,6 +106,10 @@ def cmd_launch(args: argparse.Namespace) -> int:
             raise UsageError("--placement needs --transport zenoh")
         placement = load_placement(args.placement, ProcessLayout(scenario, layout))
     security, zenoh_settings = cli_options.security_options(args)
+    if security is None and not is_loopback(host) and not args.insecure:
+        raise UsageError(f"--listen {args.listen}: without --security anyone who reaches this host can drive the "
+                         "simulation and pose as its processes; add --security DIR (deploy/README.md), or "
+                         "--insecure on a network you trust")
     if security is not None and (clash := sorted(set(placement or {}) & set(access.IDENTITIES))):
         raise UsageError(f"--placement: group {clash[0]!r} is reserved with --security (identities "
                          f"{', '.join(access.IDENTITIES)} exist already); rename the group")
@@ -116,8 +124,7 @@ def cmd_launch(args: argparse.Namespace) -> int:
         console.print(choice.note, markup=False, soft_wrap=True)
 
     def waiting(groups: dict[str, list[str]], endpoint: str) -> None:
-        proto, address = endpoint.split("/", 1)
-        where = f"{proto}/<this host's address>:{address.rsplit(':', 1)[1]}" if host in ("0.0.0.0", "::") else endpoint
+        where = reachable(endpoint)[0]
         console.print(f"waiting for {sum(map(len, groups.values()))} processes on other hosts; run there:")
         for group in groups:
             login = f" --security <dir of {group}>" if security is not None else ""
@@ -127,27 +134,34 @@ def cmd_launch(args: argparse.Namespace) -> int:
                             zenoh_settings=zenoh_settings)
     remote = None if placement is None else RemoteHosts(placement=placement, on_waiting=waiting)
     t0 = time.perf_counter()
-    with output_dir(out, needed=args.episodes > 0), \
+    with output_dir(out if args.episodes == 1 else out / "episode-0", needed=args.episodes > 0,
+                    scenario=scenario.name), \
             Simulation.open(scenario, args.transport, layout=layout, timeout=args.timeout, sim_id=sim_id,
                             router=router, remote=remote) as sim, \
             listed(sim, console):
         if args.transport == "zenoh":
-            console.print(f"router {sim.endpoint}, simulation id [bold]{sim.keys.sim_id}[/], "
+            addresses = reachable(sim.endpoint)
+            also = f" (reached at {', '.join(addresses)})" if addresses != [sim.endpoint] else ""
+            console.print(f"router {sim.endpoint}{also}, simulation id [bold]{sim.keys.sim_id}[/], "
                           f"{len(sim.plan.procs)} processes ready in {sim.startup_s:.2f} s")
+            if security is None and not is_loopback(host):  # said even with --quiet
+                fail(f"warning: --insecure: plain TCP on {host}, no TLS, no login: whoever reaches this host can "
+                     "drive the simulation")
         if args.serve:
+            at = reachable(sim.endpoint)[0]
             console.print(f"serving: watch it with `orchestrator monitor` (from another host: `orchestrator monitor "
-                          f"--connect {sim.endpoint} --sim {sim.keys.sim_id}`); attach an environment with "
-                          f"ZenohEdgeEnv(connect=\"{sim.endpoint}\", sim_id=\"{sim.keys.sim_id}\")", markup=False)
+                          f"--connect {at} --sim {sim.keys.sim_id}`); attach an environment with "
+                          f"ZenohEdgeEnv(connect=\"{at}\", sim_id=\"{sim.keys.sim_id}\")", markup=False)
         for episode in range(args.episodes):
             where = out if args.episodes == 1 else out / f"episode-{episode}"
             sim.metrics.stream(where)  # ticks.csv and nodes.csv grow as the episode runs
             try:
                 summary = run_episode(sim, ticks, None if seed is None else seed + episode, args, console)
+                summary["run"]["total_wall_s"] = round(time.perf_counter() - t0, 3)
+                sim.metrics.write(where, summary)
             except (KeyboardInterrupt, Terminated, ClockError, ConservationError) as exc:
                 keep_partial(sim, where, exc, t0, console)
                 raise
-            summary["run"]["total_wall_s"] = round(time.perf_counter() - t0, 3)
-            sim.metrics.write(where, summary)
             if args.json:
                 print(json.dumps(summary, indent=2))
             else:
@@ -175,24 +189,37 @@ def record_serving(sim: Simulation, path: Path) -> None:
 
 
 @contextlib.contextmanager
-def output_dir(out: Path, needed: bool) -> Iterator[None]:
-    """Make ``out`` before any process starts, so that a path that cannot be one is a line, not a traceback
-    after the start; and remove it again if the run fails before writing anything there."""
+def output_dir(first: Path, needed: bool, scenario: str) -> Iterator[None]:
+    """Make the first episode's directory and write its incomplete summary.json there before any process
+    starts, so that a path that cannot be one, or cannot be written, is a line, not a traceback after the
+    start; and remove them again if the run fails before an episode starts."""
     if not needed:
         yield
         return
-    existed = out.exists()
+    made = [p for p in (first, *first.parents) if not p.exists()]
+    placeholder = unfinished(scenario)
     try:
-        out.mkdir(parents=True, exist_ok=True)
+        first.mkdir(parents=True, exist_ok=True)
+        write_summary(first, placeholder)
     except OSError as exc:
-        raise UsageError(f"--out {out}: cannot make the output directory there: {exc.strerror}") from None
+        _remove_empty(made)
+        where = exc.filename2 or exc.filename or first  # a rename names the file it replaces second
+        raise UsageError(f"--out {where}: cannot write the results there: {exc.strerror}") from None
     try:
         yield
     except BaseException:
-        if not existed:
-            with contextlib.suppress(OSError):  # only if empty: partial results stay
-                out.rmdir()
+        with contextlib.suppress(OSError, ValueError):
+            if made and json.loads((first / SUMMARY).read_text()) == placeholder:  # no episode started
+                (first / SUMMARY).unlink()
+        _remove_empty(made)
         raise
+
+
+def _remove_empty(made: list[Path]) -> None:
+    """The directories made for a run, deepest first, those that are empty: partial results stay."""
+    for path in made:
+        with contextlib.suppress(OSError):
+            path.rmdir()
 
 
 INTERRUPTIONS = {KeyboardInterrupt: "interrupted (Ctrl-C)", Terminated: "terminated (SIGTERM)"}
@@ -202,11 +229,12 @@ def keep_partial(sim: Simulation, where: Path, exc: BaseException, t0: float, co
     """Write what an episode that did not finish measured: summary.json marked ``incomplete`` (why, and
     the last tick recorded) and the CSV rows so far. With no tick recorded, summary.json alone says why."""
     reason = INTERRUPTIONS.get(type(exc)) or f"{type(exc).__name__}: {exc}"
+    sim.metrics.settle()
     if not sim.metrics.n_ticks:
+        sim.metrics.close_stream()
         where.mkdir(parents=True, exist_ok=True)
-        (where / "summary.json").write_text(json.dumps({
-            "scenario": sim.scenario.name, "ticks": 0, "incomplete": {"reason": reason, "last_tick": None}},
-            indent=2) + "\n")
+        write_summary(where, {"scenario": sim.scenario.name, "ticks": 0,
+                              "incomplete": {"reason": reason, "last_tick": None}})
         console.print(f"no tick was recorded: {where}/summary.json says why", markup=False)
         return
     summary = sim.summary()
@@ -381,7 +409,8 @@ def build_parser() -> argparse.ArgumentParser:
                        description="Run one episode of a scenario with node-side policies, show progress, print a "
                                    "summary and write summary.json, ticks.csv and nodes.csv.")
     p.add_argument("scenario", help="scenario YAML file, or a bundled name such as aot2")
-    p.add_argument("--steps", type=COUNT, help="decision steps to run (default: the scenario's simulation.steps)")
+    p.add_argument("--steps", type=STEPS, help="decision steps to run, at most 2^31 ticks in all (default: the "
+                                              "scenario's simulation.steps)")
     p.add_argument("--seed", type=integer(0, MAX_SEED),
                    help="random seed, from 0 to 2^62 - 1 (default: the scenario's simulation.seed)")
     p.add_argument("--transport", choices=("zenoh", "inproc"), default="zenoh",
@@ -404,7 +433,10 @@ def build_parser() -> argparse.ArgumentParser:
                         "attach from other processes or hosts until Ctrl-C")
     p.add_argument("--listen", metavar="HOST:PORT",
                    help="where the router listens (default 127.0.0.1 on a free port); e.g. 0.0.0.0:7447 to serve "
-                        "other hosts")
+                        "other hosts, which needs --security or --insecure")
+    p.add_argument("--insecure", action="store_true",
+                   help="let --listen on an address other hosts reach go without --security: plain TCP, no TLS, no "
+                        "login, so that anyone who reaches the port can drive the simulation (a trusted network only)")
     p.add_argument("--placement", metavar="FILE",
                    help="run the nodes listed in FILE's groups on other hosts with zenohedge-node (see deploy/); "
                         "use with --listen")

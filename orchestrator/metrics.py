@@ -17,12 +17,14 @@ sum plus ``penalty_s`` for every task it generated that has not completed (docs/
 from __future__ import annotations
 
 import csv
+import io
 import json
-from collections.abc import Callable
+import os
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from functools import cache
 from pathlib import Path
-from typing import IO, Any
+from typing import Any
 
 import numpy as np
 
@@ -179,6 +181,90 @@ def bus_record(report: TickReport, metrics: Metrics, sim_id: str, episode: int) 
 
 
 STREAM_BLOCK = 256  # ticks gathered before their rows are written: vectorised, and memory stays bounded
+SUMMARY = "summary.json"
+# what summary.json says from the start of a streamed episode until its results replace it: only a run
+# killed outright (kill -9, power lost) leaves it
+UNFINISHED = "unknown: the run stopped before writing its results (killed?)"
+
+
+def write_summary(out_dir: Path, summary: dict[str, Any]) -> None:
+    """summary.json, whole or not at all: written beside it, then renamed over it, so that a reader or a
+    crash never finds half a file."""
+    partial = out_dir / f".{SUMMARY}.tmp"
+    try:
+        partial.write_text(json.dumps(summary, indent=2) + "\n")
+        partial.replace(out_dir / SUMMARY)
+    finally:
+        partial.unlink(missing_ok=True)
+
+
+def unfinished(scenario: str) -> dict[str, Any]:
+    """The summary.json of an episode from its start: incomplete, until the results replace it."""
+    return {"scenario": scenario, "ticks": None, "incomplete": {"reason": UNFINISHED, "last_tick": None}}
+
+
+@dataclass(frozen=True)
+class _Block:
+    """Rows given to a table: their CSV bytes, the file's length once they are on disk, their last tick."""
+
+    data: bytes
+    end: int
+    through: int
+
+
+class _Table:
+    """A CSV file that grows by blocks of rows, each row once whatever interrupts the writing (Ctrl-C, an
+    error, at any point): a block is rendered in memory, then taken with one assignment, and what of it is
+    on disk is read from the file's length, not from a flag set after the write, so that completing it
+    later never repeats a row nor loses one."""
+
+    def __init__(self, path: Path, header: list[str]) -> None:
+        self.file = path.open("wb", buffering=0)  # unbuffered: the file's length is what was written
+        data = _csv([header])
+        self.block = _Block(data, len(data), -1)
+        self.complete()
+
+    def add(self, rows: list[list[Any]]) -> None:
+        """``rows``, each starting with its tick, but those of ticks the table holds already."""
+        self.complete()
+        last = self.block
+        fresh = [row for row in rows if row[0] > last.through]
+        if fresh:
+            data = _csv(fresh)
+            self.block = _Block(data, last.end + len(data), fresh[-1][0])
+            self.complete()
+
+    def complete(self) -> None:
+        """Write what of the last block is not on disk yet."""
+        block = self.block
+        while not self.file.closed and (missing := block.end - os.fstat(self.file.fileno()).st_size) > 0:
+            self.file.write(block.data[len(block.data) - missing:])
+
+    def close(self) -> None:
+        self.complete()
+        self.file.close()
+
+
+def _csv(rows: Sequence[Sequence[Any]]) -> bytes:
+    text = io.StringIO()
+    csv.writer(text).writerows(rows)
+    return text.getvalue().encode()
+
+
+@dataclass(frozen=True)
+class _Recording:
+    """A tick being made part of the episode (``Metrics.add``), and the lengths of what it extends."""
+
+    tick: int
+    totals: np.ndarray
+    nodes: np.ndarray
+    rts: list[float]
+    rts_by_node: dict[str, list[float]]
+    means: dict[str, Any]
+    n_ticks: int
+    rows: int  # ticks in the rows not written yet, before this one
+    times: int  # response times before it
+    node_times: dict[str, int]  # response times per node before it
 
 
 @dataclass
@@ -198,6 +284,11 @@ class _Rows:
         self.nodes.append(nodes)
         self.means.append(float(np.mean(rts)) if rts else "")
 
+    def keep(self, n: int) -> None:
+        """Keep the first ``n`` ticks."""
+        for column in (self.ticks, self.totals, self.nodes, self.means):
+            del column[n:]
+
 
 class Metrics:
     """Sums the processes' counters every tick and keeps what the episode's results need.
@@ -206,6 +297,10 @@ class Metrics:
     million. ticks.csv and nodes.csv are either streamed to files as the ticks come (``stream``: the
     CLI's case, so a long run's memory stays flat and an interrupted one keeps its rows) or, with
     ``history``, rebuilt at the end from the per-tick arrays kept in memory (tests, short runs).
+
+    An interrupt at any point (Ctrl-C raises where it lands) leaves the results whole: a tick is recorded
+    by steps that can be run again (``settle``), and the tables write each row once (``_Table``), so
+    that the summary and the tables of an interrupted episode agree tick for tick.
     """
 
     def __init__(self, plan: ProcessLayout, history: bool = True) -> None:
@@ -221,8 +316,8 @@ class Metrics:
         self.penalty = penalty_s(sc)
         self.history = history
         self._stream_to: Path | None = None  # where each episode's tables are streamed (``stream``)
-        self._files: list[IO[str]] = []  # ticks.csv, nodes.csv while they are open
-        self._writers: list[Any] = []  # their csv writers
+        self._tables: list[_Table] = []  # ticks.csv, nodes.csv while they are open
+        self._recording: _Recording | None = None
         self.reset()
 
     def reset(self) -> None:
@@ -238,39 +333,40 @@ class Metrics:
         self._matrix = np.zeros((len(self.roles), len(FIELDS)))
         self._landing: dict[int, list[tuple[int, int]]] = {}  # arrival tick -> [(role, tasks and results)]
         self._drift: dict[int, tuple] = {}  # coasting role -> what each tick adds to its stats (Done.drift)
+        self._recording = None
         if self._stream_to is not None:
             self._open_tables(self._stream_to)
+            write_summary(self._stream_to, unfinished(self.scenario.name))
 
     # ----- the per-tick tables -----
 
     def stream(self, out_dir: Path) -> None:
-        """From the next reset on, write ticks.csv and nodes.csv into ``out_dir`` as the ticks come. The
-        stream replaces the in-memory history, which is then no longer kept."""
+        """From the next reset on, write ticks.csv and nodes.csv into ``out_dir`` as the ticks come, and a
+        summary.json that says the episode is incomplete until ``write`` replaces it. The stream replaces the
+        in-memory history, which is then no longer kept."""
         self._stream_to = out_dir
         self.history = False
 
     def _open_tables(self, out_dir: Path) -> None:
         out_dir.mkdir(parents=True, exist_ok=True)
         for name, header in (("ticks.csv", self.tick_header()), ("nodes.csv", self.node_header())):
-            fh = (out_dir / name).open("w", newline="")
-            self._files.append(fh)
-            self._writers.append(csv.writer(fh))
-            self._writers[-1].writerow(header)
+            self._tables.append(_Table(out_dir / name, header))
 
     def close_stream(self) -> None:
-        """Write the rows not written yet and close the files."""
-        if self._files:
+        """Write the rows not written yet and close the files (again after an interrupt: nothing is repeated)."""
+        if self._tables:
+            self.settle()
             self._flush()
-        for fh in self._files:
-            fh.close()
-        self._files, self._writers = [], []
+        for table in self._tables:
+            table.close()
+        self._tables = []
 
     def _flush(self) -> None:
         rows = self._rows
         if rows.ticks:
-            ticks, nodes = self._writers
-            ticks.writerows(self._tick_rows(rows))
-            nodes.writerows(self._node_rows(rows))
+            ticks, nodes = self._tables
+            ticks.add(self._tick_rows(rows))
+            nodes.add(self._node_rows(rows))
             if not self.history:  # streamed rows leave memory; a history keeps them for tick_table()
                 self._rows = _Rows(rows.totals[-1], rows.nodes[-1])
 
@@ -304,11 +400,12 @@ class Metrics:
         for role, n in landing.pop(tick, ()):  # delivered in this tick: held or accounted by the receiver
             m[role, IN_FLIGHT] -= n
         ledgers: dict[int, list[tuple[int, int, float]]] = {}
+        rts_by_node: dict[str, list[float]] = {}
         for d in dones:  # completions, in canonical role order within each process
             for role, times in d.response_times.items():
                 rts.extend(times)
                 m[role, RT_SUM] += sum(times)
-                self.rt_by_node.setdefault(role_node(self.roles[role]), []).extend(times)
+                rts_by_node.setdefault(role_node(self.roles[role]), []).extend(times)
             ledgers.update(d.ledger)
         m[:, PENALISED] = m[:, RT_SUM] + self.penalty * (m[:, GENERATED] - m[:, COMPLETED])
         totals = m.sum(axis=0)
@@ -316,17 +413,38 @@ class Metrics:
         self.check(tick, totals)
         ledger = [entry for role in sorted(ledgers) for entry in ledgers[role]] if ledgers else []
         report = TickReport(tick, totals, totals - self.last_totals, nodes, nodes - self.last_nodes, rts, ledger)
-        if self.history or self._files:
-            self._rows.add(tick, totals, nodes, rts)
-            if self._files and len(self._rows.ticks) >= STREAM_BLOCK:
-                self._flush()
+        means = {}
         for metric in EPISODE_MEANS:
             network, per_node = self._mean_sums.get(metric.name, (0.0, 0.0))
-            self._mean_sums[metric.name] = (network + total(metric, totals), per_node + total(metric, nodes))
-        self.last_totals, self.last_nodes, self.last_tick = totals, nodes, tick
-        self.n_ticks += 1
-        self.response_times.extend(rts)
+            means[metric.name] = (network + total(metric, totals), per_node + total(metric, nodes))
+        self._recording = _Recording(tick, totals, nodes, rts, rts_by_node, means, self.n_ticks + 1,
+                                     len(self._rows.ticks), len(self.response_times),
+                                     {node: len(self.rt_by_node.get(node, ())) for node in rts_by_node})
+        self.settle()
+        if self._tables and len(self._rows.ticks) >= STREAM_BLOCK:
+            self._flush()
         return report
+
+    def settle(self) -> None:
+        """Make the tick being recorded part of the episode (again, if an interrupt cut it short). Every
+        step sets a value, or cuts a list back to its length before the tick and extends it, so that the
+        whole may run again after an interrupt anywhere in it and the tick is then recorded once."""
+        r = self._recording
+        if r is None:
+            return
+        if self.history or self._tables:
+            self._rows.keep(r.rows)
+            self._rows.add(r.tick, r.totals, r.nodes, r.rts)
+        del self.response_times[r.times:]
+        self.response_times.extend(r.rts)
+        for node, times in r.rts_by_node.items():
+            kept = self.rt_by_node.setdefault(node, [])
+            del kept[r.node_times[node]:]
+            kept.extend(times)
+        self._mean_sums = r.means
+        self.last_totals, self.last_nodes, self.last_tick = r.totals, r.nodes, r.tick
+        self.n_ticks = r.n_ticks
+        self._recording = None
 
     def check(self, tick: int, t: np.ndarray) -> None:
         generated = t[F["generated"]]
@@ -340,6 +458,7 @@ class Metrics:
     # ----- episode results -----
 
     def summary(self) -> dict[str, Any]:
+        self.settle()
         if not self.n_ticks:
             raise RuntimeError("no tick recorded")
         sc = self.scenario
@@ -426,12 +545,13 @@ class Metrics:
         return out
 
     def write(self, out_dir: Path, summary: dict[str, Any]) -> None:
-        """summary.json, and the tables: a streamed episode's are completed and closed (they are in the
-        stream's directory, which is ``out_dir``); otherwise they are written from the history."""
+        """The tables, then summary.json over the stream's incomplete one: a streamed episode's tables are
+        completed and closed (they are in the stream's directory, which is ``out_dir``); otherwise they are
+        written from the history."""
         out_dir.mkdir(parents=True, exist_ok=True)
-        (out_dir / "summary.json").write_text(json.dumps(summary, indent=2) + "\n")
-        if not self._files:
+        if not self._tables:
             if not self.history:
                 raise RuntimeError("no per-tick history was kept: stream the tables into the output directory")
             self._open_tables(out_dir)  # the history is one block of rows, written like the stream's
         self.close_stream()
+        write_summary(out_dir, summary)

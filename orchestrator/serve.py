@@ -25,12 +25,16 @@ every refused claim or release is counted and logged (node_runtime/runtime/rejec
 from __future__ import annotations
 
 import contextlib
+import ipaddress
 import logging
 import secrets
+import socket
 import threading
 import time
 from collections.abc import Callable, Iterator
 from typing import Any
+
+import psutil
 
 from node_runtime.runtime.keys import CHUNK, DEFAULT_PREFIX, Keys
 from node_runtime.runtime.layout import ProcessLayout
@@ -43,6 +47,32 @@ from orchestrator.clock import Clock, ClockError
 DRIVER_PREFIX = "driver/"
 TOKEN_GRACE_S = 5.0  # how long a claim holds before its driver's liveliness token is seen (it is declared first)
 log = logging.getLogger(__name__)
+WILDCARDS = {"0.0.0.0": socket.AF_INET, "::": socket.AF_INET6, "[::]": socket.AF_INET6}
+
+
+def is_loopback(host: str) -> bool:
+    """Whether a listener on ``host`` can be reached from this machine only."""
+    if host == "localhost":
+        return True
+    try:
+        return ipaddress.ip_address(host.strip("[]")).is_loopback
+    except ValueError:  # a host name: it may name any interface
+        return False
+
+
+def reachable(endpoint: str) -> list[str]:
+    """Where other processes reach a router listening at ``endpoint``: the endpoint itself, or for one on every
+    interface (0.0.0.0, ::), which no client can connect to, this host's addresses of that family (but
+    link-local ones, which need an interface named), loopback last."""
+    proto, _, address = endpoint.partition("/")
+    host, _, port = address.rpartition(":")
+    family = WILDCARDS.get(host)
+    if family is None:
+        return [endpoint]
+    hosts = {a.address for addrs in psutil.net_if_addrs().values() for a in addrs
+             if a.family == family and not ipaddress.ip_address(a.address.split("%")[0]).is_link_local}
+    ordered = sorted(hosts, key=lambda h: (is_loopback(h), ipaddress.ip_address(h)))
+    return [f"{proto}/{h if family == socket.AF_INET else f'[{h}]'}:{port}" for h in ordered] or [endpoint]
 
 
 class Busy(ClockError):

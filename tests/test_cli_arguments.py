@@ -11,9 +11,12 @@ from node_runtime.runtime import remote
 from orchestrator.cli import main
 
 CASES = [
-    (["launch", "aot1", "--steps", "-5"], "argument --steps: expected an integer >= 1 (got '-5')"),
-    (["launch", "aot1", "--steps", "0"], "argument --steps: expected an integer >= 1 (got '0')"),
-    (["launch", "aot1", "--steps", "2.5"], "argument --steps: expected an integer >= 1 (got '2.5')"),
+    (["launch", "aot1", "--steps", "-5"], "argument --steps: expected an integer from 1 to 2147483648 (got '-5')"),
+    (["launch", "aot1", "--steps", "0"], "argument --steps: expected an integer from 1 to 2147483648 (got '0')"),
+    (["launch", "aot1", "--steps", "2.5"], "argument --steps: expected an integer from 1 to 2147483648 (got '2.5')"),
+    # an episode is at most 2^31 ticks (node_runtime.model.spec): past it a run went on for ever
+    (["launch", "aot1", "--steps", str(10**22)],
+     "argument --steps: expected an integer from 1 to 2147483648 (got '10000000000000000000000')"),
     (["launch", "aot1", "--tick-rate", "-5"], "argument --tick-rate: expected a number > 0 (got '-5')"),
     (["launch", "aot1", "--timeout", "0"], "argument --timeout: expected a number > 0 and <= 1e+06 (got '0')"),
     (["launch", "aot1", "--timeout", "inf"], "argument --timeout: expected a number > 0 and <= 1e+06 (got 'inf')"),
@@ -86,13 +89,51 @@ def test_groups_split_the_nodes_in_contiguous_blocks():
     assert len(ProcessLayout(load_scenario("aot1"), "groups:50").procs) == 12  # never more groups than nodes
 
 
-def test_an_output_directory_that_cannot_be_made_is_one_line_before_any_process_starts(tmp_path, capsys):
-    """It used to be a FileExistsError traceback after the node processes had started."""
+@pytest.mark.parametrize("case", ["a file", "under a file", "summary.json is a directory"])
+def test_an_output_directory_that_cannot_be_written_is_one_line_before_any_process_starts(tmp_path, capsys, case):
+    """It used to be a FileExistsError or PermissionError traceback after the node processes had started;
+    the incomplete summary.json written before they start is the check that the directory takes files."""
     taken = tmp_path / "a-file"
     taken.write_text("")
-    assert main(["launch", "aot1", "--steps", "3", "-q", "--out", str(taken)]) == 2
+    out, bad, why = {"a file": (taken, taken, "File exists"),
+                     "under a file": (taken / "run", taken / "run", "Not a directory"),
+                     "summary.json is a directory": (tmp_path / "run", tmp_path / "run" / "summary.json",
+                                                     "Is a directory")}[case]
+    if case == "summary.json is a directory":
+        bad.mkdir(parents=True)
+    before = sorted(tmp_path.rglob("*"))
+    assert main(["launch", "aot1", "--steps", "3", "-q", "--out", str(out)]) == 2
     err = capsys.readouterr().err.strip()
-    assert err == f"orchestrator: --out {taken}: cannot make the output directory there: File exists"
+    assert err == f"orchestrator: --out {bad}: cannot write the results there: {why}"
+    assert sorted(tmp_path.rglob("*")) == before  # nothing left behind
+
+
+def test_a_launch_that_fails_before_its_episode_leaves_no_directory(tmp_path, capsys, monkeypatch):
+    """The incomplete summary.json written before the start goes again with the directories made for it."""
+    from orchestrator import cli
+    from orchestrator.session import RouterUnavailable
+
+    def taken(*args, **kwargs):
+        assert json.loads((out / "summary.json").read_text())["incomplete"]["last_tick"] is None  # written first
+        raise RouterUnavailable("--listen 127.0.0.1:7447: the port is taken")
+
+    out = tmp_path / "a" / "b"
+    monkeypatch.setattr(cli.Simulation, "open", taken)
+    assert main(["launch", "aot1", "--steps", "3", "-q", "--out", str(out)]) == 2
+    assert capsys.readouterr().err.strip() == "orchestrator: --listen 127.0.0.1:7447: the port is taken"
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_steps_past_the_longest_episode_are_refused_with_the_decision_interval(tmp_path, capsys):
+    path = tmp_path / "s.yaml"
+    path.write_text("topology: {nodes: [{id: a, client: true, controller: true}, {id: b}], links: [[a, b]]}\n"
+                    "simulation: {decision_interval: 4}\n")
+    assert main(["launch", str(path), "--transport", "inproc", "--steps", str(2**30), "-q",
+                 "--out", str(tmp_path / "out")]) == 2
+    assert capsys.readouterr().err.strip() == (
+        f"orchestrator: --steps {2**30}: expected at most 2^31 (2147483648) ticks an episode, but {2**30} steps of "
+        "4 tick(s) are 4294967296 (decision_interval 4)")
+    assert not (tmp_path / "out").exists()
 
 
 def test_no_episodes_without_serve_is_refused(capsys):
@@ -138,3 +179,25 @@ def test_the_help_names_every_bundled_scenario(command, capsys):
     names = bundled_scenarios()
     assert len(names) >= 31 and "examples/minimal" in names
     assert not set(names) - words
+
+
+@pytest.mark.parametrize("listen", ["0.0.0.0:7447", "[::]:7447", "10.0.0.1:7447", "myhost:7447"])
+def test_listening_beyond_this_host_without_security_needs_insecure(listen, tmp_path, capsys):
+    """It started silently, plain TCP for anyone who reaches the port; now one line and nothing started."""
+    out = tmp_path / "out"
+    assert main(["launch", "aot1", "--listen", listen, "--serve", "-q", "--out", str(out)]) == 2
+    assert capsys.readouterr().err.strip() == (
+        f"orchestrator: --listen {listen}: without --security anyone who reaches this host can drive the simulation "
+        "and pose as its processes; add --security DIR (deploy/README.md), or --insecure on a network you trust")
+    assert not out.exists()
+
+
+def test_loopback_needs_neither_security_nor_insecure():
+    from orchestrator.serve import is_loopback, reachable
+
+    assert is_loopback("127.0.0.1") and is_loopback("[::1]") and is_loopback("localhost") and is_loopback("127.3.2.1")
+    assert not is_loopback("0.0.0.0") and not is_loopback("::") and not is_loopback("192.168.1.4")
+    assert reachable("tcp/127.0.0.1:7447") == ["tcp/127.0.0.1:7447"]
+    assert reachable("tls/10.0.0.1:7447") == ["tls/10.0.0.1:7447"]
+    assert reachable("tcp/0.0.0.0:7447")[-1] == "tcp/127.0.0.1:7447"
+    assert reachable("tcp/[::]:7447")[-1] in ("tcp/[::1]:7447", "tcp/[::]:7447")  # [::] where IPv6 is off

@@ -54,7 +54,7 @@ def test_two_hosts_give_the_same_emulation(tmp_path, hosts):
     from orchestrator.session import free_port
 
     port = free_port("0.0.0.0")
-    run = Launch("aot2", "--layout", "per-node", "--listen", f"0.0.0.0:{port}", "--sim-id", "deploytest",
+    run = Launch("aot2", "--layout", "per-node", "--listen", f"0.0.0.0:{port}", "--insecure", "--sim-id", "deploytest",
                  "--placement", str(ROOT / "deploy" / "examples" / "aot2-two-hosts.yaml"), "--steps", "150",
                  "--seed", "4", "--policy", "random", "--out", str(tmp_path / "run"), "--serve")
     run.wait_for("waiting for 18 processes on other hosts")

@@ -236,6 +236,9 @@ def test_bad_environment_arguments_say_what_was_expected():
         ZenohEdgeEnv("aot1", transport="inproc", overrides={"mode": "batch"})
     with pytest.raises(ValueError, match=r"^max_steps must be an integer >= 1, not 0$"):
         ZenohEdgeEnv("aot1", transport="inproc", max_steps=0)
+    with pytest.raises(ValueError, match=r"^max_steps=2147483649: expected at most 2\^31 \(2147483648\) ticks an "
+                                         r"episode, but 2147483649 steps of 1 tick\(s\) are 2147483649$"):
+        ZenohEdgeEnv("aot1", transport="inproc", max_steps=2**31 + 1)  # it ran for ever
     with pytest.raises(ValueError, match=r"^invalid_action must be 'local' .* or 'raise', not 'penalty'$"):
         ZenohEdgeEnv("aot1", transport="inproc", invalid_action="penalty")
     # at construction, not at the first reset

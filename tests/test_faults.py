@@ -51,7 +51,7 @@ def remote_run(tmp_path, hosts: list[str], *args: str) -> tuple[Launch, subproce
     placement = tmp_path / "placement.yaml"
     placement.write_text(f"groups:\n  edge: [{', '.join(GROUP)}]\n")
     port = free_port("0.0.0.0")
-    run = Launch("aot1", "--layout", "per-node", "--listen", f"0.0.0.0:{port}", "--sim-id", "faulttest",
+    run = Launch("aot1", "--layout", "per-node", "--listen", f"0.0.0.0:{port}", "--insecure", "--sim-id", "faulttest",
                  "--placement", str(placement), "--out", str(tmp_path / "run"), *args)
     run.wait_for(f"waiting for {len(GROUP)} processes on other hosts")
     group = subprocess.Popen(["ip", "netns", "exec", hosts[0], sys.executable, "-m", "node_runtime.runtime.remote",

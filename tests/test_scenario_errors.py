@@ -80,6 +80,14 @@ CASES = [
     ("no_task_source", with_nodes({"id": "a"}, {"id": "b"}), {}, "topology: no node is a task source"),
     ("loss_above_one", good(network={"loss": 1.5}), {}, "network.loss: expected a number <= 1"),
     ("zero_steps", good(simulation={"steps": 0}), {}, "simulation.steps: expected a number >= 1"),
+    # an episode ends within 2^31 ticks: 1.0e+12 steps (YAML reads a float) ran for ever, its CSVs growing 2 MB/s
+    ("steps_past_2_31", yaml.safe_dump(good()) + "simulation: {steps: 1.0e+12}\n", {},
+     "simulation.steps: expected a number <= 2147483648 (got 1000000000000.0)"),
+    ("steps_past_int64", good(simulation={"steps": 10**22}), {},
+     "simulation.steps: expected a number <= 2147483648 (got 10000000000000000000000)"),
+    ("episode_ticks_past_2_31", good(simulation={"steps": 2**30, "decision_interval": 4}), {},
+     "simulation: steps x decision_interval: expected at most 2^31 (2147483648) ticks an episode, but 1073741824 "
+     "steps of 4 tick(s) are 4294967296"),
     ("bad_node_id", with_nodes({"id": "a/b", "client": True}, {"id": "b"}, links=[["a/b", "b"]]), {},
      "topology.nodes[0].id: expected a name of letters"),
     ("both_sources", {"topology": {"ether": "x.json", "generator": {"kind": "ring", "n": 3}}}, {},

@@ -227,3 +227,25 @@ def test_an_endpoint_where_no_router_answers_or_no_endpoint_at_all_is_named():
         Simulation.attach(f"tcp/127.0.0.1:{port}", "abc")
     with pytest.raises(TransportError, match=r"^'localhost:7447' is no Zenoh endpoint: expected <protocol>/<address>"):
         ZenohEdgeEnv(connect="localhost:7447", sim_id="abc", timeout=2)
+
+
+@pytest.mark.zenoh
+def test_a_router_on_every_interface_is_advertised_at_addresses_a_client_can_reach(tmp_path):
+    """--listen 0.0.0.0 (with --insecure, since there is no --security) says where other hosts reach it, never
+    the wildcard, which no client can connect to; loopback comes last. Only loopback is used here."""
+    from orchestrator.serve import describe
+
+    port = free_port("0.0.0.0")
+    run = Launch("aot1", "--serve", "--episodes", "0", "--layout", "groups:1", "--listen", f"0.0.0.0:{port}",
+                 "--insecure")
+    run.wait_for("serving until Ctrl-C")
+    text = "".join(run.err)
+    assert "warning: --insecure: plain TCP on 0.0.0.0" in text
+    endpoint, sim = served(run)
+    assert endpoint == f"tcp/0.0.0.0:{port}"
+    addresses = text.split("(reached at ", 1)[1].split(")", 1)[0].split(", ")
+    assert addresses[-1] == f"tcp/127.0.0.1:{port}" and not any("0.0.0.0" in a for a in addresses)
+    assert f"--connect {addresses[0]} --sim {sim}" in text and f'ZenohEdgeEnv(connect="{addresses[0]}"' in text
+    assert describe(addresses[-1], sim)["scenario"]["name"] == "aot1"
+    run.proc.send_signal(signal.SIGINT)
+    assert run.finish(60) == 130

@@ -29,6 +29,20 @@ from node_runtime.model.values import Count, Decibels, NonNeg, Pos, Strict, Tick
 Mode = Literal["binary", "batch"]
 Admission = Literal["decide_first", "queue_first"]
 MIB = 1024 * 1024
+# The most ticks an episode may last (steps x decision_interval): 2^31. The model could count further (a
+# tick is exact as a msgpack int64 and its time tick x dt as a float up to 2^53), but no run gets there:
+# at the fastest rate measured (about 7,000 ticks/s, docs/benchmarks.md) 2^31 ticks take 3.5 days and
+# write hundreds of GB of CSV, so a longer episode is a typo (1e12 for 1e2), refused before it runs forever.
+MAX_EPISODE_TICKS = 2**31
+EpisodeLength = Annotated[int, Field(ge=1, le=MAX_EPISODE_TICKS)]
+
+
+def episode_too_long(steps: int, decision_interval: int) -> str | None:
+    """Why an episode of ``steps`` decision epochs of ``decision_interval`` ticks is too long, or None."""
+    if steps * decision_interval <= MAX_EPISODE_TICKS:
+        return None
+    return (f"expected at most 2^31 ({MAX_EPISODE_TICKS}) ticks an episode, but {steps} steps of "
+            f"{decision_interval} tick(s) are {steps * decision_interval}")
 
 
 class Hardware(Strict):
@@ -191,10 +205,10 @@ class SimulationSettings(Strict):
     paper (1,000 steps of 1 s)."""
 
     dt: Pos = 1.0
-    steps: Count = 1000  # decision epochs in an episode
+    steps: EpisodeLength = 1000  # decision epochs in an episode
     seed: Annotated[int, Field(ge=0, le=MAX_SEED)] = 0
     mode: Mode = "binary"
-    decision_interval: Count = 1  # ticks per decision epoch
+    decision_interval: EpisodeLength = 1  # ticks per decision epoch
     max_hops: Tick = 1
     batch_size: Count = 4  # decisions per epoch in batch mode (fixed action shape)
     state_interval: Count = 1  # ticks between one-hop state broadcasts
@@ -206,6 +220,12 @@ class SimulationSettings(Strict):
     @classmethod
     def _known_policy(cls, v: str) -> str:
         return known_policy(v)
+
+    @model_validator(mode="after")
+    def _episode_fits(self) -> SimulationSettings:
+        if why := episode_too_long(self.steps, self.decision_interval):
+            raise ValueError(f"steps x decision_interval: {why}")
+        return self
 
     @property
     def episode_ticks(self) -> int:

@@ -190,7 +190,8 @@ def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(
         prog="zenohedge-node",
         description="Run, on this host, the node processes placed in one group of a ZenohEdge simulation launched "
-                    "elsewhere with `orchestrator launch SCENARIO --listen 0.0.0.0:PORT --placement FILE`.",
+                    "elsewhere with `orchestrator launch SCENARIO --listen 0.0.0.0:PORT --placement FILE` (and "
+                    "--security DIR, or --insecure).",
         epilog="See deploy/README.md.")
     add_sim_options(parser, required=True, connect_help="the orchestrator's router, e.g. tcp/10.0.0.1:7447",
                     sim_help="the simulation id (launch --sim-id fixes it)")
