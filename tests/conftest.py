@@ -2,11 +2,15 @@
 
 from __future__ import annotations
 
+import contextlib
+import fcntl
 import json
 import os
 import shutil
 import signal
 import subprocess
+import tempfile
+import time
 from pathlib import Path
 from typing import Any
 
@@ -98,6 +102,28 @@ def same(a: Any, b: Any) -> bool:
 
 
 NETNS = ROOT / "deploy" / "netns.sh"
+# The namespaces have machine-wide names: two test suites on one machine (two checkouts) take turns with them
+NETNS_LOCK = Path(tempfile.gettempdir()) / "zenohedge-netns.lock"
+NETNS_WAIT_S = 600.0
+
+
+@contextlib.contextmanager
+def machine_lock(path: Path, timeout: float) -> Any:
+    """Hold an exclusive lock on ``path`` (shared by every process of the machine); fail after ``timeout`` s."""
+    with path.open("a") as fh:
+        deadline = time.monotonic() + timeout
+        while True:
+            try:
+                fcntl.flock(fh, fcntl.LOCK_EX | fcntl.LOCK_NB)
+                break
+            except BlockingIOError:
+                if time.monotonic() > deadline:
+                    pytest.fail(f"{path} held by another test suite for {timeout:.0f} s")
+                time.sleep(0.2)  # polling the lock: flock has no timeout of its own
+        try:
+            yield
+        finally:
+            fcntl.flock(fh, fcntl.LOCK_UN)
 
 
 @pytest.fixture
@@ -105,10 +131,11 @@ def hosts():
     """Two network namespaces standing for two hosts (deploy/netns.sh): zedge-host1 and zedge-host2."""
     if os.geteuid() != 0 or shutil.which("ip") is None:
         pytest.skip("network namespaces need root and iproute2")
-    subprocess.run([NETNS, "down"], check=True, capture_output=True)
-    made = subprocess.run([NETNS, "up", "2"], capture_output=True, text=True)
-    if made.returncode != 0:
-        subprocess.run([NETNS, "down"], capture_output=True)
-        pytest.skip(f"cannot create network namespaces here: {made.stderr.strip()}")
-    yield ["zedge-host1", "zedge-host2"]
-    subprocess.run([NETNS, "down"], check=True, capture_output=True)
+    with machine_lock(NETNS_LOCK, NETNS_WAIT_S):
+        subprocess.run([NETNS, "down"], check=True, capture_output=True)
+        made = subprocess.run([NETNS, "up", "2"], capture_output=True, text=True)
+        if made.returncode != 0:
+            subprocess.run([NETNS, "down"], capture_output=True)
+            pytest.skip(f"cannot create network namespaces here: {made.stderr.strip()}")
+        yield ["zedge-host1", "zedge-host2"]
+        subprocess.run([NETNS, "down"], check=True, capture_output=True)
