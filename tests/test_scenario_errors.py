@@ -281,3 +281,28 @@ def test_a_generator_profile_typo_is_reported_once(tmp_path, capsys):
     path = write_case(tmp_path, "typo", {"topology": {"generator": {"kind": "ring", "n": 6, "profile": "tierO"}}}, {})
     assert main(["validate", str(path)]) == 2
     assert len(capsys.readouterr().err.strip().splitlines()) == 1
+
+
+def test_validate_warns_when_tasks_reach_a_controller_faster_than_it_places_them(tmp_path, capsys):
+    """1.5 tasks a tick at one node whose controller places one a step (binary mode): the rest wait undecided
+    (a launch of this file drops about 70 % of its tasks); batch mode with two slots, or queue_first admission,
+    places them all (about 99 % completed), and then there is nothing to warn of."""
+    base = {"workload": {"arrival": {"rate": 1.5}, "tasks": [{"instructions": 4e6, "input_bytes": 1e5,
+                                                              "output_bytes": 1e4, "deadline": 20}]},
+            "topology": {"nodes": [{"id": "edge", "profile": "tier0"}, {"id": "fog", "profile": "tier1",
+                                                                       "position": [30, 0]}],
+                         "links": [["edge", "fog"]]}}
+    cases = {"binary": {}, "batch": {"mode": "batch", "batch_size": 2}, "queue_first": {"admission": "queue_first"},
+             "slower": {"decision_interval": 2, "mode": "batch", "batch_size": 2}}
+    warned = {}
+    for name, simulation in cases.items():
+        path = write_case(tmp_path, name, {**base, "simulation": simulation}, {})
+        assert main(["validate", str(path)]) == 0
+        warned[name] = [line for line in capsys.readouterr().out.splitlines() if "reach the controllers" in line]
+    assert warned["binary"] == [
+        "warning: tasks reach the controllers of 1 node(s) (edge) faster than they place them, up to 1.5 a step at "
+        "edge where a controller places 1 a step (binary mode): the rest wait undecided, fill the buffer and expire "
+        "(batch mode with batch_size >= 2, or admission: queue_first, places them all)"]
+    assert warned["batch"] == warned["queue_first"] == []
+    # two ticks a step: 3 tasks reach edge's controller every step, which places 2
+    assert "up to 3 a step at edge where a controller places 2 a step (batch mode)" in warned["slower"][0]

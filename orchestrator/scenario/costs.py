@@ -11,6 +11,7 @@ spends cores x frequency cycles a second on the head of its queue), and its inpu
 
 from __future__ import annotations
 
+import math
 import statistics
 from dataclasses import dataclass
 
@@ -91,7 +92,7 @@ def report(sc: Scenario) -> list[str]:
                 how = "of service" if ids & arriving else f"with its input and output on {d.rate_bps / 1e6:.3g} Mbit/s"
                 warnings.append(f"warning: task type {task.name!r} cannot meet its deadline "
                                 f"({task.longest_deadline:g} s) even alone on {d.name}: {best:.3g} s {how}")
-    warnings += overloads(sc, kinds)
+    warnings += overloads(sc, kinds) + undecided(sc)
     widths = [max(len(r[i]) for r in rows) for i in range(len(rows[0]))]
     table = ["  " + "  ".join(c.ljust(w) if i < 2 else c.rjust(w)
                               for i, (c, w) in enumerate(zip(r, widths, strict=True))) for r in rows]
@@ -118,3 +119,24 @@ def overloads(sc: Scenario, kinds: list[Device]) -> list[str]:
                        f"tasks/s of {cycles / d.capacity:.3g} s of service at {worst}): what they do not offload "
                        "queues, and is dropped when the buffer is full or the deadline passes")
     return out
+
+
+def undecided(sc: Scenario) -> list[str]:
+    """A ``warning:`` line when tasks reach controllers faster than they place them. A controller places one
+    task a step in binary mode (``batch_size`` in batch mode); with decide_first admission the rest wait
+    undecided, count against the buffer and expire (docs/model.md, "The controller")."""
+    if sc.admission != "decide_first":
+        return []
+    places = 1 if sc.mode == "binary" else sc.batch_size
+    arrivals = nominal_arrivals(sc)
+    per_step = {n: arrivals[n] * sc.dt * sc.decision_interval for n in sc.controllers if n in arrivals}
+    over = [n for n, tasks in per_step.items() if tasks > places]
+    if not over:
+        return []
+    worst = max(over, key=per_step.__getitem__)
+    named = ", ".join(over[:3]) + (" ..." if len(over) > 3 else "")
+    need = math.ceil(per_step[worst])
+    return [f"warning: tasks reach the controllers of {len(over)} node(s) ({named}) faster than they place them, up to "
+            f"{per_step[worst]:.3g} a step at {worst} where a controller places {places} a step ({sc.mode} mode): "
+            f"the rest wait undecided, fill the buffer and expire (batch mode with batch_size >= {need}, or "
+            "admission: queue_first, places them all)"]
