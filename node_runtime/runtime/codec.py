@@ -22,7 +22,7 @@ from node_runtime.model.messages import Decision, Envelope, Kind, NodeState, Pen
 from node_runtime.model.role import STAT_FIELDS
 from node_runtime.model.view import Observation
 from node_runtime.runtime.protocol import SCHEMA_VERSION, Batch, Done, Dones, Tick
-from node_runtime.runtime.rejections import BAD_MSGPACK, WRONG_SHAPE
+from node_runtime.runtime.rejections import BAD_MSGPACK, TOO_LARGE, WRONG_SHAPE
 from node_runtime.runtime.rejections import SCHEMA_VERSION as OTHER_SCHEMA
 
 
@@ -360,8 +360,18 @@ def encode(msg: Any) -> bytes:
     return msgpack.packb(d, use_bin_type=True)
 
 
-def decode(data: bytes) -> Any:
-    """Bytes from the bus -> a message; ``CodecError`` (and nothing else) for anything that is not one."""
+def check_size(size: int, limit: int) -> None:
+    """Refuse a payload larger than ``limit`` bytes (limits.py) before it is copied or decoded."""
+    if size > limit:
+        raise CodecError(f"{size} bytes, more than the {limit} a message on this key may have", TOO_LARGE)
+
+
+def decode(data: bytes, limit: int | None = None) -> Any:
+    """Bytes from the bus -> a message; ``CodecError`` (and nothing else) for anything that is not one.
+    ``limit``: the most bytes the payload may have (limits.py); msgpack itself bounds every string, array
+    and map by the payload's length."""
+    if limit is not None:
+        check_size(len(data), limit)
     try:
         d = msgpack.unpackb(data, raw=False, strict_map_key=False)
     except Exception as exc:  # msgpack raises ValueError, TypeError, StackError, UnicodeDecodeError, ...

@@ -3,8 +3,8 @@
 Delivery is synchronous and in publication order: ``publish`` queues the message for every
 matching subscriber and, unless a delivery is already running, delivers until the queue is empty.
 Messages are passed as objects (no encoding), which is what makes this path fast. Requests, rare
-and never on the tick path, do go through the codec, so that an answer is a copy with the types it
-would have over Zenoh. Nothing here is thread-safe: one thread owns the bus.
+and never on the tick path, do go through the codec and its size limits (limits.py), so that an answer
+is a copy with the types it would have over Zenoh. Nothing here is thread-safe: one thread owns the bus.
 """
 
 from __future__ import annotations
@@ -14,6 +14,7 @@ from collections.abc import Callable
 from typing import Any
 
 from node_runtime.runtime import codec
+from node_runtime.runtime.limits import payload_limit
 from node_runtime.runtime.rejections import Rejections
 from node_runtime.runtime.transport import (
     Handler,
@@ -194,8 +195,9 @@ class InprocBus:
         """The answer of the first served key (in key order) matching ``key_expr``."""
         for key in sorted(self._served):
             if key_matches(key_expr, key):
-                answer = self._served[key](codec.decode(codec.encode(message)))
-                return codec.decode(codec.encode(answer))
+                limit = payload_limit(key)
+                answer = self._served[key](codec.decode(codec.encode(message), limit))
+                return codec.decode(codec.encode(answer), limit)
         raise TransportError(f"nobody serves {key_expr} on the in-process bus")
 
 

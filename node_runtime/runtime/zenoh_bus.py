@@ -3,7 +3,8 @@
 Node processes open ``client`` sessions to the router the orchestrator runs; multicast scouting is
 off and endpoints are explicit. Publications are reliable with blocking congestion control (the
 emulation must never lose a message to back-pressure); see ``reliable_publisher``.
-Zenoh callbacks only enqueue raw bytes; decoding and handlers run in the ``dispatch`` thread.
+Zenoh callbacks only enqueue raw bytes, of a bounded size and in a bounded queue (limits.py); decoding and
+handlers run in the ``dispatch`` thread.
 """
 
 from __future__ import annotations
@@ -23,6 +24,7 @@ from typing import Any, Literal
 import zenoh
 
 from node_runtime.runtime import codec
+from node_runtime.runtime.limits import LINK_MAX, QUEUE_BYTES, payload_limit
 from node_runtime.runtime.rejections import Rejections
 from node_runtime.runtime.security import Security
 from node_runtime.runtime.transport import (
@@ -68,6 +70,8 @@ def zenoh_config(mode: Mode, listen: list[str] | None = None, connect: list[str]
     # Messages here are a few hundred bytes, where shared memory saves nothing; and each session that
     # negotiates it keeps a /dev/shm segment open after close and takes one of the router's SHM slots
     cfg.insert_json5("transport/shared_memory/enabled", "false")
+    # Zenoh drops a larger message as it reassembles it, in a router and in a session (limits.py)
+    cfg.insert_json5("transport/link/rx/max_message_size", json.dumps(LINK_MAX))
     if listen:
         cfg.insert_json5("listen/endpoints", json.dumps(listen))
     if connect:
@@ -118,11 +122,48 @@ def _close_open_sessions() -> None:
 getattr(threading, "_register_atexit", lambda f: None)(_close_open_sessions)
 
 
+class ReceiveQueue:
+    """What Zenoh's threads received, waiting for ``dispatch``: at most ``budget`` bytes of payloads. Past that
+    the receiving Zenoh thread waits for dispatch to catch up, which backs up to the publisher (whose reliable,
+    blocking publication waits in turn) rather than drop a message or grow without bound. A single payload
+    larger than the budget (limits.py keeps them below it) passes alone."""
+
+    def __init__(self, budget: int = QUEUE_BYTES) -> None:
+        self.budget = budget
+        self.held = 0  # bytes queued
+        self._items: queue.SimpleQueue[tuple[tuple[Callable[..., None], str, Any], int]] = queue.SimpleQueue()
+        self._room = threading.Condition(threading.Lock())
+        self.closed = False
+
+    def put(self, item: tuple[Callable[..., None], str, Any], size: int = 0) -> None:
+        if size:
+            with self._room:
+                while self.held and self.held + size > self.budget and not self.closed:
+                    self._room.wait(IDLE_SLICE)
+                self.held += size
+        self._items.put((item, size))
+
+    def get(self, timeout: float) -> tuple[Callable[..., None], str, Any]:
+        """Raises ``queue.Empty`` after ``timeout`` seconds."""
+        item, size = self._items.get(timeout=timeout)
+        if size:
+            with self._room:
+                self.held -= size
+                self._room.notify_all()
+        return item
+
+    def close(self) -> None:
+        """Release the Zenoh threads that wait for room, so that the session can close."""
+        with self._room:
+            self.closed = True
+            self._room.notify_all()
+
+
 class ZenohTransport(Transport):
     def __init__(self, config: zenoh.Config) -> None:
         self.session = zenoh.open(config)
         _OPEN.add(self)
-        self._queue: queue.SimpleQueue[tuple[Callable[..., None], str, Any]] = queue.SimpleQueue()
+        self._queue = ReceiveQueue()
         self._pubs: dict[str, zenoh.Publisher] = {}
         self._entities: list[Any] = []
         self._closed = False
@@ -198,9 +239,14 @@ class ZenohTransport(Transport):
     def serve(self, key: str, handler: RequestHandler) -> None:
         """A queryable; ``handler`` runs in a Zenoh thread."""
 
+        limit = payload_limit(key)
+
         def on_query(query: zenoh.Query) -> None:  # answer on our own key: a wildcard query learns who answered
             try:
-                message = codec.decode(query.payload.to_bytes()) if query.payload is not None else None
+                payload = query.payload
+                if payload is not None:
+                    codec.check_size(len(payload), limit)
+                message = codec.decode(payload.to_bytes()) if payload is not None else None
                 answer = codec.encode(handler(message))
             except (codec.CodecError, Refused) as exc:  # plain text: the asker may not read our msgpack either
                 self.rejections.add(key, exc.reason, str(exc))
@@ -215,6 +261,7 @@ class ZenohTransport(Transport):
         refused = ""
         for reply in self.session.get(key, payload=codec.encode(message), timeout=timeout):
             if reply.ok is not None:
+                codec.check_size(len(reply.ok.payload), payload_limit(key))
                 return codec.decode(reply.ok.payload.to_bytes())
             refused = reply.err.payload.to_bytes().decode(errors="replace")
         if refused:
@@ -230,10 +277,18 @@ class ZenohTransport(Transport):
         return pub
 
     def subscribe(self, key_expr: str, handler: Handler) -> None:
-        q = self._queue
+        """A payload larger than its kind may be (limits.py) is refused here, before it is copied out of Zenoh."""
+        put, limit, rejections = self._queue.put, payload_limit(key_expr), self.rejections
 
         def on_sample(sample: zenoh.Sample) -> None:
-            q.put((handler, str(sample.key_expr), sample.payload.to_bytes()))
+            payload = sample.payload
+            size = len(payload)
+            try:
+                codec.check_size(size, limit)
+            except codec.CodecError as exc:
+                rejections.add(str(sample.key_expr), exc.reason, str(exc))
+                return
+            put((handler, str(sample.key_expr), payload.to_bytes()), size)
 
         self._entities.append(self.session.declare_subscriber(key_expr, on_sample))
 
@@ -290,6 +345,7 @@ class ZenohTransport(Transport):
         if self._closed:
             return
         self._closed = True
+        self._queue.close()
         for entity in reversed(self._entities):
             with contextlib.suppress(zenoh.ZError):
                 entity.undeclare()
