@@ -36,11 +36,12 @@ from typing import Any
 
 import psutil
 
+from node_runtime.runtime.answers import AnswerError, claim_answer, session_answer
 from node_runtime.runtime.keys import CHUNK, DEFAULT_PREFIX, Keys
 from node_runtime.runtime.layout import ProcessLayout
 from node_runtime.runtime.rejections import CLOCK_TAKEN, NOT_HOLDER, WRONG_SHAPE
 from node_runtime.runtime.security import Security
-from node_runtime.runtime.transport import Refused, Transport, TransportError
+from node_runtime.runtime.transport import Contested, Refused, Transport, TransportError
 from node_runtime.runtime.zenoh_bus import ZenohTransport
 from orchestrator.clock import Clock, ClockError
 
@@ -212,11 +213,18 @@ class Server:
 
 
 def session_of(transport: Transport, keys: Keys, timeout: float, where: str = "this endpoint") -> dict[str, Any]:
-    """The session description of a simulation, without taking its clock."""
+    """The session description of a simulation, without taking its clock; one ``ClockError`` line for an answer
+    of the wrong shape, or answers from more than one session (``Transport.request``)."""
     try:
-        return transport.request(keys.session(), {"type": "session?"}, timeout=timeout)
+        info = transport.request(keys.session(), {"type": "session?"}, timeout=timeout)
+    except Contested as exc:
+        raise ClockError(f"simulation {keys.sim_id!r} at {where}: {exc}") from None
     except Exception as exc:
         raise ClockError(f"no simulation {keys.sim_id!r} answers at {where}: {exc}") from None
+    try:
+        return session_answer(info, keys.session())
+    except AnswerError as exc:
+        raise ClockError(f"simulation {keys.sim_id!r} at {where}: {exc}") from None
 
 
 def describe(endpoint: str, sim_id: str, prefix: str = DEFAULT_PREFIX, timeout: float = 10.0,
@@ -236,11 +244,16 @@ def claim(transport: Transport, keys: Keys, timeout: float) -> tuple[dict[str, A
     name = f"{DRIVER_PREFIX}{secrets.token_hex(3)}"
     transport.declare_token(keys.alive(name))
     try:
-        answer = transport.request(keys.control(), {"type": "control", "claim": name}, timeout=timeout)
+        answer = claim_answer(transport.request(keys.control(), {"type": "control", "claim": name}, timeout=timeout),
+                              keys.control(), info["episode"])
+    except Contested as exc:
+        raise ClockError(f"simulation {keys.sim_id}: {exc}") from None
     except TransportError as exc:  # with access control, the router drops queries of other identities
         raise ClockError(f"simulation {keys.sim_id}: {exc} (a router with --security answers only the driver "
                          "identity)") from None
-    if not answer.get("granted"):
+    except AnswerError as exc:
+        raise ClockError(f"simulation {keys.sim_id}: {exc}") from None
+    if not answer["granted"]:
         raise Busy(f"simulation {keys.sim_id}: {answer.get('reason', 'refused')}")
     info["episode"] = answer["episode"]
     return info, name, answer["token"]

@@ -17,6 +17,7 @@ from node_runtime.runtime.security import Security
 from node_runtime.runtime.zenoh_bus import ZenohTransport
 from orchestrator.clock import ClockError
 from orchestrator.serve import describe, session_of
+from orchestrator.session import Simulation
 from tests.conftest import ROOT
 from tests.launcher import Launch, claiming_driver, served
 
@@ -59,6 +60,33 @@ def test_identities_decide_who_drives(tmp_path, secrets):
     assert session_of(watcher, Keys(sim), 5.0)["driver"] is None
     watcher.close()
 
+    run.proc.send_signal(signal.SIGTERM)
+    assert run.finish(30) == 130
+
+
+@pytest.mark.zenoh
+def test_only_the_orchestrator_answers_session_and_control(tmp_path, secrets):
+    """With --security, the router drops a queryable declared by any identity but the orchestrator's: a group's,
+    the monitor's or the driver's own rogue answers on …/session and …/control never reach the driver, which
+    attaches and drives as if they were not there (in plain mode it would refuse: test_serve.py)."""
+    run = Launch("aot1", "--serve", "--episodes", "0", "--out", str(tmp_path),
+                 "--security", str(secrets / "orchestrator"))
+    run.wait_for("serving until Ctrl-C")
+    endpoint, sim = served(run)
+    keys = Keys(sim)
+    rogues = []
+    for who in ("edge", "monitor", "driver"):
+        rogue = ZenohTransport.client(endpoint, Security.from_dir(secrets / who))
+        rogue.serve(keys.session(), lambda message: {"type": "session", "sim": sim, "scenario": {}})
+        rogue.serve(keys.control(), lambda message: {"type": "control", "granted": False, "reason": "rogue"})
+        rogues.append(rogue)
+    try:
+        with Simulation.attach(endpoint, sim, timeout=10, security=Security.from_dir(secrets / "driver")) as driver:
+            driver.run(3, seed=1)
+            assert driver.clock.episode == 0 and not driver.transport.rejections.counts
+    finally:
+        for rogue in rogues:
+            rogue.close()
     run.proc.send_signal(signal.SIGTERM)
     assert run.finish(30) == 130
 

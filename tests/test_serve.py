@@ -13,10 +13,12 @@ import numpy as np
 import pytest
 
 from env import ZenohEdgeEnv
+from node_runtime.runtime.answers import AnswerError, claim_answer, session_answer
 from node_runtime.runtime.keys import Keys
 from node_runtime.runtime.transport import TransportError
 from node_runtime.runtime.zenoh_bus import ZenohTransport, free_port
 from orchestrator import serve
+from orchestrator.clock import ClockError
 from orchestrator.serve import Busy, claim, describe, session_of
 from orchestrator.session import Simulation
 from tests.conftest import model_part, run_summary
@@ -210,6 +212,72 @@ def test_malformed_requests_get_an_error_and_are_counted(aot1):
                                                                    "wrong_shape": len(bad)}
     assert summary["run"]["control"] == {"granted": 0, "released": 0, "vanished": 0, "refused_claims": 1,
                                          "refused_releases": 1}
+
+
+ROGUE_ANSWERS = {  # what an outsider's queryable answered, and what the driver did with it before
+    "a session description without a valid scenario (a bare KeyError)":
+        ("session", lambda sim: {"type": "session", "sim": sim, "scenario": {"name": "x"}, "layout": "single",
+                                 "episode": 0, "driver": None, "procs": ["all"], "placement": {}}),
+    "a refused claim (the clock denied for good)":
+        ("control", lambda sim: {"type": "control", "granted": False, "reason": "the clock is held by driver/rogue"}),
+    "a grant at an earlier episode (the driver hung, blaming the nodes)":
+        ("control", lambda sim: {"type": "control", "granted": True, "episode": -1, "token": "0" * 32}),
+}
+
+
+@pytest.mark.zenoh
+def test_a_rogue_answer_on_session_or_control_is_refused(tmp_path):
+    """A driver believed the first answer to its queries. Now it asks every session that serves the key; when
+    an outsider's queryable answers too, the driver refuses with one line naming the key and both sessions,
+    whatever the outsider says; once the outsider is gone, the driver attaches and runs."""
+    run = Launch("aot1", "--serve", "--episodes", "1", "--steps", "3", "--out", str(tmp_path))
+    run.wait_for("serving until Ctrl-C")
+    endpoint, sim = served(run)
+    keys = Keys(sim)
+    for what, (kind, answer) in ROGUE_ANSWERS.items():
+        rogue = ZenohTransport.client(endpoint)
+        key = keys.session() if kind == "session" else keys.control()
+        rogue.serve(key, lambda message, answer=answer: answer(sim))
+        rogue_id = str(rogue.session.zid())
+        try:
+            with pytest.raises(ClockError) as refused:
+                Simulation.attach(endpoint, sim, timeout=10)
+        finally:
+            rogue.close()
+        line = str(refused.value)
+        assert f"{key} was answered by 2 Zenoh sessions" in line and rogue_id in line, (what, line)
+        assert "\n" not in line
+    with Simulation.attach(endpoint, sim, timeout=10) as driver:  # the outsider is gone: the real answers alone
+        driver.run(5, seed=3)
+        assert driver.clock.episode == 1
+    run.proc.send_signal(signal.SIGTERM)
+    assert run.finish(30) == 130
+    # the server granted the two contested claims too: their drivers' liveliness tokens went with them
+    assert json.loads((tmp_path / "summary.json").read_text())["run"]["control"] == {
+        "granted": 3, "released": 1, "vanished": 2, "refused_claims": 0, "refused_releases": 0}
+
+
+def test_answers_of_the_wrong_shape_are_one_line(aot1):
+    """When whoever alone answers for a simulation id gives an answer of the wrong shape, the driver says which
+    field is wrong: never a KeyError, and never an episode below what the session description said."""
+    with Simulation.inproc(aot1) as served_sim:
+        keys = served_sim.keys
+        good = session_of(served_sim.transport.bus.endpoint(), keys, 1.0)
+    for field, value, says in (("scenario", {"name": "x"}, "scenario or layout does not validate"),
+                               ("layout", "diagonal", "scenario or layout does not validate"),
+                               ("episode", 2**40, "field 'episode'"), ("procs", "all", "field 'procs'"),
+                               ("sim", "another", "simulation 'another'"), ("type", "tick", "not a session")):
+        with pytest.raises(AnswerError, match=says):
+            session_answer({**good, field: value}, keys.session())
+    with pytest.raises(AnswerError, match="field 'placement'"):
+        session_answer({k: v for k, v in good.items() if k != "placement"}, keys.session())
+    grant = {"type": "control", "granted": True, "episode": 4, "token": "ab" * 16}
+    assert claim_answer(grant, keys.control(), 4) == grant
+    for answer, says in (({**grant, "episode": 3}, "episode 3, where the session said 4"),
+                         ({**grant, "token": None}, "without a token"), ({**grant, "granted": 1}, "neither"),
+                         ({"type": "control", "granted": False, "reason": 7}, "reason is not text")):
+        with pytest.raises(AnswerError, match=says):
+            claim_answer(answer, keys.control(), 4)
 
 
 def test_connect_requires_the_sim_id():

@@ -15,6 +15,9 @@ allowed is dropped by the router, silently for publications, with no answer for 
 - ``driver``: publishes ticks and per-tick metrics, queries ``…/control``, announces ``…/alive/driver/*``;
 - ``monitor`` and everyone above: subscribes, watches tokens, queries ``…/session``.
 
+Only ``orchestrator`` may declare a queryable (or reply): nobody else can answer ``…/session`` or
+``…/control``, so a driver, a monitor and ``zenohedge-node`` hear the orchestrator's answers alone.
+
 What the router cannot know stays with the orchestrator: that a ``Done`` names the process that sent
 it, and that a release of the clock comes from the driver that claimed it (its secret token).
 """

@@ -21,7 +21,9 @@ WRONG_TICK = "wrong_tick"  # an episode or tick that is not the current one, a d
 CLOCK_TAKEN = "clock_taken"  # a claim of the clock while a driver holds it, or while the orchestrator keeps it
 NOT_HOLDER = "not_holder"  # a release of the clock without the name and token of the driver that holds it
 TOO_LARGE = "too_large"  # a payload larger than its kind of message may be (limits.py)
-REASONS = (BAD_MSGPACK, SCHEMA_VERSION, WRONG_SHAPE, UNKNOWN_SENDER, WRONG_TICK, CLOCK_TAKEN, NOT_HOLDER, TOO_LARGE)
+SEVERAL_ANSWERS = "several_answers"  # answers to one request from more than one session: none is believed
+REASONS = (BAD_MSGPACK, SCHEMA_VERSION, WRONG_SHAPE, UNKNOWN_SENDER, WRONG_TICK, CLOCK_TAKEN, NOT_HOLDER, TOO_LARGE,
+           SEVERAL_ANSWERS)
 
 LOG_INTERVAL = 10.0  # seconds: at most one line per key in this interval
 MAX_KEYS = 256  # keys tracked one by one; past that, further keys share one line (senders choose keys)

@@ -35,6 +35,7 @@ from node_runtime.model.spec import Scenario
 from node_runtime.runtime import process as node_process
 from node_runtime.runtime.access import LOCAL_LINK, access_control
 from node_runtime.runtime.aggregator import DoneAggregator
+from node_runtime.runtime.answers import session_answer
 from node_runtime.runtime.cli_options import TIMEOUT, add_security_options, add_sim_options, security_options
 from node_runtime.runtime.forkserver import ForkServer
 from node_runtime.runtime.keys import Keys
@@ -113,9 +114,9 @@ def connect(open_session: Callable[[], ZenohTransport], endpoint: str) -> ZenohT
 
 def group_info(transport: ZenohTransport, endpoint: str, keys: Keys, group: str, timeout: float) -> GroupInfo:
     """Ask the orchestrator for the simulation; raises GroupError when it has no group ``group``."""
-    try:
-        info = transport.request(keys.session(), {"type": "session?"}, timeout=timeout)
-    except Exception as exc:  # no answer; or a refusal, e.g. from another ZenohEdge version
+    try:  # no answer; a refusal, e.g. from another ZenohEdge version; answers from two sessions; a wrong shape
+        info = session_answer(transport.request(keys.session(), {"type": "session?"}, timeout=timeout), keys.session())
+    except Exception as exc:
         raise GroupError(f"simulation {keys.sim_id!r} at {endpoint}: {exc}") from None
     placement = info.get("placement") or {}
     if group not in placement:

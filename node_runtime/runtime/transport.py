@@ -34,6 +34,10 @@ class Refused(TransportError):
         self.why = why
 
 
+class Contested(TransportError):
+    """Several sessions answered one request for the same key (``Transport.request``)."""
+
+
 class Transport(ABC):
     rejections: Rejections  # messages refused: undecodable ones by ``dispatch``, untrusted ones by handlers
 
@@ -75,7 +79,8 @@ class Transport(ABC):
     @abstractmethod
     def request(self, key: str, message: Any, timeout: float) -> Any:
         """The answer of whoever serves ``key`` (a wildcard key: the first to answer); raises
-        ``TransportError`` when nobody answers within ``timeout`` seconds."""
+        ``TransportError`` when nobody answers within ``timeout`` seconds, and ``Contested`` when more than one
+        answers for one key: one of them is an impostor, and no answer is believed."""
 
     @abstractmethod
     def dispatch(self, until: Callable[[], bool], timeout: float | None = None,

@@ -25,9 +25,10 @@ import zenoh
 
 from node_runtime.runtime import codec
 from node_runtime.runtime.limits import LINK_MAX, QUEUE_BYTES, payload_limit
-from node_runtime.runtime.rejections import Rejections
+from node_runtime.runtime.rejections import SEVERAL_ANSWERS, Rejections
 from node_runtime.runtime.security import Security
 from node_runtime.runtime.transport import (
+    Contested,
     Handler,
     Monitored,
     Refused,
@@ -257,9 +258,23 @@ class ZenohTransport(Transport):
         self._entities.append(self.session.declare_queryable(key, on_query))
 
     def request(self, key: str, message: Any, timeout: float) -> Any:
-        """Ask whoever serves ``key``; the first answer wins."""
+        """Ask every session that serves ``key``, and wait for all their answers (Zenoh ends the query when each
+        has answered, or after ``timeout``). Anyone on the router can declare a queryable: when two sessions
+        answer for one key, which one is the simulation cannot be told, so none is believed (``Contested``)."""
+        replies = list(self.session.get(key, payload=codec.encode(message), timeout=timeout,
+                                        target=zenoh.QueryTarget.ALL, consolidation=zenoh.ConsolidationMode.NONE))
+        by_key: dict[str, set[str]] = {}  # answered key -> the sessions that answered it
+        for reply in replies:
+            replier = str(reply.replier_id.zid) if reply.replier_id is not None else "an unknown session"
+            by_key.setdefault(str(reply.ok.key_expr) if reply.ok is not None else key, set()).add(replier)
+        for answered, repliers in sorted(by_key.items()):
+            if len(repliers) > 1:
+                why = (f"{answered} was answered by {len(repliers)} Zenoh sessions ({', '.join(sorted(repliers))}): "
+                       "another session serves this simulation's keys, so no answer is believed")
+                self.rejections.add(answered, SEVERAL_ANSWERS, why)
+                raise Contested(why)
         refused = ""
-        for reply in self.session.get(key, payload=codec.encode(message), timeout=timeout):
+        for reply in replies:
             if reply.ok is not None:
                 codec.check_size(len(reply.ok.payload), payload_limit(key))
                 return codec.decode(reply.ok.payload.to_bytes())
