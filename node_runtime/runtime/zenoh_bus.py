@@ -41,6 +41,7 @@ from node_runtime.runtime.transport import (
 Mode = Literal["router", "client", "peer"]
 ENDPOINT = re.compile(r"^[a-z0-9]+/\S+$")  # Zenoh's <protocol>/<address>
 IDLE_SLICE = 0.1  # seconds between idle checks while dispatching
+ROOM_POLL_S = 0.002  # how often a Zenoh thread held back by a full receive queue looks for room
 STALL_S = 1.0  # seconds a wait in ``dispatch`` may overrun its slice before this process counts as stalled
 
 # Zenoh's thread pools for a node process: receive, network and transmit work handed over to a
@@ -127,37 +128,38 @@ class ReceiveQueue:
     """What Zenoh's threads received, waiting for ``dispatch``: at most ``budget`` bytes of payloads. Past that
     the receiving Zenoh thread waits for dispatch to catch up, which backs up to the publisher (whose reliable,
     blocking publication waits in turn) rather than drop a message or grow without bound. A single payload
-    larger than the budget (limits.py keeps them below it) passes alone."""
+    larger than the budget (limits.py keeps them below it) passes alone. Only a sender waits, polling: taking
+    costs the dispatch thread one addition (it alone writes ``taken``)."""
 
     def __init__(self, budget: int = QUEUE_BYTES) -> None:
         self.budget = budget
-        self.held = 0  # bytes queued
+        self.given = 0  # bytes put, by Zenoh's threads (one at a time)
+        self.taken = 0  # bytes taken, by the dispatch thread
         self._items: queue.SimpleQueue[tuple[tuple[Callable[..., None], str, Any], int]] = queue.SimpleQueue()
-        self._room = threading.Condition(threading.Lock())
+        self._senders = threading.Lock()
         self.closed = False
+
+    @property
+    def held(self) -> int:
+        return self.given - self.taken
 
     def put(self, item: tuple[Callable[..., None], str, Any], size: int = 0) -> None:
         if size:
-            with self._room:
-                while self.held and self.held + size > self.budget and not self.closed:
-                    self._room.wait(IDLE_SLICE)
-                self.held += size
+            with self._senders:
+                while self.given > self.taken and self.given - self.taken + size > self.budget and not self.closed:
+                    time.sleep(ROOM_POLL_S)
+                self.given += size
         self._items.put((item, size))
 
     def get(self, timeout: float) -> tuple[Callable[..., None], str, Any]:
         """Raises ``queue.Empty`` after ``timeout`` seconds."""
         item, size = self._items.get(timeout=timeout)
-        if size:
-            with self._room:
-                self.held -= size
-                self._room.notify_all()
+        self.taken += size
         return item
 
     def close(self) -> None:
         """Release the Zenoh threads that wait for room, so that the session can close."""
-        with self._room:
-            self.closed = True
-            self._room.notify_all()
+        self.closed = True
 
 
 class ZenohTransport(Transport):
