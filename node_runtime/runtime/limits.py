@@ -12,8 +12,9 @@ Three bounds, from the outside in:
   payload, so the limit also bounds the items a message decodes into: at worst (empty maps) about 72
   bytes of memory per byte of payload, briefly;
 - ``QUEUE_BYTES``: the undecoded bytes a process holds for its dispatch thread. Past it, Zenoh's
-  receiving thread waits until dispatch catches up: back-pressure up to the publisher, which blocks
-  (protocol messages are reliable and blocking), so nothing is dropped.
+  network thread waits until dispatch catches up: back-pressure up to the publisher, which blocks
+  (protocol messages are reliable and blocking), so nothing is dropped. Zenoh closes a link blocked for
+  longer than its ``wait_before_close``, which follows the lease (zenoh_bus.zenoh_config).
 
 The limits are constants, not derived from the scenario: what a message carries grows with the tasks in
 flight, which the model does not bound (arrivals are random, queues are unbounded). They leave a wide
@@ -26,7 +27,7 @@ KIB = 1024
 MIB = 1024 * KIB
 
 LINK_MAX = 8 * MIB  # Zenoh drops larger messages inside the router and the receiving session
-QUEUE_BYTES = 32 * MIB  # received bytes waiting for dispatch, past which Zenoh's receiving thread waits
+QUEUE_BYTES = 16 * MIB  # received bytes waiting for dispatch, past which Zenoh's receiving thread waits
 
 # kind -> the largest payload in bytes; the kind of a key is the chunk after the simulation's root
 # (clock/tick, clock/done, clock/dones, host/<group>/done, proc/<p>/inbox, ...)

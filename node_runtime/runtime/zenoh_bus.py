@@ -51,6 +51,11 @@ STALL_S = 1.0  # seconds a wait in ``dispatch`` may overrun its slice before thi
 LEAN_RUNTIME = "(rx: (handover: app), app: (worker_threads: 1), net: (handover: app), tx: (handover: app))"
 
 
+LEASE = "transport/link/tx/lease"  # ms: a session silent this long is gone
+# µs a reliable, blocking publication may wait for room before Zenoh closes the link (its default: 5 s)
+WAIT_BEFORE_CLOSE = "transport/link/tx/queue/congestion_control/block/wait_before_close"
+
+
 def use_lean_runtime() -> None:
     """Call before the first Zenoh session of this process opens."""
     os.environ.setdefault("ZENOH_RUNTIME", LEAN_RUNTIME)
@@ -78,7 +83,10 @@ def zenoh_config(mode: Mode, listen: list[str] | None = None, connect: list[str]
         cfg.insert_json5("listen/endpoints", json.dumps(listen))
     if connect:
         cfg.insert_json5("connect/endpoints", json.dumps(connect))
-    for path, value in {**(security.settings() if security else {}), **(settings or {})}.items():
+    merged = {**(security.settings() if security else {}), **(settings or {})}
+    if LEASE in merged:  # a link blocked by a full receiver (limits.py) closes no sooner than a silent one
+        merged.setdefault(WAIT_BEFORE_CLOSE, merged[LEASE] * 1000)
+    for path, value in merged.items():
         cfg.insert_json5(path, json.dumps(value))
     return cfg
 
@@ -307,7 +315,10 @@ class ZenohTransport(Transport):
                 return
             put((handler, str(sample.key_expr), payload.to_bytes()), size)
 
-        self._entities.append(self.session.declare_subscriber(key_expr, on_sample))
+        # not ``indirect``: zenoh-python would run it in a thread of its own, fed by a queue without bound,
+        # and a full ReceiveQueue would hold back nobody (measured: 100 MB held by a slow subscriber)
+        callback = zenoh.handlers.Callback(on_sample, indirect=False)
+        self._entities.append(self.session.declare_subscriber(key_expr, callback))
 
     def declare_token(self, key: str) -> None:
         self._entities.append(self.session.liveliness().declare_token(key))
