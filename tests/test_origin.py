@@ -13,18 +13,22 @@ import pytest
 
 from node_runtime.model.role import STAT_FIELDS
 from node_runtime.runtime import codec
+from node_runtime.runtime.inproc import InprocBus
 from node_runtime.runtime.keys import Keys
 from node_runtime.runtime.layout import ProcessLayout
 from node_runtime.runtime.origin import Keyring, authentic, seal
 from node_runtime.runtime.protocol import Done, Tick
+from node_runtime.runtime.transport import TransportError
 from node_runtime.runtime.zenoh_bus import ZenohTransport
-from orchestrator.clock import ProcessFailed
+from orchestrator.clock import Clock, ProcessFailed
 from orchestrator.scenario import load_scenario
+from orchestrator.serve import Server
 from orchestrator.session import Simulation
 from tests.conftest import model_part
 from tests.launcher import Launch, assert_all_gone, served
 
 TICKS, SEED, AT = 200, 4, 20
+KEYS = Keys("origin")
 WAIT_S = 30.0
 
 
@@ -45,6 +49,23 @@ def test_a_mac_proves_its_key_its_epoch_and_the_message():
     done = Done("a", 0, 5, {}, {}, epoch=3)  # in one process: a MAC over who sent it for which tick
     seal(done, keyring.proc_key("a", 3))
     assert authentic(keyring.proc_key("a", 3), done) and not authentic(keyring.proc_key("b", 3), done)
+
+
+def test_a_group_registers_once(aot1):
+    """Its host gets its processes' keys, its own and the clock's, and nothing else; then nobody gets them."""
+    plan = ProcessLayout(aot1, "per-node")
+    bus = InprocBus()
+    keyring = Keyring.new(plan.procs, ["g", "h"])
+    ours = list(plan.procs[:2])
+    orchestrator = bus.endpoint()
+    Server(orchestrator, KEYS, plan, Clock(orchestrator, KEYS, plan, keyring),
+           placement={"g": ours, "h": list(plan.procs[2:])})
+    asker = bus.endpoint()
+    got = Keyring.from_wire(asker.request(KEYS.register("g"), {"type": "register"}, 1.0))
+    assert got == Keyring(keyring.clock, {p: keyring.procs[p] for p in ours}, {"g": keyring.hosts["g"]})
+    with pytest.raises(TransportError, match="group g is registered already"):
+        asker.request(KEYS.register("g"), {"type": "register"}, 1.0)
+    assert orchestrator.rejections.counts == {"unknown_sender": 1}
 
 
 @pytest.mark.parametrize("first", ["other", "own"])
