@@ -70,6 +70,16 @@ def test_reports_that_race_their_tick_go_on_alone_and_none_is_lost():
     assert host.forwarded == [[("node-b", 3)], [("node-a", 3)], [("node-c", 3)]]
 
 
+def test_a_tick_heard_after_a_report_that_went_on_waits_for_it_no_more():
+    """Else the others' reports would wait for a quiet bus, which a flood of refused forgeries never leaves."""
+    host = Host()
+    host.report("node-a", 4)  # before the aggregator heard tick 4: it goes on alone
+    host.tick(4)
+    host.report("node-b", 4)
+    host.report("node-c", 4)
+    assert host.forwarded == [[("node-a", 4)], [("node-b", 4), ("node-c", 4)]]
+
+
 def test_a_failure_goes_at_once_and_a_quiet_bus_sends_what_waits():
     """Reports are never held for a process that may never report: the orchestrator blames only the silent."""
     host = Host()

@@ -44,6 +44,8 @@ class DoneAggregator:
         self.out_key = keys.dones(group)
         self.opened: dict[TickId, set[str]] = {}  # the local processes each tick was opened for, as heard
         self.reports: dict[TickId, dict[str, Done]] = {}  # reports not yet forwarded
+        self.sent: dict[TickId, set[str]] = {}  # the processes whose reports of a tick went on: a tick heard after
+        # them waits for them no more (or only a quiet bus, which a flood of refused messages never is, would)
         self.rejections = transport.rejections
         self.tick_keys = {keys.tick(p): p for p in procs}
         transport.subscribe(keys.tick(), self.on_tick)
@@ -62,8 +64,11 @@ class DoneAggregator:
             self.forward(old)
         for old in [t for t in self.opened if t < tick]:
             del self.opened[old]
+        for old in [t for t in self.sent if t < tick]:
+            del self.sent[old]
         proc = self.tick_keys.get(key)
-        self.opened.setdefault(tick, set()).update(self.procs if proc is None else (proc,))
+        opened = self.procs if proc is None else {proc}
+        self.opened.setdefault(tick, set()).update(opened - self.sent.get(tick, set()))
         self.maybe_forward(tick)
 
     def on_done(self, key: str, done: Done) -> None:
@@ -97,6 +102,7 @@ class DoneAggregator:
             opened = self.opened.get(tick)
             if opened is not None:
                 opened.difference_update(reports)
+            self.sent.setdefault(tick, set()).update(reports)
             for epoch in sorted({d.epoch for d in reports.values()}):  # one epoch a tick, but for a forgery
                 dones = Dones(self.group, [d for d in reports.values() if d.epoch == epoch], epoch)
                 self.transport.publish(self.out_key, dones, self.keyring.host_key(self.group, epoch))
