@@ -42,11 +42,13 @@ def mac(key: bytes, data: bytes) -> bytes:
 
 
 def identity(msg: Any) -> bytes:
-    """What a MAC covers in one process: the kind, epoch, episode, tick and sender (or command) of a message."""
-    who = getattr(msg, "proc", None) or getattr(msg, "group", None) or getattr(msg, "command", "")
-    ticks = ",".join(f"{d.proc}:{d.episode}:{d.tick}" for d in getattr(msg, "dones", ()))
-    return (f"{type(msg).__name__}|{msg.epoch}|{getattr(msg, 'episode', '')}|{getattr(msg, 'tick', '')}|{who}|"
-            f"{ticks}").encode()
+    """What a MAC covers in one process: the kind, epoch, episode, tick and sender (or command) of a tick or a
+    report; for a host's reports, the group and each report's."""
+    kind = type(msg).__name__
+    dones = getattr(msg, "dones", None)
+    if dones is not None:
+        return f"{kind}|{msg.epoch}|{msg.group}|{','.join(f'{d.proc}:{d.episode}:{d.tick}' for d in dones)}".encode()
+    return f"{kind}|{msg.epoch}|{msg.episode}|{msg.tick}|{getattr(msg, 'proc', None) or msg.command}".encode()
 
 
 def seal(msg: Any, key: bytes) -> None:
