@@ -351,9 +351,9 @@ class Clock:
     def stop(self) -> None:
         self._send(self.keys.tick(), Tick(self.episode, self.tick + 1, "stop"))
 
-    def fence(self, epoch: int) -> None:
-        """Hold the clock in ``epoch`` from now on, and tell the processes: they refuse older epochs' ticks."""
-        self.epoch = epoch
+    def fence(self) -> None:
+        """Tell the processes the clock is held in its epoch now (``serve.py``, as a claim ends): they refuse the
+        ticks of older ones."""
         self._send(self.keys.tick(), Tick(self.episode, self.tick, "fence"))
 
     def _collect(self, opened: Sequence[int]) -> list[Done]:

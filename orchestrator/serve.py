@@ -230,7 +230,7 @@ class Server:
             self._expire()
             fence, self.fence_due = self.fence_due, False
         if fence:  # in the dispatch thread, which may publish
-            self.clock.fence(self.clock.epoch)
+            self.clock.fence()
         if self.health is not None:
             self.health()
 
