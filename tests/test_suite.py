@@ -1,0 +1,100 @@
+"""The scenario generator (experiments.suite): suites drawn by seed, byte for byte, from disjoint seed sets;
+every regime a valid scenario that runs; overloaded regimes among them; cards for every regime."""
+
+from __future__ import annotations
+
+import csv
+
+import pytest
+
+from agents import BASELINES
+from experiments import regimes, suite
+from experiments.protocol import REGIMES, SPLITS
+from orchestrator.cli import main as orchestrator
+from orchestrator.scenario import load_scenario
+from orchestrator.scenario.costs import load_ratio
+from orchestrator.session import Simulation
+
+
+def test_the_same_seed_writes_the_same_files(tmp_path):
+    suite.main(["--suites", "test", "--count", "4", "--out", str(tmp_path / "a")])
+    suite.main(["--suites", "test", "--count", "4", "--out", str(tmp_path / "b")])
+    files = sorted(p.name for p in (tmp_path / "a" / "test").iterdir())
+    assert len(files) == 5 and "manifest.csv" in files
+    for name in files:
+        assert (tmp_path / "a" / "test" / name).read_bytes() == (tmp_path / "b" / "test" / name).read_bytes(), name
+    assert suite.draw(3_000_001, "test", 1).text() != suite.draw(3_000_002, "test", 1).text()
+
+
+def test_the_suites_share_no_regime_seed():
+    seeds = {split: {r.seed for r in suite.suite(split, 3)} for split in SPLITS}
+    for split, drawn in seeds.items():
+        assert drawn == set(REGIMES[split].seeds(3))  # regime k is seed k of its split: nothing hand-picked
+    assert not (seeds["train"] & seeds["validation"] or seeds["train"] & seeds["test"]
+                or seeds["validation"] & seeds["test"])
+
+
+@pytest.fixture(scope="module")
+def test_suite(tmp_path_factory):
+    folder = tmp_path_factory.mktemp("suites") / "test"
+    drawn = suite.suite("test", suite.SUITES["test"], steps=20)
+    return drawn, suite.write(drawn, folder)
+
+
+def test_every_regime_of_the_test_suite_validates_and_runs(test_suite, capsys):
+    drawn, paths = test_suite
+    for regime, path in zip(drawn, paths, strict=True):
+        assert orchestrator(["validate", str(path)]) == 0, capsys.readouterr().err
+        sc = load_scenario(path)
+        assert sc.name == regime.name and len(sc.nodes) == regime.about["nodes"]
+        assert load_ratio(sc) == pytest.approx(regime.about["load_ratio"], rel=5e-3)  # 3 digits in the manifest
+        with Simulation.inproc(sc) as sim:
+            summary = sim.run(5, seed=200_000)
+        assert summary["ticks"] == 5
+
+
+def test_the_manifest_describes_every_regime(test_suite):
+    drawn, paths = test_suite
+    with open(paths[0].parent / "manifest.csv", newline="") as f:
+        rows = list(csv.DictReader(f))
+    assert [r["name"] for r in rows] == [p.stem for p in paths] == [r.name for r in drawn]
+    assert {r["load_class"] for r in rows} >= {"overloaded", "light"}  # a policy must choose which tasks to lose
+    assert len({r["family"] for r in rows}) >= 4
+    for r in rows:
+        assert suite.load_class(float(r["load_ratio"])) == r["load_class"]
+        assert float(r["peak_rate"]) <= suite.DISTRIBUTION.peak_rate + 1e-9
+
+
+def test_the_distribution_covers_what_it_says():
+    """Over the first 40 train regimes: every family, every arrival kind, every task kind, drawn and fixed
+    deadlines, and every load class."""
+    drawn = suite.suite("train", 40, steps=20)
+    assert {r.about["family"] for r in drawn} == set(suite.DISTRIBUTION.families)
+    assert {r.about["arrival"] for r in drawn} == set(suite.DISTRIBUTION.arrivals)
+    kinds = {t["name"] for r in drawn for t in r.scenario["workload"]["tasks"]}
+    assert kinds == {k.name for k in suite.DISTRIBUTION.kinds}
+    deadlines = [t["deadline"] for r in drawn for t in r.scenario["workload"]["tasks"]]
+    assert any(isinstance(d, dict) for d in deadlines) and any(isinstance(d, float) for d in deadlines)
+    assert {r.about["load_class"] for r in drawn} == {"light", "busy", "overloaded"}
+
+
+def test_load_classes():
+    assert [suite.load_class(x) for x in (0.3, 0.7, 0.71, 1.0, 1.01)] == [
+        "light", "light", "busy", "busy", "overloaded"]
+
+
+def test_cards_for_a_suite(tmp_path):
+    suite.main(["--suites", "validation", "--count", "1", "--steps", "20", "--out", str(tmp_path), "--cards",
+                "--episodes", "2", "--no-progress"])
+    cards = tmp_path / "validation" / "cards"
+    rows = regimes.read_rows(next(cards.glob("*.csv")))
+    assert len(rows) == 2 * len(BASELINES) and {r["seed"] for r in rows} == {100_000.0, 100_001.0}
+    text = (cards / "README.md").read_text()
+    assert "## validation-000-" in text and text.count("| own | greedy |") == 1 and "Regime seed 2000000" in text
+
+
+def test_a_bad_option_is_one_line(capsys):
+    with pytest.raises(SystemExit) as e:
+        suite.main(["--suites", "dev"])
+    assert e.value.code == 2
+    assert capsys.readouterr().err.count("\n") == 1
