@@ -47,8 +47,10 @@ from node_runtime.model.client import Client
 from node_runtime.model.messages import Task, TaskSize
 from node_runtime.model.spec import Scenario
 
-SPAN = 1.0  # every tight interval up to this many times the longest job window gets a row (2 is tighter on
-# 100-step episodes, but on 400-step ones HiGHS then runs out of time and its dual bound is far weaker)
+# Every tight interval becomes a row while all of them take at most ALL_ROWS nonzeros; past that, only those
+# up to the resource's longest job window (longer ones on a grid). Twice that window was tried: tighter on
+# 100-step episodes, but on 400-step ones HiGHS ran out of time and its dual bound was far weaker.
+ALL_ROWS = 1_000_000
 EPS = 1e-9  # rounding of transfer and service ticks toward the bound's side
 BoundKind = Literal["exact", "milp_dual", "lp", "options"]
 
@@ -193,32 +195,45 @@ def buffer_rows(sc: Scenario, key: Any, found: list[Job]) -> list[tuple[list[int
     return rows
 
 
-def interval_rows(sc: Scenario, key: Any, found: list[Job]) -> list[tuple[list[int], list[float], float]]:
+class TooMany(Exception):
+    """More nonzeros than the budget of ``interval_rows``."""
+
+
+def interval_rows(sc: Scenario, key: Any, found: list[Job], span: float = math.inf,
+                  budget: list[int] | None = None) -> list[tuple[list[int], list[float], float]]:
     """The interval constraints of one resource: the jobs inside [a, b] fit in its capacity over [a, b].
 
     Every interval's row is valid, so any subset keeps the bound; these are chosen to keep the matrix small.
-    Up to ``span`` long (``SPAN`` x the resource's longest job window): each tight one, from a job's release a to a
-    job's due b, whose set has a job released at a and exceeds the capacity (others are implied or empty).
-    Longer: a and b on a grid of span / 2."""
+    Up to ``span`` long (infinity: all): each tight one, from a job's release a to a job's due b, whose set
+    has a job released at a and exceeds the capacity (others are implied or empty). Longer: a and b on a grid
+    of span / 2. ``budget``: [nonzeros left], raising ``TooMany`` when they run out."""
     if key[0] == "buffer":
         return buffer_rows(sc, key, found)
-    span = SPAN * max(j.due - j.release for j in found)
     rows = []
 
-    def add(a: float, b: float, members: list[Job]) -> None:
+    def add(a: float, b: float, members: list[Job], total: float | None = None) -> None:
         capacity = _capacity(sc, key, a, b)
-        if sum(m.amount for m in members) > capacity + EPS:
+        if (sum(m.amount for m in members) if total is None else total) > capacity + EPS:
             rows.append(([m.var for m in members], [m.amount for m in members], capacity))
+            if budget is not None:
+                budget[0] -= len(members)
+                if budget[0] < 0:
+                    raise TooMany
 
     by_due = sorted(found, key=lambda j: j.due)
     releases = sorted({j.release for j in found})
     for a in releases:
         inside = [j for j in by_due if j.release >= a and j.due <= a + span]
+        total, has_a = 0.0, False
         for n, j in enumerate(inside):
+            total += j.amount
+            has_a = has_a or j.release == a
             if n + 1 < len(inside) and inside[n + 1].due == j.due:
                 continue  # the set grows until every job due by j.due is in
-            if any(m.release == a for m in inside[:n + 1]):
-                add(a, j.due, inside[:n + 1])
+            if has_a and total > _capacity(sc, key, a, j.due) + EPS:
+                add(a, j.due, inside[:n + 1], total)
+    if math.isinf(span):
+        return rows
     step = max(1.0, span / 2)
     grid = list(np.arange(releases[0], by_due[-1].due + step, step))
     for i, a in enumerate(grid):
@@ -244,13 +259,18 @@ def solve(sc: Scenario, trace: Sequence[TraceTask], last_tick: int, time_limit: 
             col += vars_
             val += [1.0] * len(vars_)
             ub.append(1.0)
-    for key, found in resources.items():
-        for members, amounts, capacity in interval_rows(sc, key, found):
-            scale = max(amounts)  # rows in units of their largest job, for the solver's tolerances
-            r += [len(ub)] * len(members)
-            col += members
-            val += [a / scale for a in amounts]
-            ub.append(capacity / scale)
+    try:
+        budget = [ALL_ROWS]
+        rows = [row for key, found in resources.items() for row in interval_rows(sc, key, found, budget=budget)]
+    except TooMany:
+        rows = [row for key, found in resources.items()
+                for row in interval_rows(sc, key, found, max(j.due - j.release for j in found))]
+    for members, amounts, capacity in rows:
+        scale = max(amounts)  # rows in units of their largest job, for the solver's tolerances
+        r += [len(ub)] * len(members)
+        col += members
+        val += [a / scale for a in amounts]
+        ub.append(capacity / scale)
     n = len(variables)
     c = -np.ones(n)
     constraints = [LinearConstraint(coo_array((val, (r, col)), shape=(len(ub), n)).tocsr(), -np.inf, ub)] if ub else []
