@@ -4,15 +4,17 @@ score that places every policy between ``local`` (0) and that bound (1). docs/be
 The bound sees the episode's whole arrival trace (``arrival_trace``: every task the clients create, with
 its origin, creation tick, size and deadline) and chooses, for each task, where it runs (its origin's
 worker, a one-hop neighbour, or nowhere) to complete as many as possible. It is a MILP over x[task, node]
-in {0, 1}, solved by HiGHS (``scipy.optimize.milp``), with two kinds of constraint:
+in {0, 1}, solved by HiGHS (``scipy.optimize.milp``):
 
 - each task runs at most once, only where the model lets it go (its origin; a neighbour with a worker
   when the origin has a controller and ``max_hops`` is 1), and only where it can make its deadline
-  alone: release, service and transfers at their earliest;
-- interval capacity, on every CPU and every directed link: for every interval [a, b], the work of the
-  tasks placed on it that become available at or after a and are due by b fits in its capacity over
-  [a, b]. Every schedule satisfies this (the classic necessary condition for release times and
-  deadlines on one machine), FIFO or not, preemptive or not.
+  alone: decision, release, service and transfers at their earliest;
+- interval capacity, on every CPU, every directed link and every controller (the decisions it places):
+  for every interval [a, b], the work of the tasks placed on it that become available at or after a and
+  are due by b fits in its capacity over [a, b]. Every schedule satisfies this (the classic necessary
+  condition for release times and deadlines on one machine), FIFO or not, preemptive or not;
+- the origin's buffer: at every tick, the completed tasks that must be in it then (each for its shortest
+  possible stay) fit in it.
 
 Every rule of the model that it leaves out can only make it larger, so it bounds every online policy,
 clairvoyant or not (the relaxations are listed in docs/benchmark.md). It is exact (``kind`` "exact") when
@@ -41,7 +43,7 @@ from scipy.sparse import coo_array
 from agents import BASELINES, Baseline, evaluate
 from agents.training import progress_bar, write_csv
 from experiments import tune_baselines
-from experiments.common import Parser, make_env, positive_int
+from experiments.common import Parser, make_env, positive_int, positive_number
 from experiments.protocol import EPISODES, SPLITS
 from node_runtime.model.client import Client
 from node_runtime.model.messages import Task, TaskSize
@@ -330,7 +332,8 @@ def main(argv: Sequence[str] | None = None) -> None:
                    help="episode seeds from this set (default: the suite's own split)")
     p.add_argument("--episodes", type=positive_int, default=2, help="episodes per regime (default 2)")
     p.add_argument("--max-steps", type=positive_int, default=None, help="steps per episode (default: the regime's)")
-    p.add_argument("--time-limit", type=float, default=60.0, help="seconds HiGHS may take per episode (default 60)")
+    p.add_argument("--time-limit", type=positive_number, default=60.0,
+                   help="seconds HiGHS may take per episode (default 60)")
     p.add_argument("--tuned", type=Path, default=None,
                    help="a chosen.json of python -m experiments.tune_baselines: its baselines run too, as <name>_tuned")
     p.add_argument("--out", type=Path, default=None, help="CSV of the rows (default: <suite>/bound.csv)")

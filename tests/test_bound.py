@@ -182,3 +182,11 @@ def test_scenarios_outside_the_model_are_refused():
     sc = tiny().replace(max_hops=2)
     with pytest.raises(bound.BoundError, match="max_hops 2"):
         bound.solve(sc, [bound.TraceTask("a", 0, TaskSize(1e6, 1e5, 1e5, 1.0, 10.0))], 20)
+
+
+def test_the_command_without_a_suite_is_one_line(tmp_path, capsys):
+    with pytest.raises(SystemExit) as e:
+        bound.main(["--suite", str(tmp_path), "--no-progress"])
+    assert e.value.code == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "manifest.csv: not found" in err

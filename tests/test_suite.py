@@ -9,7 +9,7 @@ import pytest
 
 from agents import BASELINES
 from experiments import regimes, suite
-from experiments.protocol import REGIMES, SPLITS
+from experiments.protocol import EPISODES, REGIMES, SPLITS
 from orchestrator.cli import main as orchestrator
 from orchestrator.scenario import load_scenario
 from orchestrator.scenario.costs import load_ratio
@@ -41,15 +41,20 @@ def test_suite(tmp_path_factory):
     return drawn, suite.write(drawn, folder)
 
 
-def test_every_regime_of_the_test_suite_validates_and_runs(test_suite, capsys):
+@pytest.mark.parametrize("split", ["test", "validation"])
+def test_every_regime_of_a_suite_validates_and_runs(split, test_suite, tmp_path, capsys):
+    """The whole test suite and the whole validation suite, as the commands draw them by default."""
     drawn, paths = test_suite
+    if split == "validation":
+        drawn = suite.suite("validation", suite.SUITES["validation"], steps=20)
+        paths = suite.write(drawn, tmp_path)
     for regime, path in zip(drawn, paths, strict=True):
         assert orchestrator(["validate", str(path)]) == 0, capsys.readouterr().err
         sc = load_scenario(path)
         assert sc.name == regime.name and len(sc.nodes) == regime.about["nodes"]
         assert load_ratio(sc) == pytest.approx(regime.about["load_ratio"], rel=5e-3)  # 3 digits in the manifest
         with Simulation.inproc(sc) as sim:
-            summary = sim.run(5, seed=200_000)
+            summary = sim.run(5, seed=EPISODES[split].seeds(1)[0])
         assert summary["ticks"] == 5
 
 
