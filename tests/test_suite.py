@@ -103,3 +103,16 @@ def test_a_bad_option_is_one_line(capsys):
         suite.main(["--suites", "dev"])
     assert e.value.code == 2
     assert capsys.readouterr().err.count("\n") == 1
+
+
+def test_load_ratio_by_hand():
+    """Two sources at 0.5 and 0.25 tasks/s of 2e6 cycles (weights 3:1 with 4e6 cycles: 2.5e6 on average) into
+    workers of 1e6 + 3e6 + 1e6 cycles/s: (0.5 + 0.25) x 2.5e6 / 5e6 = 0.375."""
+    sc = load_scenario({"workload": {"arrival": {"kind": "constant", "rate": 0.5}, "rates": {"b": 0.25},
+                                     "tasks": [{"name": "s", "weight": 3, "instructions": 2e6},
+                                               {"name": "l", "weight": 1, "instructions": 4e6}]},
+                        "topology": {"nodes": [{"id": "a", "client": True, "frequency": 1e6},
+                                               {"id": "b", "client": True, "frequency": 3e6},
+                                               {"id": "c", "frequency": 1e6}],
+                                     "links": [["a", "b"], ["b", "c"]]}})
+    assert load_ratio(sc) == pytest.approx(0.375)
