@@ -8,8 +8,9 @@ over the network's capacity (``orchestrator.scenario.costs.load_ratio``), up to 
 regimes, where a policy chooses which tasks to lose, are in every suite. docs/benchmark.md gives the
 distribution in full.
 
-A suite's regime k is drawn from seed k of its split's regime seeds (``experiments.protocol.REGIMES``):
-nothing is hand-picked, and the same seed writes the same file, byte for byte.
+A suite's regime k is drawn from seed k of its split's regime seeds (``experiments.protocol.REGIMES``),
+its family and load class taken in turn (``strata``): nothing is hand-picked, and the same seed writes
+the same file, byte for byte.
 
     python -m experiments.suite                                   # train (100), validation (10), test (20)
     python -m experiments.suite --suites test --count 5 --out runs/suites-small
@@ -75,8 +76,10 @@ class Distribution:
     arrivals: tuple[str, ...] = ("constant", "linear", "zigzag", "uniform")
     swing: tuple[float, float] = (0.5, 1.0)  # a ramp, zigzag or uniform range spans mean x (1 -/+ swing)
     period_s: tuple[float, float] = (60.0, 240.0)  # of a zigzag
-    load: tuple[float, float] = (0.3, 1.5)  # arriving work over the network's capacity
-    peak_rate: float = 0.8  # tasks/s per source at most: a binary controller places one task a tick
+    loads: tuple[tuple[float, float], ...] = ((0.3, 0.7), (0.7, 1.0), (1.0, 1.5))  # work arriving over capacity,
+    # one range per load class (light, busy, overloaded)
+    peak_rate: float = 0.8  # tasks/s per source at most (a binary controller places one task a tick); a load
+    # that needs more has its tasks' instructions scaled up instead
     bandwidth_hz: tuple[float, ...] = (0.5e6, 1e6, 2e6, 5e6)
     spacing_m: tuple[float, float] = (10.0, 60.0)
 
@@ -171,16 +174,24 @@ def _arrival(kind: str, mean: float, swing: float, period: float, rising: bool) 
     return {"kind": "uniform", "low": low, "high": high}
 
 
+def strata(index: int, d: Distribution = DISTRIBUTION) -> tuple[str, tuple[float, float]]:
+    """The family and the load range of a suite's regime ``index``: every family in turn, and every load class
+    once with each family within 3 x (number of families) regimes, so that a small suite covers them evenly."""
+    n = len(d.families)
+    return d.families[index % n], d.loads[(index // n + index) % len(d.loads)]
+
+
 def draw(seed: int, split: Split, index: int, steps: int = STEPS, d: Distribution = DISTRIBUTION) -> Regime:
-    """Regime ``index`` of a ``split`` suite, from its regime ``seed``: a scenario file and its manifest row."""
+    """Regime ``index`` of a ``split`` suite, from its regime ``seed`` (its family and load range from
+    ``strata``): a scenario file and its manifest row."""
     rng = np.random.default_rng(seed)
-    family = d.families[int(rng.integers(len(d.families)))]
+    family, load = strata(index, d)
     topology, shape = _topology(rng, family, d)
     tasks = _tasks(rng, d)
     arrival_kind = d.arrivals[int(rng.integers(len(d.arrivals)))]
     swing = 0.0 if arrival_kind == "constant" else _round(rng.uniform(*d.swing), 3)
     period, rising = _round(rng.uniform(*d.period_s), 3), bool(rng.random() < 0.5)
-    target = _round(rng.uniform(*d.load), 3)
+    target = _round(rng.uniform(*load), 3)
     bandwidth = float(d.bandwidth_hz[int(rng.integers(len(d.bandwidth_hz)))])
     name = f"{split}-{index:03d}-{family}"
     scenario: dict[str, Any] = {
@@ -201,7 +212,12 @@ def draw(seed: int, split: Split, index: int, steps: int = STEPS, d: Distributio
                 raise
             topology["generator"]["seed"] += 1
     mean = target / unit
-    mean = min(mean, d.peak_rate / (1 + swing))
+    scale = 1.0
+    if mean * (1 + swing) > d.peak_rate:  # the load needs more tasks than a controller places: larger ones instead
+        scale = _round(mean * (1 + swing) / d.peak_rate, 3)
+        mean = d.peak_rate / (1 + swing)
+        for t in tasks:
+            t["instructions"] = _round(t["instructions"] * scale)
     scenario["workload"]["arrival"] = _arrival(arrival_kind, mean, swing, period, rising)
     sc = load_scenario(scenario, name_hint=name)
     ratio = load_ratio(sc)
@@ -211,7 +227,7 @@ def draw(seed: int, split: Split, index: int, steps: int = STEPS, d: Distributio
         "name": name, "split": split, "index": index, "seed": seed, "family": family, "topology": shape,
         "nodes": len(sc.nodes), "workers": sum(n.has("worker") for n in sc.nodes), "sources": len(sources),
         "devices": " ".join(f"{p}:{c}" for p, c in sorted(Counter(n.profile for n in sc.nodes).items())),
-        "tasks": kinds, "deadlines": "; ".join(_deadline(t["deadline"]) for t in tasks),
+        "tasks": kinds, "task_scale": scale, "deadlines": "; ".join(_deadline(t["deadline"]) for t in tasks),
         "arrival": arrival_kind, "mean_rate": _round(sc.workload.arrival.mean),
         "peak_rate": _round(sc.workload.arrival.peak), "bandwidth_mhz": bandwidth / 1e6,
         "median_rate_mbps": _round(statistics.median(lk.rate_bps for lk in sc.links) / 1e6, 3),

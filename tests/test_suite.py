@@ -63,8 +63,9 @@ def test_the_manifest_describes_every_regime(test_suite):
     with open(paths[0].parent / "manifest.csv", newline="") as f:
         rows = list(csv.DictReader(f))
     assert [r["name"] for r in rows] == [p.stem for p in paths] == [r.name for r in drawn]
-    assert {r["load_class"] for r in rows} >= {"overloaded", "light"}  # a policy must choose which tasks to lose
-    assert len({r["family"] for r in rows}) >= 4
+    # overloaded regimes, where a policy must choose which tasks to lose, and every family
+    assert {r["load_class"] for r in rows} == {"overloaded", "busy", "light"}
+    assert {r["family"] for r in rows} == set(suite.DISTRIBUTION.families)
     for r in rows:
         assert suite.load_class(float(r["load_ratio"])) == r["load_class"]
         assert float(r["peak_rate"]) <= suite.DISTRIBUTION.peak_rate + 1e-9
@@ -81,6 +82,21 @@ def test_the_distribution_covers_what_it_says():
     deadlines = [t["deadline"] for r in drawn for t in r.scenario["workload"]["tasks"]]
     assert any(isinstance(d, dict) for d in deadlines) and any(isinstance(d, float) for d in deadlines)
     assert {r.about["load_class"] for r in drawn} == {"light", "busy", "overloaded"}
+
+
+def test_the_strata_pair_every_family_with_every_load_class():
+    d = suite.DISTRIBUTION
+    assert {suite.strata(k) for k in range(18)} == {(f, load) for f in d.families for load in d.loads}
+    assert [suite.strata(k)[0] for k in range(7)] == [*d.families, d.families[0]]
+
+
+def test_a_load_beyond_the_rate_cap_scales_the_tasks_up():
+    drawn = suite.suite("train", 30, steps=20)
+    scaled = [r for r in drawn if r.about["task_scale"] > 1]
+    assert scaled  # light tasks on a large network: a rate under the cap cannot load it
+    for r in scaled:
+        assert r.about["peak_rate"] == pytest.approx(suite.DISTRIBUTION.peak_rate, rel=1e-3)
+        assert r.about["load_class"] == suite.load_class(r.about["load_ratio"])
 
 
 def test_load_classes():
