@@ -121,6 +121,15 @@ def overloads(sc: Scenario, kinds: list[Device]) -> list[str]:
     return out
 
 
+def load_ratio(sc: Scenario) -> float:
+    """The work the task sources bring each second (nominal arrivals x a task's mean cycles) over the cycles
+    every worker of the network serves each second. Above 1 no policy serves every task: some must be lost."""
+    total = sum(t.weight for t in sc.workload.task_types)
+    cycles = sum(t.weight * t.cycles for t in sc.workload.task_types) / total
+    capacity = sum(n.capacity for n in sc.nodes if n.has("worker"))
+    return sum(nominal_arrivals(sc).values()) * cycles / capacity if capacity else math.inf
+
+
 def undecided(sc: Scenario) -> list[str]:
     """A ``warning:`` line when tasks reach controllers faster than they place them. A controller places one
     task a step in binary mode (``batch_size`` in batch mode); with decide_first admission the rest wait
