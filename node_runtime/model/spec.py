@@ -21,6 +21,7 @@ from pydantic import Discriminator, Field, Tag, field_validator, model_validator
 
 from node_runtime.model.arrival import Arrival, Constant
 from node_runtime.model.messages import TaskSize
+from node_runtime.model.payload import Payload, PayloadLog
 from node_runtime.model.plugins import is_import_path
 from node_runtime.model.policies import POLICIES
 from node_runtime.model.rng import MAX_SEED
@@ -56,6 +57,7 @@ class Hardware(Strict):
     tx_power_dbm: Decibels
     idle_power_w: NonNeg
     kappa: NonNeg  # switched capacitance: compute energy = kappa * cycles * frequency**2
+    payload_hz: Pos | None = None  # cycles per CPU-second of a payload measured on the host (None: cores x frequency)
 
 
 class NodeSpec(Hardware):
@@ -127,6 +129,7 @@ class TaskType(Strict):
     output_bytes: Pos = 150.0 * MIB  # alpha_out
     cpi: Pos = 1.0  # xi, cycles per instruction
     deadline: Deadline = 100.0  # delta: seconds from creation until the result must be back
+    payload: Payload | None = None  # real work a worker runs when a task of this type starts service
 
     @property
     def cycles(self) -> float:
@@ -245,6 +248,7 @@ class Scenario(SimulationSettings):
     kinds: tuple[tuple[str, str], ...] = ()  # role kinds the nodes have, in canonical order: (name, class path)
     source: str = ""  # the file it came from, for messages only
     extra: dict[str, Any] = Field(default_factory=dict)  # free-form metadata (description ...)
+    payload_log: PayloadLog = PayloadLog()  # the run's payload times: measured, recorded or replayed (not hashed)
 
     def replace(self, **changes: Any) -> Scenario:
         """A copy with ``changes``, validated again (its derived views are computed afresh)."""
@@ -380,14 +384,17 @@ def _hashed_task_type(t: TaskType) -> dict[str, Any]:
     d = t.deadline
     deadline = {"deadline": d.low, "deadline_high": d.high, "grace": d.grace} if isinstance(d, DeadlineRange) \
         else {"deadline": d, "deadline_high": None, "grace": 0.0}
+    payload = {} if t.payload is None else {"payload": t.payload.model_dump()}
     return {"name": t.name, "weight": t.weight, "instructions": t.instructions, "input_bytes": t.input_bytes,
-            "output_bytes": t.output_bytes, "cpi": t.cpi, **deadline}
+            "output_bytes": t.output_bytes, "cpi": t.cpi, **deadline, **payload}
 
 
 def _hashed_node(node: dict[str, Any]) -> dict[str, Any]:
     """A node as the digest has always hashed it: ``<kind>: bool`` and ``<kind>_impl: str`` for the
     ``DIGEST_KINDS`` and for every other kind the node has or names a class for."""
     node = dict(node)
+    if node.get("payload_hz") is None:  # added later: left out while unset
+        node.pop("payload_hz", None)
     roles, impls = node.pop("roles"), dict(node.pop("impls"))
     for kind in dict.fromkeys((*DIGEST_KINDS, *roles, *impls)):
         node[kind] = kind in roles
