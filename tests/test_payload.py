@@ -15,7 +15,8 @@ from pathlib import Path
 
 import pytest
 
-from node_runtime.model.payload import PayloadError, main, read_record, run_log
+from node_runtime.model.calibrate import main
+from node_runtime.model.payload import PayloadError, read_record, run_log
 from orchestrator.clock import ProcessFailed
 from orchestrator.scenario import ScenarioError, load_scenario
 from orchestrator.session import Simulation
@@ -235,9 +236,11 @@ def test_launch_options_refuse_what_cannot_work_in_one_line(tmp_path):
     bad.write_text("not json\n")
     proc = run_cli("topologies/examples/payload_classifier.yaml", "--payload-replay", str(bad))
     assert proc.returncode == 2 and proc.stderr.strip().splitlines() == [
-        f"orchestrator: --payload-replay: {bad}:1: expected a JSON object with seed, task, node and cpu_s (got 'not json')"]
+        f"orchestrator: --payload-replay: {bad}:1: expected a JSON object with seed, task, node and cpu_s "
+        "(got 'not json')"]
     proc = run_cli("topologies/examples/minimal.yaml", "--payload-record", str(tmp_path / "r.jsonl"))
-    assert proc.returncode == 2 and proc.stderr.strip() == "orchestrator: --payload-record: minimal has no task type with a payload"
+    assert proc.returncode == 2
+    assert proc.stderr.strip() == "orchestrator: --payload-record: minimal has no task type with a payload"
 
 
 def test_the_example_records_and_replays_from_the_command_line(tmp_path):
@@ -256,4 +259,13 @@ def test_calibration_prints_the_reference_rate_and_a_devices_payload_hz(capsys):
     rate_line, hz_line = capsys.readouterr().out.splitlines()
     rate = float(rate_line.split()[2])
     assert rate > 0 and float(hz_line.split()[1]) == pytest.approx(2 * 1e8 * 1000 / rate, rel=1e-5)
+
+
+def test_calibration_times_a_payload_of_its_own(tmp_path, monkeypatch, capsys):
+    (tmp_path / "lab_payloads.py").write_text(LAB)
+    monkeypatch.chdir(tmp_path)
+    assert main(["--call", "lab_payloads:spin", "--args", '{"cpu_s": 0.01}']) == 0
+    line = capsys.readouterr().out.strip()
+    assert line.endswith("per CPU-second (calls of lab_payloads:spin, median of 5)")
+    assert 50 < float(line.split()[2]) <= 100  # each call spins at least 0.01 CPU-s
 

@@ -12,67 +12,27 @@ recorded run's results bit for bit, in any transport and process layout. Each wo
 measurements to the record, one JSON line each, keyed by (seed, task id, serving node), which no layout
 changes.
 
-``python -m node_runtime.model.payload`` measures this machine's reference rate, from which a device's
+``python -m node_runtime.model.calibrate`` measures a machine's reference rate, from which a device's
 ``payload_hz`` follows (docs/extending.md, "Real work in the loop").
 """
 
 from __future__ import annotations
 
-import argparse
 import json
 import math
 import os
-import statistics
 import time
 from collections.abc import Callable
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, Literal
+from typing import Any
 
-import numpy as np
-from pydantic import Field, field_validator, model_validator
-
-from node_runtime.model.plugins import is_import_path, load
-from node_runtime.model.values import Strict
-
-if TYPE_CHECKING:
-    from node_runtime.model.messages import Task
-    from node_runtime.model.spec import NodeSpec, Scenario
-
-# the reference kernel of the calibration: a product of two fixed KERNEL_N x KERNEL_N matrices
-KERNEL_N = 96
+from node_runtime.model.messages import Task
+from node_runtime.model.plugins import load
+from node_runtime.model.spec import NodeSpec, Payload, PayloadLog, Scenario
 
 
 class PayloadError(RuntimeError):
     """A payload that cannot run or be replayed: the run fails, naming the node, task type and payload."""
-
-
-class Payload(Strict):
-    """``workload.tasks[].payload``: the callable a worker runs for each task of the type, as
-    ``call(task_id, **args)``; what it returns is ignored."""
-
-    call: str  # import path "package.module:function"
-    args: dict[str, Any] = Field(default_factory=dict)  # keyword arguments of every call
-
-    @field_validator("call")
-    @classmethod
-    def _import_path(cls, v: str) -> str:
-        if not is_import_path(v):
-            raise ValueError(f"expected an import path like 'package.module:function' (got {v!r})")
-        return v
-
-
-class PayloadLog(Strict):
-    """What a run does with measured times (a run setting, not a scenario key: ``--payload-record``,
-    ``--payload-replay``): measure only, measure and append each to ``path``, or replay ``path``."""
-
-    mode: Literal["measure", "record", "replay"] = "measure"
-    path: str = ""
-
-    @model_validator(mode="after")
-    def _path(self) -> PayloadLog:
-        if (self.mode == "measure") != (not self.path):
-            raise ValueError("record and replay need a path; measure takes none")
-        return self
 
 
 def size_key(instructions: float, input_bytes: float, output_bytes: float, cpi: float) -> tuple[float, ...]:
@@ -198,51 +158,3 @@ def run_log(record: str | None = None, replay: str | None = None) -> PayloadLog:
         read_record(path)
         return PayloadLog(mode="replay", path=path)
     return PayloadLog()
-
-
-# ----- calibration -----
-
-def reference_rate(rounds: int = 5, seconds: float = 0.3) -> float:
-    """Reference kernels (one KERNEL_N x KERNEL_N matrix product) per CPU-second of this thread: the median
-    of ``rounds`` measurements of about ``seconds`` each."""
-    rng = np.random.default_rng(0)
-    a, b = rng.standard_normal((KERNEL_N, KERNEL_N)), rng.standard_normal((KERNEL_N, KERNEL_N))
-    rates = []
-    for _ in range(rounds):
-        n, start = 0, time.thread_time()
-        while (spent := time.thread_time() - start) < seconds:
-            for _ in range(16):
-                a @ b
-            n += 16
-        rates.append(n / spent)
-    return statistics.median(rates)
-
-
-def payload_hz(cores: int, frequency: float, host_rate: float, device_rate: float) -> float:
-    """A device's payload_hz: it serves a payload that took s CPU-seconds on the host in
-    s x host_rate / device_rate seconds of its own, so cycles = s x cores x frequency x host_rate / device_rate."""
-    return cores * frequency * host_rate / device_rate
-
-
-def main(argv: list[str] | None = None) -> int:
-    p = argparse.ArgumentParser(prog="python -m node_runtime.model.payload",
-                                description="Measure this machine's reference rate for payload calibration.")
-    p.add_argument("--host-rate", type=float, metavar="R",
-                   help="the rate measured on the machine that runs the emulation: also print this device's "
-                        "payload_hz for --cores and --frequency")
-    p.add_argument("--cores", type=int, default=1, help="the device's cores in the scenario (default 1)")
-    p.add_argument("--frequency", type=float, help="the device's frequency in the scenario, cycles/s")
-    args = p.parse_args(argv)
-    if args.host_rate is not None and not (args.frequency and args.frequency > 0 and args.host_rate > 0
-                                           and args.cores >= 1):
-        p.error("--host-rate needs a rate > 0, --frequency > 0 and --cores >= 1")
-    rate = reference_rate()
-    print(f"reference rate: {rate:.6g} kernels per CPU-second ({KERNEL_N}x{KERNEL_N} matrix products, "
-          "median of 5)")
-    if args.host_rate is not None:
-        print(f"payload_hz: {payload_hz(args.cores, args.frequency, args.host_rate, rate):.6g}")
-    return 0
-
-
-if __name__ == "__main__":
-    raise SystemExit(main())

@@ -21,7 +21,6 @@ from pydantic import Discriminator, Field, Tag, field_validator, model_validator
 
 from node_runtime.model.arrival import Arrival, Constant
 from node_runtime.model.messages import TaskSize
-from node_runtime.model.payload import Payload, PayloadLog
 from node_runtime.model.plugins import is_import_path
 from node_runtime.model.policies import POLICIES
 from node_runtime.model.rng import MAX_SEED
@@ -116,6 +115,36 @@ class DeadlineRange(Strict):
 # A number, or a range; the tags name the alternatives in errors (the scenario's key paths skip them).
 Deadline = Annotated[Annotated[Pos, Tag("<number>")] | Annotated[DeadlineRange, Tag("<range>")],
                      Discriminator(lambda v: "<range>" if isinstance(v, dict | DeadlineRange) else "<number>")]
+
+
+class Payload(Strict):
+    """``workload.tasks[].payload``: the callable a worker runs for each task of the type, as
+    ``call(task_id, **args)``; what it returns is ignored."""
+
+    call: str  # import path "package.module:function"
+    args: dict[str, Any] = Field(default_factory=dict)  # keyword arguments of every call
+
+    @field_validator("call")
+    @classmethod
+    def _import_path(cls, v: str) -> str:
+        if not is_import_path(v):
+            raise ValueError(f"expected an import path like 'package.module:function' (got {v!r})")
+        return v
+
+
+class PayloadLog(Strict):
+    """What a run does with its payloads' measured times (a run setting, not a scenario key:
+    ``--payload-record``, ``--payload-replay``; ``node_runtime.model.payload``): measure only, measure and
+    append each to ``path``, or replay ``path``."""
+
+    mode: Literal["measure", "record", "replay"] = "measure"
+    path: str = ""
+
+    @model_validator(mode="after")
+    def _path(self) -> PayloadLog:
+        if (self.mode == "measure") != (not self.path):
+            raise ValueError("record and replay need a path; measure takes none")
+        return self
 
 
 class TaskType(Strict):
