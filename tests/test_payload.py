@@ -18,7 +18,7 @@ import pytest
 from node_runtime.model.calibrate import main
 from node_runtime.model.payload import PayloadError, read_record, run_log
 from orchestrator.clock import ProcessFailed
-from orchestrator.scenario import ScenarioError, load_scenario
+from orchestrator.scenario import ScenarioError, costs, load_scenario
 from orchestrator.session import Simulation
 from tests.conftest import ROOT, model_part, run_summary, write_scenario
 from tests.golden import _digest, _model_part, _sha
@@ -269,3 +269,9 @@ def test_calibration_times_a_payload_of_its_own(tmp_path, monkeypatch, capsys):
     assert line.endswith("per CPU-second (calls of lab_payloads:spin, median of 5)")
     assert 50 < float(line.split()[2]) <= 100  # each call spins at least 0.01 CPU-s
 
+
+
+def test_validate_says_which_types_run_a_payload():
+    intro = costs.report(load_scenario("topologies/examples/payload_classifier.yaml"))[0]
+    assert intro.endswith("task type(s) classify run a payload: their service is its measured CPU time x the "
+                          "node's payload_hz, the nominal one above until they run")
