@@ -129,10 +129,10 @@ def _model_infos(infos: dict[str, Any]) -> dict[str, Any]:
             for a, info in infos.items()}
 
 
-def _launch(case: Case, scenario: Any) -> dict[str, Any]:
+def _launch(case: Case, scenario: Any, transport: str = "inproc") -> dict[str, Any]:
     from orchestrator.session import Simulation
 
-    with tempfile.TemporaryDirectory() as tmp, Simulation.inproc(scenario, layout=case.layout) as sim:
+    with tempfile.TemporaryDirectory() as tmp, Simulation.open(scenario, transport, layout=case.layout) as sim:
         summary = sim.run(case.steps, seed=case.seed, policy=case.policy)
         sim.metrics.write(Path(tmp), summary)
         tables = {name: _sha((Path(tmp) / name).read_bytes()) for name in ("ticks.csv", "nodes.csv")}

@@ -10,7 +10,6 @@ from __future__ import annotations
 import json
 import subprocess
 import sys
-import tempfile
 from pathlib import Path
 
 import pytest
@@ -19,9 +18,8 @@ from node_runtime.model.calibrate import main
 from node_runtime.model.payload import PayloadError, read_record, run_log
 from orchestrator.clock import ProcessFailed
 from orchestrator.scenario import ScenarioError, costs, load_scenario
-from orchestrator.session import Simulation
 from tests.conftest import ROOT, model_part, run_summary, write_scenario
-from tests.golden import _digest, _model_part, _sha
+from tests.golden import Case, _launch
 from tests.launcher import TIMEOUT
 
 LAB = '''
@@ -115,12 +113,8 @@ def test_hand_trace_with_recorded_payload_times_over_zenoh(tmp_path):
 
 
 def fingerprint(scenario, transport: str, layout: str, ticks: int) -> dict:
-    """The golden master's fingerprint of one run: its summary's model part and its two tables, hashed."""
-    with tempfile.TemporaryDirectory() as tmp, Simulation.open(scenario, transport, layout=layout) as sim:
-        summary = sim.run(ticks)
-        sim.metrics.write(Path(tmp), summary)
-        tables = {name: _sha((Path(tmp) / name).read_bytes()) for name in ("ticks.csv", "nodes.csv")}
-    return {"summary": _digest(_model_part(summary)), **tables, "completed": summary["totals"]["completed"]}
+    """The golden master's fingerprint of a launch: its summary's model part and its two tables, hashed."""
+    return _launch(Case("payload", ticks, seed=0, layout=layout), scenario, transport)
 
 
 @pytest.mark.zenoh
@@ -130,7 +124,7 @@ def test_a_recorded_run_replays_bit_for_bit_in_every_layout(tmp_path):
     recording = load_scenario(path).replace(payload_log=run_log(record=str(record)))
     recorded = fingerprint(recording, "zenoh", "per-node", 40)  # each worker's process appends its own lines
     rows = [json.loads(line) for line in record.read_text().splitlines()]
-    assert recorded["completed"] > 10 and {r["node"] for r in rows} == {"a", "b"}
+    assert recorded["totals"]["completed"] > 10 and {r["node"] for r in rows} == {"a", "b"}
     assert all(r["type"] == "infer" and r["seed"] == 0 and r["cpu_s"] >= 0.004 for r in rows)
     scenario = replaying(path, record)
     for transport, layout in (("inproc", "single"), ("zenoh", "per-role"), ("zenoh", "single")):
