@@ -244,6 +244,8 @@ def test_the_example_records_and_replays_from_the_command_line(tmp_path):
     assert run_cli(example, "--steps", "60", "--payload-replay", str(record), "--out", str(second)).returncode == 0
     summaries = [json.loads((d / "summary.json").read_text()) for d in (first, second)]
     assert summaries[0]["totals"]["completed"] > 0 and model_part(summaries[0]) == model_part(summaries[1])
+    assert [s["run"]["payloads"] for s in summaries] == [{"mode": "record", "path": str(record)},
+                                                         {"mode": "replay", "path": str(record)}]
     for table in ("ticks.csv", "nodes.csv"):
         assert (first / table).read_bytes() == (second / table).read_bytes()
 
