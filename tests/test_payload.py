@@ -42,19 +42,26 @@ INFER = {"name": "infer", "instructions": 1.0e6, "input_bytes": 1.0e6, "output_b
 PLAIN = {"name": "plain", "instructions": 2.0e6, "input_bytes": 1.0e6, "output_bytes": 1.0e6}
 
 
-def pair(tmp_path: Path, workload: dict, steps: int, policy: str = "round_robin", call: str = "lab_payloads:spin"):
-    """a (1e6 cycles/s; payload_hz: its capacity) places its tasks over itself and b (2e6 cycles/s, payload_hz
-    8e6: a payload's CPU second is 8e6 cycles there, 4 s), over an 8e6 bit/s link."""
+def pair(tmp_path: Path, workload: dict, steps: int, policy: str = "round_robin", call: str = "lab_payloads:spin",
+         hz: tuple[float | None, float] = (None, 8.0e6)):
+    """a (1e6 cycles/s; payload_hz: by default its capacity) places its tasks over itself and b (2e6 cycles/s,
+    payload_hz by default 8e6: a payload's CPU second is 8e6 cycles there, 4 s), over an 8e6 bit/s link.
+    ``hz=SLOW`` makes the payload's 5 ms of CPU a service of 1.5 ticks on either node, so that measured times
+    move the results."""
     (tmp_path / "lab_payloads.py").write_text(LAB)
     tasks = [{**INFER, "payload": {"call": call}}, PLAIN]
+    a_hz = {} if hz[0] is None else {"payload_hz": hz[0]}
     return write_scenario(tmp_path, {
         "simulation": {"dt": 1.0, "steps": steps, "policy": policy},
         "workload": {**workload, "tasks": tasks},
         "topology": {"nodes": [
-            {"id": "a", "frequency": 1.0e6, "buffer": 4, "controller": True, "client": True},
-            {"id": "b", "frequency": 2.0e6, "buffer": 4, "payload_hz": 8.0e6},
+            {"id": "a", "frequency": 1.0e6, "buffer": 4, "controller": True, "client": True, **a_hz},
+            {"id": "b", "frequency": 2.0e6, "buffer": 4, "payload_hz": hz[1]},
         ], "links": [{"between": ["a", "b"], "rate_bps": 8.0e6}]},
     })
+
+
+SLOW = (3.0e8, 6.0e8)
 
 
 def replaying(path: Path, record: Path):
@@ -119,7 +126,7 @@ def fingerprint(scenario, transport: str, layout: str, ticks: int) -> dict:
 
 @pytest.mark.zenoh
 def test_a_recorded_run_replays_bit_for_bit_in_every_layout(tmp_path):
-    path = pair(tmp_path, {"arrival": {"rate": 0.8}}, steps=40, policy="least_queue")
+    path = pair(tmp_path, {"arrival": {"rate": 0.4}}, steps=40, policy="least_queue", hz=SLOW)
     record = tmp_path / "times.jsonl"
     recording = load_scenario(path).replace(payload_log=run_log(record=str(record)))
     recorded = fingerprint(recording, "zenoh", "per-node", 40)  # each worker's process appends its own lines
@@ -134,7 +141,7 @@ def test_a_recorded_run_replays_bit_for_bit_in_every_layout(tmp_path):
 def test_measured_times_become_cycles_by_the_rule(tmp_path):
     """Measure and record: each task's cycles are its recorded CPU seconds x the serving node's payload_hz,
     which a replay of the record reproduces exactly."""
-    path = pair(tmp_path, {"arrival": {"rate": 0.3}}, steps=30)
+    path = pair(tmp_path, {"arrival": {"rate": 0.3}}, steps=30, hz=SLOW)
     record = tmp_path / "times.jsonl"
     measured = run_summary(load_scenario(path).replace(payload_log=run_log(record=str(record))), ticks=30)
     rows = read_record(str(record))
@@ -271,3 +278,22 @@ def test_validate_says_which_types_run_a_payload():
     intro = costs.report(load_scenario("topologies/examples/payload_classifier.yaml"))[0]
     assert intro.endswith("task type(s) classify run a payload: their service is its measured CPU time x the "
                           "node's payload_hz, the nominal one above until they run")
+
+
+def test_the_environment_replays_a_record_made_by_a_launch(tmp_path):
+    """An agent that keeps every task local makes the decisions the node-side policy `local` made while
+    recording (docs/model.md: the timing is the same either way), so its episode replays that record."""
+    from env import ZenohEdgeEnv
+
+    path = pair(tmp_path, {"arrival": {"rate": 0.3}}, steps=60, policy="local", hz=SLOW)
+    record = tmp_path / "times.jsonl"
+    # an episode of 60 steps runs 61 ticks: its reset runs tick 0
+    recorded = run_summary(load_scenario(path).replace(payload_log=run_log(record=str(record))), ticks=61)
+    env = ZenohEdgeEnv(replaying(path, record), transport="inproc", max_steps=60)
+    env.reset(seed=0)
+    while env.agents:
+        env.step(dict.fromkeys(env.agents, 0))
+    replayed = env.summary()
+    assert replayed["totals"] == recorded["totals"] and recorded["totals"]["completed"] > 5
+    assert replayed["nodes"] == recorded["nodes"] and replayed["response_time"] == recorded["response_time"]
+    env.close()
