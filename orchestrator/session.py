@@ -432,6 +432,8 @@ class Simulation:
         }
         if self.server is not None:  # what happened to the clock (docs/bus.md, "Rejected messages")
             s["run"]["control"] = dict(self.server.counts)
+        if any(t.payload is not None for t in self.scenario.workload.task_types):  # measured, or replayed from where
+            s["run"]["payloads"] = self.scenario.payload_log.model_dump()
         return s
 
     # ----- lifetime -----

@@ -99,6 +99,10 @@ def report(sc: Scenario) -> list[str]:
     intro = (f"one task alone: service = instructions x cpi / (cores x frequency); input and output at the median "
              f"rate of the links into the device; tasks arrive at {len(arriving)} node(s) and are offloaded at most "
              f"{sc.max_hops} hop(s)")
+    paid = [t.name for t in sc.workload.task_types if t.payload is not None]
+    if paid:  # their real service is known only when they run
+        intro += (f"; task type(s) {', '.join(paid)} run a payload: their service is its measured CPU time x the "
+                  "node's payload_hz, the nominal one above until they run")
     return [intro, *table, *warnings]
 
 
