@@ -23,18 +23,19 @@ from pathlib import Path
 from typing import Any
 
 from agents import BASELINES, evaluate
-from agents.training import progress_bar, write_csv
+from agents.training import EVAL_SEED, progress_bar, write_csv
 from experiments.common import Parser, check_scenario, make_env, positive_int
 from experiments.plot import mean_ci
 
 
 @dataclass(frozen=True)
 class Family:
-    """A bundled scenario standing for a family, and the two arrival rates its card is measured at."""
+    """A bundled scenario standing for a family, and the arrival rates its card is measured at (None: the
+    scenario's own schedule, as for the regimes of ``experiments.suite``)."""
 
     name: str
     scenario: str
-    lambdas: tuple[float, float]
+    lambdas: tuple[float | None, ...]
     about: str
 
 
@@ -61,17 +62,22 @@ METRICS = (("completion_ratio", "completion %", 100.0, "max"), ("response_time_m
 """Columns of a card: metric, header, scale, and which way is better (None: not judged alone, see the card)."""
 
 
-def measure(family: Family, episodes: int, max_steps: int | None = None, progress: Any = None) -> list[dict[str, Any]]:
-    """One row per rate, baseline and evaluation episode."""
+def rate_label(lam: float | None) -> str:
+    return "own" if lam is None else f"{lam:g}"
+
+
+def measure(family: Family, episodes: int, max_steps: int | None = None, progress: Any = None,
+            seed: int = EVAL_SEED) -> list[dict[str, Any]]:
+    """One row per rate, baseline and evaluation episode (seeds ``seed``, ``seed`` + 1, ...)."""
     rows = []
     for lam in family.lambdas:
         env = make_env(family.scenario, lam, max_steps)
         try:
             for name, cls in BASELINES.items():
-                label = f"{family.name} λ={lam:g} {name}"
+                label = f"{family.name} λ={rate_label(lam)} {name}"
                 rows += [{"family": family.name, "scenario": family.scenario, "lambda": lam, "baseline": name,
                           **{k: v for k, v in r.items() if k != "wall_s"}}  # kept in git: only what the seed fixes
-                         for r in evaluate(env, cls(0), episodes, progress=progress, label=label)]
+                         for r in evaluate(env, cls(0), episodes, seed=seed, progress=progress, label=label)]
         finally:
             env.close()
     return rows
@@ -89,29 +95,38 @@ def read_rows(path: Path) -> list[dict[str, Any]]:
 
 
 def card(family: Family, rows: Sequence[dict[str, Any]]) -> str:
-    """A family's card in Markdown: the mean ± 95% CI per baseline and rate, the best in bold, a verdict."""
+    """A family's card in Markdown: the mean ± 95% CI per baseline and rate, the best in bold, a verdict.
+    The baselines are those the rows hold, in ``BASELINES`` order."""
     episodes = len({r["episode"] for r in rows})
     steps = rows[0]["steps"]
+    names = [b for b in BASELINES if any(r["baseline"] == b for r in rows)]
     lines = [f"## {family.name}: `{family.scenario}`", "", family.about, "",
-             f"{len(BASELINES)} baselines, {episodes} evaluation episodes of {steps} steps each (mean ± 95% CI). "
+             f"{len(names)} baselines, {episodes} evaluation episodes of {steps} steps each (mean ± 95% CI). "
              "Score: mean time per generated task, a task not completed counts its deadline (lower is better).", ""]
     header = ["λ", "baseline", *(title for _, title, _, _ in METRICS)]
     lines += ["| " + " | ".join(header) + " |", "|" + " --- |" * len(header)]
     for lam in family.lambdas:
-        at = [r for r in rows if r["lambda"] == lam]
+        at = [r for r in rows if _same(r["lambda"], lam)]
         stats = {(b, m): mean_ci([r[m] * scale for r in at if r["baseline"] == b])
-                 for b in BASELINES for m, _, scale, _ in METRICS}
-        best = {m: (max if way == "max" else min)(BASELINES, key=lambda b, m=m: stats[b, m][0])
+                 for b in names for m, _, scale, _ in METRICS}
+        best = {m: (max if way == "max" else min)(names, key=lambda b, m=m: stats[b, m][0])
                 for m, _, _, way in METRICS if way}
-        for b in BASELINES:
+        for b in names:
             cells = []
             for m, _, _, _ in METRICS:
                 mean, ci = stats[b, m]
                 text = f"{mean:.1f} ± {ci:.1f}"
                 cells.append(f"**{text}**" if best.get(m) == b else text)
-            lines.append(f"| {lam:g} | {b} | " + " | ".join(cells) + " |")
-        lines.append(f"| {lam:g} | | {verdict(stats, best)} | | | |")
+            lines.append(f"| {rate_label(lam)} | {b} | " + " | ".join(cells) + " |")
+        lines.append(f"| {rate_label(lam)} | | {verdict(stats, best)} | | | |")
     return "\n".join(lines) + "\n"
+
+
+def _same(value: Any, lam: float | None) -> bool:
+    """A row's rate is the card's: a number, or the scenario's own (None in memory, NaN read back from a CSV)."""
+    if lam is None:
+        return value is None or (isinstance(value, float) and math.isnan(value))
+    return value == lam
 
 
 def verdict(stats: dict[tuple[str, str], tuple[float, float]], best: dict[str, str]) -> str:

@@ -28,9 +28,10 @@ from rich.console import Console
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
 from rich.table import Table
 
+from node_runtime.model.payload import PayloadError, run_log
 from node_runtime.model.policies import POLICIES
 from node_runtime.model.rng import MAX_SEED
-from node_runtime.model.spec import episode_too_long
+from node_runtime.model.spec import Scenario, episode_too_long
 from node_runtime.runtime import access, cli_options
 from node_runtime.runtime.keys import new_sim_id
 from node_runtime.runtime.layout import DEFAULT_LAYOUT_HELP, LAYOUT_HELP, Choice, ProcessLayout, layout_for
@@ -88,7 +89,7 @@ def run_dir(name: str) -> Path:
 # ----- launch -----
 
 def cmd_launch(args: argparse.Namespace) -> int:
-    scenario = load_scenario(args.scenario)
+    scenario = with_payload_log(load_scenario(args.scenario), args)
     if args.steps and (why := episode_too_long(args.steps, scenario.decision_interval)):
         raise UsageError(f"--steps {args.steps}: {why} (decision_interval {scenario.decision_interval})")
     ticks = (args.steps or scenario.steps) * scenario.decision_interval
@@ -177,6 +178,19 @@ def cmd_launch(args: argparse.Namespace) -> int:
                 if args.episodes:
                     record_serving(sim, where / "summary.json")
     return EXIT_OK
+
+
+def with_payload_log(scenario: Scenario, args: argparse.Namespace) -> Scenario:
+    """The scenario with the run's ``--payload-record`` or ``--payload-replay`` file (docs/model.md, "Payloads")."""
+    if not (args.payload_record or args.payload_replay):
+        return scenario
+    option = "--payload-record" if args.payload_record else "--payload-replay"
+    if not any(t.payload is not None for t in scenario.workload.task_types):
+        raise UsageError(f"{option}: {scenario.name} has no task type with a payload")
+    try:
+        return scenario.replace(payload_log=run_log(args.payload_record, args.payload_replay))
+    except (PayloadError, OSError) as exc:
+        raise UsageError(f"{option}: {exc}") from None
 
 
 def record_serving(sim: Simulation, path: Path) -> None:
@@ -447,6 +461,12 @@ def build_parser() -> argparse.ArgumentParser:
                         "simulations share one network; repeatable")
     p.add_argument("--tick-rate", type=POSITIVE, metavar="HZ",
                    help="run at most HZ ticks per second, to watch a run live with `orchestrator monitor`")
+    payload = p.add_mutually_exclusive_group()
+    payload.add_argument("--payload-record", metavar="FILE",
+                         help="run the task types' payloads and write each measured CPU time to FILE (JSON lines), "
+                              "from which --payload-replay repeats the run exactly (docs/model.md, \"Payloads\")")
+    payload.add_argument("--payload-replay", metavar="FILE",
+                         help="serve the payloads' tasks for the times recorded in FILE instead of running them")
     cli_options.add_security_options(
         p, identity="orchestrator",
         config_help="a Zenoh JSON5 configuration file merged last into the router's configuration, for what the "

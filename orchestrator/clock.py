@@ -19,11 +19,17 @@ as one ``Dones`` message on ``…/clock/dones/<group>``; each report in it is ch
 on its process's key, and only processes placed in that group may report there.
 
 Anyone on the bus can publish on ``…/clock/done/*``, so a ``Done`` counts only if it comes on the key
-of a process the tick was opened for (or its host's), names that process, is for the current episode and tick, is
-the first for it, and reports only on the roles the process hosts and the processes it may send to.
-Anything else is refused, counted and logged (docs/bus.md, "Rejected messages"); an error in a
-refused ``Done`` ends nothing. Without authentication that is as far as the bus allows: a forgery
-that passes every check is indistinguishable from the process's own report.
+of a process the tick was opened for (or its host's), names that process, carries that process's MAC (or
+its host's, over a host's message) of the clock's epoch (``origin``), is for the current episode and tick,
+and reports only on the roles the process hosts and the processes it may send to. Anything else is
+refused, counted and logged (docs/bus.md, "Rejected messages"); an error in a refused ``Done`` ends
+nothing. A second report of a process for a tick it already reported is refused when it is a copy of the
+first (a replay); when it differs, both carry the process's MAC, so its key is in other hands and nothing
+tells which is true: the run ends with an error that names the process.
+
+The clock is held in an *epoch*: the orchestrator's own, or one driver's claim (``serve.py``). Its ticks
+carry the epoch and its MAC of that epoch, and node processes refuse ticks of an epoch older than the
+newest they have seen (``fence`` tells them of a new one when nobody ticks).
 """
 
 from __future__ import annotations
@@ -36,8 +42,9 @@ from node_runtime.model.role import role_node, state_topic
 from node_runtime.runtime.host import states_by_clock
 from node_runtime.runtime.keys import Keys
 from node_runtime.runtime.layout import ProcessLayout
+from node_runtime.runtime.origin import Keyring, authentic
 from node_runtime.runtime.protocol import Done, Dones, Tick
-from node_runtime.runtime.rejections import UNKNOWN_SENDER, WRONG_SHAPE, WRONG_TICK
+from node_runtime.runtime.rejections import BAD_MAC, STALE_EPOCH, UNKNOWN_SENDER, WRONG_SHAPE, WRONG_TICK
 from node_runtime.runtime.transport import Transport
 
 HOLD_LIMIT = 256  # held publications that wake their process anyway: what waits for it stays small (each is
@@ -60,15 +67,18 @@ class ProcessFailed(ClockError):
 
 
 class Clock:
-    def __init__(self, transport: Transport, keys: Keys, plan: ProcessLayout, timeout: float = 30.0,
+    def __init__(self, transport: Transport, keys: Keys, plan: ProcessLayout, keyring: Keyring, timeout: float = 30.0,
                  health: Callable[[], None] | None = None, why_silent: Callable[[list[str]], str] | None = None,
                  placement: dict[str, list[str]] | None = None) -> None:
-        """``health`` raises when a process is known to have failed; ``why_silent(procs)`` adds what is known
-        of processes that sent no report in time (e.g. their OS state); ``placement`` (group -> processes):
-        the hosts that may forward their processes' reports together."""
+        """``keyring``: every key (the orchestrator), or those of one epoch (a driver's grant); ``health`` raises
+        when a process is known to have failed; ``why_silent(procs)`` adds what is known of processes that sent
+        no report in time (e.g. their OS state); ``placement`` (group -> processes): the hosts that may forward
+        their processes' reports together."""
         self.transport = transport
         self.keys = keys
         self.plan = plan
+        self.keyring = keyring
+        self.epoch = keyring.epoch or 0  # of this clock's ticks
         self.procs = plan.procs
         self.timeout = timeout
         self.health = health
@@ -83,6 +93,7 @@ class Clock:
         self.actors = {role: plan.proc_index[plan.proc_of[role]] for role in plan.roles}
         self.tick_keys = [keys.tick(p) for p in self.procs]  # process index -> its own tick key
         self.dones: dict[str, Done] = {}
+        self.accepted: list[Done | None] = [None] * len(self.procs)  # process index -> its last report taken
         self.opened: frozenset[int] = frozenset()  # the processes the current tick was opened for
         self.early: frozenset[int] = frozenset()  # the processes the next tick was opened for ahead (open_next)
         # what each process may report on: its done key, its roles, the processes it sends to
@@ -102,6 +113,7 @@ class Clock:
         self.reports = {"alone": 0, "from_hosts": 0, "host_messages": 0}
         self.host_keys = {keys.dones(group): frozenset(p for p in procs if p in plan.proc_index)
                           for group, procs in (placement or {}).items()}
+        self.host_groups = {keys.dones(group): group for group in placement or {}}
         transport.subscribe(keys.done(), self.on_done)
         if self.host_keys:
             transport.subscribe(keys.dones(), self.on_dones)
@@ -127,7 +139,7 @@ class Clock:
         if i is None or self.procs[i] != done.proc:
             self.rejections.add(key, UNKNOWN_SENDER, f"a done of {done.proc!r}, which does not publish on this key")
             return
-        if self.accept(key, i, done):
+        if self.proven(key, self.keyring.proc_key(done.proc, done.epoch), done) and self.accept(key, i, done):
             self.reports["alone"] += 1
 
     def on_dones(self, key: str, dones: Dones) -> None:
@@ -135,19 +147,56 @@ class Clock:
         if type(dones) is not Dones:
             self.rejections.add(key, WRONG_SHAPE, f"a {type(dones).__name__} where a host's dones were expected")
             return
-        placed = self.host_keys.get(key, frozenset())
+        group = self.host_groups.get(key)
+        if group is None or dones.group != group:
+            self.rejections.add(key, UNKNOWN_SENDER, f"the dones of group {dones.group!r}, which does not publish here")
+            return
+        if not self.proven(key, self.keyring.host_key(group, dones.epoch), dones):
+            return
+        placed = self.host_keys[key]
         accepted = 0
         for done in dones.dones:
             if done.proc not in placed:
                 self.rejections.add(key, UNKNOWN_SENDER, f"a done of {done.proc!r}, which this host does not run")
+            elif done.epoch != dones.epoch:
+                self.rejections.add(key, STALE_EPOCH, f"a done of epoch {done.epoch} among reports of {dones.epoch}")
             elif self.accept(key, self.plan.proc_index[done.proc], done):
                 accepted += 1
         if accepted:
             self.reports["from_hosts"] += accepted
             self.reports["host_messages"] += 1
 
+    def proven(self, key: str, secret: bytes | None, msg: Done | Dones) -> bool:
+        """Whether a report carries the MAC of the sender it names (``secret``: its key of the report's epoch, None
+        where this side cannot know it); if not, it is refused and counted."""
+        if secret is None and msg.epoch != self.epoch:  # a driver holds the keys of its own epoch only
+            self.rejections.add(key, STALE_EPOCH, f"a report of epoch {msg.epoch}; the clock is in epoch {self.epoch}")
+            return False
+        if not authentic(secret, msg):
+            self.rejections.add(key, BAD_MAC, f"a report of tick {getattr(msg, 'tick', '?')} without its sender's MAC")
+            return False
+        return True
+
     def accept(self, key: str, i: int, done: Done) -> bool:
-        """Take the report of process ``i`` that came on ``key``, unless it cannot be trusted; True if taken."""
+        """Take the report of process ``i`` that came on ``key`` (its MAC proven), unless it cannot be trusted;
+        True if taken. Raises ``ProcessFailed`` for a failure it reports, or two different reports of one tick."""
+        if done.epoch != self.epoch:
+            if done.epoch > self.epoch and self.episode < done.episode <= self.latest + 1:
+                self.latest = done.episode  # a driver's run (launch --serve)
+            elif done.epoch < self.epoch:
+                self.rejections.add(key, STALE_EPOCH, f"epoch {done.epoch}; the clock is in epoch {self.epoch}")
+            else:
+                self.rejections.add(key, WRONG_TICK, f"episode {done.episode} of epoch {done.epoch}; the clock is in "
+                                                     f"episode {self.episode} of epoch {self.epoch}")
+            return False
+        prior = self.accepted[i]
+        if prior is not None and prior.episode == done.episode and prior.tick == done.tick:
+            if prior == done:
+                self.rejections.add(key, WRONG_TICK, f"a copy of its report of tick {done.tick}")
+                return False
+            raise ProcessFailed(done.proc, self.plan.node_of_proc(done.proc),
+                                f"sent two different reports of tick {done.tick}, both with its MAC: its key is in "
+                                "other hands, and nothing tells which report is true")
         if done.episode != self.episode:
             if self.episode < done.episode <= self.latest + 1:  # another driver's episode (launch --serve)
                 self.latest = done.episode
@@ -165,6 +214,7 @@ class Clock:
         if done.rejected:
             self.node_rejections[i] = done.rejected
         self.dones[done.proc] = done
+        self.accepted[i] = done
         return True
 
     def untrusted(self, i: int, done: Done) -> tuple[str, str] | None:
@@ -215,13 +265,14 @@ class Clock:
         self.latest = self.episode
         self.tick = 0
         self.dones = {}
+        self.accepted = [None] * len(self.procs)
         self.held = [0] * len(self.procs)  # what was held in the last episode was dropped with it
         self.held_due = [math.inf] * len(self.procs)
         self.last_states = {}
         self.unread = [set() for _ in self.procs]
         self.opened = frozenset(range(len(self.procs)))
-        self.transport.publish(self.keys.tick(), Tick(self.episode, 0, "reset", seed=seed,
-                                                      external=list(external or ()), policy=policy))
+        self._send(self.keys.tick(), Tick(self.episode, 0, "reset", seed=seed, external=list(external or ()),
+                                          policy=policy))
         return self._collect(range(len(self.procs)))
 
     def step(self, actions: dict[str, Any] | None = None) -> list[Done]:
@@ -278,22 +329,32 @@ class Clock:
             states = {w: latest[w] for i in procs for w in unread[i]}
             for i in procs:
                 unread[i].clear()
-            self.transport.publish(self.keys.tick(), Tick(self.episode, t, "run", counts, actions, states=states))
+            self._send(self.keys.tick(), Tick(self.episode, t, "run", counts, actions, states=states))
             return
         for i in procs:
             states = {}
             if unread[i]:
                 states = {w: latest[w] for w in unread[i]}
                 unread[i].clear()
-            self.transport.publish(self.tick_keys[i], Tick(
-                self.episode, t, "run", {i: counts[i]} if i in counts else {}, mine.get(i, {}), states=states))
+            self._send(self.tick_keys[i], Tick(self.episode, t, "run", {i: counts[i]} if i in counts else {},
+                                               mine.get(i, {}), states=states))
+
+    def _send(self, key: str, tick: Tick) -> None:
+        """Publish a tick of this clock's epoch, sealed with its key of that epoch."""
+        tick.epoch = self.epoch
+        self.transport.publish(key, tick, self.keyring.clock_key(self.epoch))
 
     def catch_up(self, episode: int) -> None:
         """Another driver ran episodes up to ``episode``: number ours after them."""
         self.latest = max(self.latest, episode)
 
     def stop(self) -> None:
-        self.transport.publish(self.keys.tick(), Tick(self.episode, self.tick + 1, "stop"))
+        self._send(self.keys.tick(), Tick(self.episode, self.tick + 1, "stop"))
+
+    def fence(self) -> None:
+        """Tell the processes the clock is held in its epoch now (``serve.py``, as a claim ends): they refuse the
+        ticks of older ones."""
+        self._send(self.keys.tick(), Tick(self.episode, self.tick, "fence"))
 
     def _collect(self, opened: Sequence[int]) -> list[Done]:
         """Wait for the Done of every process the tick was opened for, in canonical order."""

@@ -5,11 +5,19 @@ in-process bus for code in the same process):
 
 - ``…/session``: the scenario (as a dict), the layout, the current episode and the placement of
   processes on hosts — what a remote driver, a remote node group or a monitor needs;
-- ``…/control``: ``{"claim": name}`` / ``{"release": name, "token": secret, "episode": n}`` — while the
-  orchestrator accepts drivers (``launch --serve``, after its own episodes), one driver at a time (e.g.
+- ``…/control``: ``{"claim": name}`` / ``{"release": name, "token": secret, "episode": n, "epoch": e}`` — while
+  the orchestrator accepts drivers (``launch --serve``, after its own episodes), one driver at a time (e.g.
   ``ZenohEdgeEnv(connect=...)``) takes the clock. The grant carries a random secret that only the
   claimant receives (a query's reply goes to the querier alone) and that is never published: a release
-  must carry it, so knowing the driver's name (the session description shows it) is not enough.
+  must carry it, so knowing the driver's name (the session description shows it) is not enough;
+- ``…/register/<group>``: a host that runs a placement group (``zenohedge-node``) gets its processes' keys,
+  its own and the clock's (``origin``), once: a second request for the same group is refused.
+
+Each claim holds the clock in an epoch of its own (``origin``): the grant carries the epoch and the keys of
+that epoch (the clock's, to seal its ticks, and the processes' and hosts', to check their reports), and the
+release must name it. When a claim ends, the orchestrator holds the clock in a new epoch and tells the
+processes (``Clock.fence``, at the next idle moment of ``wait``): the former holder's ticks are refused from
+then on.
 
 A claim holds only while its driver lives: the driver declares the liveliness token
 ``…/alive/driver/<id>`` of the name it claims before it claims, and the server frees the clock when that
@@ -39,7 +47,8 @@ import psutil
 from node_runtime.runtime.answers import AnswerError, claim_answer, session_answer
 from node_runtime.runtime.keys import CHUNK, DEFAULT_PREFIX, Keys
 from node_runtime.runtime.layout import ProcessLayout
-from node_runtime.runtime.rejections import CLOCK_TAKEN, NOT_HOLDER, WRONG_SHAPE
+from node_runtime.runtime.origin import Keyring
+from node_runtime.runtime.rejections import CLOCK_TAKEN, NOT_HOLDER, STALE_EPOCH, UNKNOWN_SENDER, WRONG_SHAPE
 from node_runtime.runtime.security import Security
 from node_runtime.runtime.transport import Contested, Refused, Transport, TransportError
 from node_runtime.runtime.zenoh_bus import ZenohTransport
@@ -105,9 +114,15 @@ class Server:
         # vanished, claims and releases refused
         self.counts = {"granted": 0, "released": 0, "vanished": 0, "refused_claims": 0, "refused_releases": 0}
         self.serving = False  # remote drivers may take the clock (launch --serve, after its episodes)
+        self.epochs = clock.epoch  # the newest epoch of the clock handed out
+        self.held_epoch: int | None = None  # the attached driver's
+        self.fence_due = False  # a claim ended: the processes must hear of the orchestrator's new epoch
+        self.registered: set[str] = set()  # groups whose host took its keys
         self._lock = threading.Lock()
         transport.serve(keys.session(), self._session)
         transport.serve(keys.control(), self._control)
+        for group in self.placement:
+            transport.serve(keys.register(group), lambda msg, group=group: self._register(group, msg))
         transport.watch_tokens(keys.alive(f"{DRIVER_PREFIX}*"), self._on_driver_token)
 
     def _session(self, msg: Any) -> dict[str, Any]:
@@ -130,9 +145,21 @@ class Server:
             if not CHUNK.match(driver_id):
                 raise Refused(WRONG_SHAPE, "a claim names its driver 'driver/<id>', the key of its liveliness token")
             return self._claim(name)
-        if type(msg["release"]) is not str or type(msg.get("episode", -1)) is not int:
-            raise Refused(WRONG_SHAPE, "a release names its driver and gives its last episode (an integer)")
-        return self._release(msg["release"], msg.get("token"), msg.get("episode", -1))
+        if type(msg["release"]) is not str or type(msg.get("episode", -1)) is not int \
+                or type(msg.get("epoch")) is not int:
+            raise Refused(WRONG_SHAPE, "a release names its driver and gives its last episode and its epoch (integers)")
+        return self._release(msg["release"], msg.get("token"), msg.get("episode", -1), msg["epoch"])
+
+    def _register(self, group: str, msg: Any) -> dict[str, Any]:
+        """The keys of a group's host, to the first to ask for them (the group's identity only, with --security)."""
+        if type(msg) is not dict or msg.get("type") != "register":
+            raise Refused(WRONG_SHAPE, "a registration is the map {type: 'register'}")
+        with self._lock:
+            if group in self.registered:
+                raise Refused(UNKNOWN_SENDER, f"group {group} is registered already: another host runs it, or "
+                                              "someone else asked for its keys")
+            self.registered.add(group)
+        return {"type": "register", **self.clock.keyring.of(self.placement[group], group).to_wire()}
 
     def _claim(self, name: str) -> dict[str, Any]:
         with self._lock:
@@ -146,9 +173,12 @@ class Server:
             self.secret = secrets.token_hex(16)
             self.unseen_until = None if name in self.alive else time.monotonic() + TOKEN_GRACE_S
             self.counts["granted"] += 1
-            return {"type": "control", "granted": True, "episode": self.clock.latest, "token": self.secret}
+            self.epochs += 1
+            self.held_epoch = self.epochs
+            return {"type": "control", "granted": True, "episode": self.clock.latest, "token": self.secret,
+                    "keys": self.clock.keyring.grant(self.epochs)}
 
-    def _release(self, name: str, token: Any, episode: int) -> dict[str, Any]:
+    def _release(self, name: str, token: Any, episode: int, epoch: int) -> dict[str, Any]:
         with self._lock:
             if self.driver is None or name != self.driver or not isinstance(token, str) \
                     or not secrets.compare_digest(token, self.secret or ""):
@@ -156,10 +186,22 @@ class Server:
                 self.transport.rejections.add(self.keys.control(), NOT_HOLDER,
                                               f"a release of {name[:40]!r} without the holder's name and token")
                 return {"type": "control", "released": False}
-            self.driver = self.secret = self.unseen_until = None
+            if epoch != self.held_epoch:
+                self.counts["refused_releases"] += 1
+                self.transport.rejections.add(self.keys.control(), STALE_EPOCH,
+                                              f"a release of epoch {epoch}; the clock is in epoch {self.held_epoch}")
+                return {"type": "control", "released": False}
+            self._end_claim()
             self.counts["released"] += 1
             self.clock.catch_up(episode)
             return {"type": "control", "released": True}
+
+    def _end_claim(self) -> None:
+        """The clock is the orchestrator's again, in a new epoch (call with the lock held)."""
+        self.driver = self.secret = self.unseen_until = self.held_epoch = None
+        self.epochs += 1
+        self.clock.epoch = self.epochs
+        self.fence_due = True
 
     def _on_driver_token(self, key: str, alive: bool) -> None:
         name = DRIVER_PREFIX + key.rsplit("/", 1)[-1]
@@ -181,12 +223,15 @@ class Server:
     def _free(self, why: str) -> None:
         log.warning("zenohedge: driver %s left without releasing the clock (%s); the clock is free again",
                     self.driver, why)
-        self.driver = self.secret = self.unseen_until = None
+        self._end_claim()
         self.counts["vanished"] += 1
 
     def _idle(self) -> None:
         with self._lock:
             self._expire()
+            fence, self.fence_due = self.fence_due, False
+        if fence:  # in the dispatch thread, which may publish
+            self.clock.fence()
         if self.health is not None:
             self.health()
 
@@ -200,7 +245,8 @@ class Server:
         finally:
             with self._lock:
                 self.serving = False
-                self.driver = self.secret = self.unseen_until = None
+                if self.driver is not None:
+                    self._end_claim()
 
     def wait(self, stop: threading.Event | None = None, ready: Callable[[], None] | None = None) -> None:
         """Serve remote drivers until ``stop`` is set (or Ctrl-C), noticing dead processes meanwhile.
@@ -237,9 +283,10 @@ def describe(endpoint: str, sim_id: str, prefix: str = DEFAULT_PREFIX, timeout: 
         transport.close()
 
 
-def claim(transport: Transport, keys: Keys, timeout: float) -> tuple[dict[str, Any], str, str]:
-    """Take the clock of a served simulation; returns its session description, our driver name and the
-    token that releases it. The driver's liveliness token goes up first: the claim holds while it lives."""
+def claim(transport: Transport, keys: Keys, timeout: float) -> tuple[dict[str, Any], str, str, Keyring]:
+    """Take the clock of a served simulation; returns its session description, our driver name, the
+    token that releases it and the keys of our epoch. The driver's liveliness token goes up first: the claim
+    holds while it lives."""
     info = session_of(transport, keys, timeout)
     name = f"{DRIVER_PREFIX}{secrets.token_hex(3)}"
     transport.declare_token(keys.alive(name))
@@ -256,9 +303,9 @@ def claim(transport: Transport, keys: Keys, timeout: float) -> tuple[dict[str, A
     if not answer["granted"]:
         raise Busy(f"simulation {keys.sim_id}: {answer.get('reason', 'refused')}")
     info["episode"] = answer["episode"]
-    return info, name, answer["token"]
+    return info, name, answer["token"], Keyring.granted(answer["keys"])
 
 
-def release(transport: Transport, keys: Keys, name: str, token: str, episode: int) -> None:
-    transport.request(keys.control(), {"type": "control", "release": name, "token": token, "episode": episode},
-                      timeout=5.0)
+def release(transport: Transport, keys: Keys, name: str, token: str, episode: int, epoch: int) -> None:
+    transport.request(keys.control(), {"type": "control", "release": name, "token": token, "episode": episode,
+                                       "epoch": epoch}, timeout=5.0)

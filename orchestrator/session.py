@@ -37,6 +37,7 @@ from node_runtime.runtime.host import Host, role_class
 from node_runtime.runtime.inproc import InprocBus
 from node_runtime.runtime.keys import DEFAULT_PREFIX, Keys, new_sim_id
 from node_runtime.runtime.layout import Layout, ProcessLayout, layout_for
+from node_runtime.runtime.origin import Keyring
 from node_runtime.runtime.process import ORCHESTRATOR, READY_TIMEOUT
 from node_runtime.runtime.protocol import Done
 from node_runtime.runtime.security import Security, protocol
@@ -202,14 +203,15 @@ class Simulation:
         holding every role by default), each driven in this thread."""
         self = cls(scenario, transport="inproc", keys=Keys(sim_id or new_sim_id(), prefix), layout=layout)
         bus = InprocBus()
+        keyring = Keyring.new(self.plan.procs)
         for proc in self.plan.procs:
             host = bus.endpoint()
-            self.drivers.append(HostDriver(self._host(proc), host, self.keys))
+            self.drivers.append(HostDriver(self._host(proc), host, self.keys, keyring.of([proc])))
             host.declare_token(self.keys.alive(proc))  # ready, as a node process says once it is
         self.transport = bus.endpoint()
         self.transport.declare_token(self.keys.alive(ORCHESTRATOR))
         self.transport.rejections.who = ORCHESTRATOR
-        self.clock = Clock(self.transport, self.keys, self.plan, timeout)
+        self.clock = Clock(self.transport, self.keys, self.plan, keyring, timeout)
         self.live = self.transport.monitored(self.keys.metrics())
         self.server = Server(self.transport, self.keys, self.plan, self.clock)
         return self
@@ -243,7 +245,8 @@ class Simulation:
         refuse_taken_id(self.transport, self.keys)
         placement = dict(remote.placement) if remote is not None else None
         self.supervisor = Supervisor(self.transport, self.keys, self.plan)
-        self.clock = Clock(self.transport, self.keys, self.plan, timeout, health=self.supervisor.check,
+        keyring = Keyring.new(self.plan.procs, list(placement or ()))  # hosts get theirs as they register (serve.py)
+        self.clock = Clock(self.transport, self.keys, self.plan, keyring, timeout, health=self.supervisor.check,
                            why_silent=self.supervisor.hung, placement=placement)
         self.live = self.transport.monitored(self.keys.metrics())
         elsewhere = {p for procs in (placement or {}).values() for p in procs}
@@ -258,7 +261,7 @@ class Simulation:
         if elsewhere and remote.on_waiting is not None:
             remote.on_waiting(placement, self.endpoint)
         self.startup_s = self.supervisor.start(self.scenario, self.layout, local_endpoint(self.endpoint), local,
-                                               timeout=timing["ready_timeout"], security=security,
+                                               keyring, timeout=timing["ready_timeout"], security=security,
                                                lease_s=timing["lease_s"])
 
     def _host(self, proc: str) -> Host:
@@ -285,7 +288,7 @@ class Simulation:
         transport = ZenohTransport.reach(endpoint, security, {"transport/link/tx/lease": lease_ms(timeout)}) \
             if isinstance(endpoint, str) else endpoint
         try:
-            info, driver, secret = claim(transport, keys, timeout)
+            info, driver, secret, keyring = claim(transport, keys, timeout)
         except BaseException:
             transport.close()
             raise
@@ -300,7 +303,7 @@ class Simulation:
         try:
             self.supervisor = Supervisor(transport, keys, self.plan, token=None)  # ``claim`` declared ours
             self.supervisor.wait_ready(timeout)
-            self.clock = Clock(transport, keys, self.plan, timeout, health=self.supervisor.check,
+            self.clock = Clock(transport, keys, self.plan, keyring, timeout, health=self.supervisor.check,
                                placement=info.get("placement"))
             self.clock.catch_up(info["episode"])
             self.live = transport.monitored(keys.metrics())
@@ -429,6 +432,8 @@ class Simulation:
         }
         if self.server is not None:  # what happened to the clock (docs/bus.md, "Rejected messages")
             s["run"]["control"] = dict(self.server.counts)
+        if any(t.payload is not None for t in self.scenario.workload.task_types):  # measured, or replayed from where
+            s["run"]["payloads"] = self.scenario.payload_log.model_dump()
         return s
 
     # ----- lifetime -----
@@ -440,7 +445,7 @@ class Simulation:
         self._closed = True
         if self.attached is not None:  # the processes belong to the server: hand the clock back
             with contextlib.suppress(Exception):
-                release(self.transport, self.keys, self.attached, self._secret, self.clock.episode)
+                release(self.transport, self.keys, self.attached, self._secret, self.clock.episode, self.clock.epoch)
         elif self.supervisor is not None:
             with contextlib.suppress(Exception):
                 self.clock.stop()

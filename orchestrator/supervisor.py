@@ -23,6 +23,7 @@ from node_runtime.runtime import process as node_process
 from node_runtime.runtime.forkserver import ForkServer
 from node_runtime.runtime.keys import Keys
 from node_runtime.runtime.layout import Layout, ProcessLayout
+from node_runtime.runtime.origin import Keyring
 from node_runtime.runtime.process import ORCHESTRATOR, ProcSpec
 from node_runtime.runtime.security import Security
 from node_runtime.runtime.transport import Transport
@@ -164,11 +165,12 @@ class Supervisor:
         first = f": {why.strip().splitlines()[0]}" if why.strip() else ""
         raise ProcessFailed(proc, self.nodes(proc), f"exited unexpectedly ({how(status)}){first}", why)
 
-    def start(self, scenario: Scenario, layout: Layout, endpoint: str, procs: tuple[str, ...] | None = None,
+    def start(self, scenario: Scenario, layout: Layout, endpoint: str, procs: tuple[str, ...], keyring: Keyring,
               timeout: float = 60.0, security: Security | None = None, lease_s: float | None = None) -> float:
         """Start the local processes and wait for every process of the layout to be ready.
 
-        ``procs``: the ones to start here (default all); others are expected to join from other hosts.
+        ``procs``: the ones to start here; others are expected to join from other hosts. ``keyring``: each gets
+        its own key and the clock's in its start request (origin.py), never over the bus.
         ``lease_s``: how long the router keeps the session of a process that went silent.
         Returns the seconds it took.
         """
@@ -176,9 +178,9 @@ class Supervisor:
         self.lease_s = lease_s
         self.watch = StallWatch()
         self.forks = ForkServer.shared()
-        for proc in procs if procs is not None else self.plan.procs:
-            spec = ProcSpec(proc, scenario, layout, endpoint, self.keys, tuple(sys.path), security, lease_s=lease_s,
-                            ready_timeout=timeout)
+        for proc in procs:
+            spec = ProcSpec(proc, scenario, layout, endpoint, self.keys, keyring.of([proc]), tuple(sys.path), security,
+                            lease_s=lease_s, ready_timeout=timeout)
             self.children[proc] = self.forks.start(proc, node_process.main, spec)
         self.wait_ready(timeout)
         return time.perf_counter() - t0

@@ -144,7 +144,8 @@ def intruder():
 def test_secure_two_hosts_refuse_outsiders(tmp_path, hosts, intruder):
     """The deploy/README.md default: TLS with client certificates, logins and access control. Outsiders
     without a certificate or the right password cannot connect; a host with a valid identity cannot
-    publish on keys that are not its own; the run is the same emulation as a clean one."""
+    publish on keys that are not its own, nor forge its own processes' reports (it lacks their keys); the run
+    is the same emulation as a clean one."""
     from orchestrator.session import free_port
 
     secrets = tmp_path / "secrets"
@@ -164,8 +165,11 @@ def test_secure_two_hosts_refuse_outsiders(tmp_path, hosts, intruder):
         out, err = attempt.communicate(timeout=60)
         assert (attempt.returncode, out) == (3, "refused\n"), err
     inside = intruder("zedge-host1", tls, victim, "--security", str(secrets / "cluster-a"))  # a compromised host
-    assert inside.stdout.readline() == "connected\n"
-    assert inside.stdout.readline() == "forging\n"
+    own = intruder("zedge-host1", tls, "node-rpi3_0", "--victim-group", "cluster-a", "--security",
+                   str(secrets / "cluster-a"))  # the same, forging the reports of its own group's process
+    for forger in (inside, own):
+        assert forger.stdout.readline() == "connected\n"
+        assert forger.stdout.readline() == "forging\n"
 
     def group(i: int, name: str) -> subprocess.Popen:
         return subprocess.Popen(
@@ -180,16 +184,20 @@ def test_secure_two_hosts_refuse_outsiders(tmp_path, hosts, intruder):
     local = groups[0].stderr.readline().rstrip().rpartition("connected to ")[2]
     assert local.startswith("unixsock-stream/"), local
     beside = intruder("zedge-host1", local, victim, "--security", str(secrets / "cluster-a"))
-    assert beside.stdout.readline() == "connected\n"
-    assert beside.stdout.readline() == "forging\n"
+    own_beside = intruder("zedge-host1", local, "node-rpi3_0", "--victim-group", "cluster-a", "--security",
+                          str(secrets / "cluster-a"))
+    for forger in (beside, own_beside):
+        assert forger.stdout.readline() == "connected\n"
+        assert forger.stdout.readline() == "forging\n"
     groups.append(group(2, "cluster-b"))
     assert run.finish(120) == 0, "".join(run.err)
     for g in groups:
         assert g.wait(30) == 0, g.stderr.read()
-    for forger in (inside, beside):
+    for forger in (inside, beside, own, own_beside):
         out, err = forger.communicate(timeout=60)
         assert forger.returncode == 0 and out.split()[-2] == "forged" and int(out.split()[-1]) > 0, err
 
     deployed = json.loads((tmp_path / "run" / "summary.json").read_text())
     alone = run_summary(load_scenario("aot2"), ticks=150, seed=4, policy="random")
     assert model_part(deployed) == model_part(alone)
+    assert deployed["run"]["rejected_messages"]["orchestrator"]["bad_mac"] > 0  # its own process's, without the key

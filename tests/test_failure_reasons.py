@@ -63,10 +63,11 @@ def test_a_node_process_waits_for_its_peers_as_long_as_it_was_told():
     code = textwrap.dedent(f"""
         import time
         from node_runtime.runtime.keys import Keys
+        from node_runtime.runtime.origin import Keyring
         from node_runtime.runtime.process import ProcSpec, run
         from orchestrator.scenario import load_scenario
         spec = ProcSpec("node-rpi3_0", load_scenario("aot1"), "per-node", {endpoint!r}, Keys("lonely"),
-                        ready_timeout=2.0)
+                        Keyring.new(["node-rpi3_0"]), ready_timeout=2.0)
         start = time.monotonic()
         try:
             run(spec)

@@ -23,6 +23,7 @@ from node_runtime.runtime import codec, remote
 from node_runtime.runtime.aggregator import DoneAggregator
 from node_runtime.runtime.inproc import InprocBus
 from node_runtime.runtime.keys import Keys
+from node_runtime.runtime.origin import Keyring
 from node_runtime.runtime.protocol import SCHEMA_VERSION, Batch, Done, Tick
 from node_runtime.runtime.zenoh_bus import ZenohTransport, zenoh_config
 from orchestrator.clock import ProcessFailed
@@ -117,22 +118,26 @@ def test_every_refusal_in_process_leaves_the_results_alone(aot1):
 
     raced = []
 
-    def racing(key: str, msg) -> None:  # reports that overtake the victim's own first Done from tick AT on, and one
-        if key == victim.done_key and msg.tick >= AT and not raced:  # after it
+    def racing(key: str, msg, seal=None) -> None:  # reports that overtake the victim's own first Done from tick AT
+        if key == victim.done_key and msg.tick >= AT and not raced:  # on, and one after it
             raced.append(msg.tick)
             t = msg.tick
-            publish(key, Done(victim.proc, msg.episode, t, {}, {hosted_elsewhere: STATS}))
-            publish(key, Done(victim.proc, msg.episode, t, {plan.proc_index["worker-rpi3_7"]: 1}, {}))
-            publish(key, Done(victim.proc, msg.episode, t, {}, {}, drift={own: STATS}))  # a drift without stats
-            publish(key, Done(victim.proc, msg.episode, t, {}, {}, held={plan.proc_index["worker-rpi3_7"]: (1, None)}))
-            publish(key, Done(victim.proc, msg.episode, t, {}, {}, held={receiver: (1, t + 1)}))  # read next tick
-            publish(key, Done(victim.proc, msg.episode, t, {}, {}, states={hosted_elsewhere: (0, 1, 1)}))
-            publish(key, Done(victim.proc, msg.episode, t, {}, {}, reports={hosted_elsewhere: (t + 1, 0, None)}))
-            publish(key, Done(victim.proc, msg.episode, t, {}, {}, reports={own: (t, 0, None)}))  # arrived already
-            publish(key, msg)
+            publish(key, Done(victim.proc, msg.episode, t, {}, {}))  # well formed, but without the victim's MAC
+            # with the victim's key (a process that lies): its checks refuse what it may not report
+            publish(key, Done(victim.proc, msg.episode, t, {}, {hosted_elsewhere: STATS}), seal)
+            publish(key, Done(victim.proc, msg.episode, t, {plan.proc_index["worker-rpi3_7"]: 1}, {}), seal)
+            publish(key, Done(victim.proc, msg.episode, t, {}, {}, drift={own: STATS}), seal)  # a drift without stats
+            publish(key, Done(victim.proc, msg.episode, t, {}, {}, held={plan.proc_index["worker-rpi3_7"]: (1, None)}),
+                    seal)
+            publish(key, Done(victim.proc, msg.episode, t, {}, {}, held={receiver: (1, t + 1)}), seal)  # read next tick
+            publish(key, Done(victim.proc, msg.episode, t, {}, {}, states={hosted_elsewhere: (0, 1, 1)}), seal)
+            publish(key, Done(victim.proc, msg.episode, t, {}, {}, reports={hosted_elsewhere: (t + 1, 0, None)}), seal)
+            publish(key, Done(victim.proc, msg.episode, t, {}, {}, reports={own: (t, 0, None)}), seal)  # arrived
+            publish(key, msg, seal)
+            publish(key, msg)  # a replay: a copy of the report taken
             publish(key, Done(victim.proc, msg.episode, t, {}, {}, error="forged failure"))
         else:
-            publish(key, msg)
+            publish(key, msg, seal)
 
     victim.transport.publish = racing
     summary = sim.run(TICKS, seed=SEED, policy="least_queue")
@@ -140,15 +145,17 @@ def test_every_refusal_in_process_leaves_the_results_alone(aot1):
     assert replayed, "no genuine batch was seen to replay"
     assert raced, "the victim reported nothing from tick AT on"
     assert model_part(summary) == clean
-    assert sim.transport.rejections.counts == {"wrong_shape": 1, "unknown_sender": 8, "wrong_tick": 4}
-    expected = {"unknown_sender": 3 + len(plan.listeners["worker-rpi3_0"]), "wrong_shape": 1, "wrong_tick": 8}
+    assert sim.transport.rejections.counts == {"bad_mac": 3, "wrong_shape": 1, "unknown_sender": 8, "wrong_tick": 3}
+    expected = {"bad_mac": 4, "unknown_sender": 3 + len(plan.listeners["worker-rpi3_0"]), "wrong_shape": 1,
+                "wrong_tick": 4}
     assert node_counts(sim) == expected
     # a process reports what it refused in its next Done: one that sleeps to the end (a controller with nothing
     # to place holds the states it hears) logs it as it stops instead
     reported = node_counts_of([d for d in sim.drivers if d.tick > AT])
-    assert reported["wrong_tick"] >= 6 and reported["unknown_sender"] >= 3
-    assert summary["run"]["rejected_messages"] == {"orchestrator": {"unknown_sender": 8, "wrong_shape": 1,
-                                                                    "wrong_tick": 4}, "nodes": reported}
+    assert reported["bad_mac"] >= 3 and reported["wrong_tick"] >= 2 and reported["unknown_sender"] >= 3
+    assert summary["run"]["rejected_messages"] == {"orchestrator": {"bad_mac": 3, "unknown_sender": 8,
+                                                                    "wrong_shape": 1, "wrong_tick": 3},
+                                                   "nodes": reported}
 
 
 def test_mail_beyond_what_the_clock_announced_stops_the_run(aot1):
@@ -190,7 +197,8 @@ def wired():
     targets[sim.keys.done("node-rpi3_0")] = sim.clock.on_done
     targets[sim.keys.dones("cluster")] = sim.clock.on_dones
     host = Keys("fuzzed-host")  # a host's aggregator, on keys of its own
-    aggregator = DoneAggregator(InprocBus().endpoint(), host, "cluster", ["node-rpi3_0", "node-rpi3_1"])
+    procs = ["node-rpi3_0", "node-rpi3_1"]
+    aggregator = DoneAggregator(InprocBus().endpoint(), host, "cluster", procs, Keyring.new(procs, ["cluster"]))
     targets[host.host_done("cluster", "node-rpi3_0")] = aggregator.on_done
     targets[host.tick("node-rpi3_1")] = aggregator.on_tick
     for driver in sim.drivers:
@@ -257,9 +265,8 @@ def test_garbage_on_every_kind_of_key_over_zenoh(aot1):
     assert "node-rpi3_0" in ran and listened
     assert model_part(summary) == clean
     assert summary["run"]["rejected_messages"] == {
-        "orchestrator": {"bad_msgpack": 1, "schema_version": 1, "unknown_sender": 1, "wrong_shape": 1,
-                         "wrong_tick": 1},
-        "nodes": {"bad_msgpack": 2 + len(listened), "unknown_sender": 1, "wrong_tick": 1}}
+        "orchestrator": {"bad_mac": 1, "bad_msgpack": 1, "schema_version": 1, "unknown_sender": 1, "wrong_shape": 1},
+        "nodes": {"bad_mac": 1, "bad_msgpack": 2 + len(listened), "unknown_sender": 1}}
 
 
 @pytest.mark.zenoh

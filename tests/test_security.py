@@ -1,6 +1,7 @@
 """Security on one host (loopback): a served simulation behind TLS, logins and access control
 (deploy/README.md). The identities decide what a session may do: the driver drives, the monitor only
-reads, a node group cannot take the clock; a bad security directory is one clear line."""
+reads, a node group cannot take the clock, the driver identity cannot tick without a claim; a bad security
+directory is one clear line."""
 
 from __future__ import annotations
 
@@ -13,6 +14,7 @@ import pytest
 
 from env import ZenohEdgeEnv
 from node_runtime.runtime.keys import Keys
+from node_runtime.runtime.protocol import Tick
 from node_runtime.runtime.security import Security
 from node_runtime.runtime.zenoh_bus import ZenohTransport
 from orchestrator.clock import ClockError
@@ -42,6 +44,18 @@ def test_identities_decide_who_drives(tmp_path, secrets):
     for reader in ("monitor", "edge"):
         with pytest.raises(ClockError):
             ZenohEdgeEnv(connect=endpoint, sim_id=sim, security=secrets / reader, timeout=3.0).reset(seed=1)
+
+    # the driver identity may publish ticks, but without holding the clock it has no key to seal them: a stop and
+    # a run tick change nothing (a stop ended the run, blaming a node); the processes count them, and the claim
+    # that follows on the same session, after them in order, drives them as before
+    keys = Keys(sim)
+    rogue = ZenohTransport.client(endpoint, Security.from_dir(secrets / "driver"))
+    rogue.publish(keys.tick(), Tick(0, 1, "stop"))
+    rogue.publish(keys.tick(), Tick(0, 1, "run"))
+    attached = Simulation.attach(rogue, sim)
+    attached.run(5, seed=2)
+    assert attached.clock.node_rejected() == {"bad_mac": 2 * len(attached.plan.procs)}
+    attached.close()
 
     env = ZenohEdgeEnv(connect=endpoint, sim_id=sim, security=secrets / "driver", max_steps=5)
     obs, _ = env.reset(seed=3)

@@ -15,6 +15,7 @@ import pytest
 from env import ZenohEdgeEnv
 from node_runtime.runtime.answers import AnswerError, claim_answer, session_answer
 from node_runtime.runtime.keys import Keys
+from node_runtime.runtime.protocol import Tick
 from node_runtime.runtime.transport import TransportError
 from node_runtime.runtime.zenoh_bus import ZenohTransport, free_port
 from orchestrator import serve
@@ -117,7 +118,8 @@ def test_serving_refuses_garbage_and_counts_every_refusal(tmp_path):
         assert "an empty request" in replies["empty"][0][1]
         holder = Simulation.attach(asker, sim)  # the clock is held: a release from anyone else is refused
         outsider = ZenohTransport.client(endpoint)
-        answer = outsider.request(keys.control(), {"type": "control", "release": holder.attached, "episode": 1}, 10)
+        answer = outsider.request(keys.control(), {"type": "control", "release": holder.attached, "episode": 1,
+                                                   "epoch": holder.clock.epoch}, 10)
         assert answer["released"] is False
         with pytest.raises(Busy):
             claim(outsider, keys, 10)
@@ -156,9 +158,13 @@ def test_serving_over_the_in_process_bus(aot1):
             outsider = bus.endpoint()
             for forged in ({"release": driver.attached}, {"release": driver.attached, "token": "0" * 32},
                            {"release": driver.attached, "token": 7}):
-                answer = outsider.request(keys.control(), {"type": "control", "episode": 99, **forged}, 1.0)
+                forged = {"type": "control", "episode": 99, "epoch": driver.clock.epoch, **forged}
+                answer = outsider.request(keys.control(), forged, 1.0)
                 assert answer["released"] is False
-            assert served_sim.server.counts["refused_releases"] == 3
+            stale = {"type": "control", "release": driver.attached, "token": driver._secret, "episode": 99,
+                     "epoch": driver.clock.epoch - 1}  # the holder's token, another epoch
+            assert outsider.request(keys.control(), stale, 1.0)["released"] is False
+            assert served_sim.server.counts["refused_releases"] == 4
             assert session_of(outsider, keys, 1.0)["driver"] == driver.attached
             summary = driver.run(40, seed=7)
             assert driver.clock.episode == 1
@@ -167,13 +173,22 @@ def test_serving_over_the_in_process_bus(aot1):
 
             # a driver that vanishes without releasing: the server takes the clock back
             lost = bus.endpoint()
-            _, name, _ = claim(lost, keys, 1.0)  # its liveliness token goes up first
+            _, name, _, _ = claim(lost, keys, 1.0)  # its liveliness token goes up first
             assert session_of(bus.endpoint(), keys, 1.0)["driver"] == name
             lost.close()
             assert session_of(bus.endpoint(), keys, 1.0)["driver"] is None
             assert served_sim.server.counts["vanished"] == 1
         served_sim.reset(seed=1)
         assert served_sim.clock.episode == 2  # numbered after the driver's episode
+        # the released driver still holds the clock's key of its epoch: its ticks are refused now, as is a stop
+        # without any key; the served simulation runs on
+        former = bus.endpoint()
+        former.publish(keys.tick(), Tick(9, 1, "stop", epoch=driver.clock.epoch), driver.clock.keyring.clock_key(
+            driver.clock.epoch))
+        former.publish(keys.tick(), Tick(served_sim.clock.episode, 1, "stop"))
+        assert served_sim.step().tick == 1
+        assert served_sim.drivers[0].rejections.counts == {"bad_mac": 1, "stale_epoch": 1}
+        assert served_sim.transport.rejections.counts["stale_epoch"] == 1  # the stale release
     assert model_part(summary) == model_part(run_summary(aot1, 40, seed=7))  # attached: the same emulation
 
 
@@ -204,7 +219,8 @@ def test_malformed_requests_get_an_error_and_are_counted(aot1):
             with pytest.raises(TransportError, match="refused the request"):
                 asker.request(key, message, 1.0)
         assert served_sim.transport.rejections.counts == {"wrong_shape": len(bad)}
-        asker.request(keys.control(), {"type": "control", "release": "driver/x", "token": "0" * 32, "episode": 1}, 1.0)
+        asker.request(keys.control(), {"type": "control", "release": "driver/x", "token": "0" * 32, "episode": 1,
+                                       "epoch": 0}, 1.0)
         with pytest.raises(Busy, match="not serving"):
             claim(asker, keys, 1.0)
         summary = served_sim.run(5)
@@ -271,10 +287,13 @@ def test_answers_of_the_wrong_shape_are_one_line(aot1):
             session_answer({**good, field: value}, keys.session())
     with pytest.raises(AnswerError, match="field 'placement'"):
         session_answer({k: v for k, v in good.items() if k != "placement"}, keys.session())
-    grant = {"type": "control", "granted": True, "episode": 4, "token": "ab" * 16}
+    keys32 = bytes(range(32))
+    grant = {"type": "control", "granted": True, "episode": 4, "token": "ab" * 16,
+             "keys": {"epoch": 2, "clock": keys32, "procs": {"all": keys32}, "hosts": {}}}
     assert claim_answer(grant, keys.control(), 4) == grant
     for answer, says in (({**grant, "episode": 3}, "episode 3, where the session said 4"),
                          ({**grant, "token": None}, "without a token"), ({**grant, "granted": 1}, "neither"),
+                         ({**grant, "keys": {**grant["keys"], "clock": b"short"}}, "without the keys of its epoch"),
                          ({"type": "control", "granted": False, "reason": 7}, "reason is not text")):
         with pytest.raises(AnswerError, match=says):
             claim_answer(answer, keys.control(), 4)

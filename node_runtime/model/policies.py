@@ -19,6 +19,7 @@ from node_runtime.model.view import NodeView, Observation, TaskView
 
 class Policy:
     name: ClassVar[str]
+    params: ClassVar[tuple[str, ...]] = ()  # numeric class attributes that ``configured`` may set
 
     def reset(self, rng: np.random.Generator) -> None:
         self.rng = rng
@@ -134,8 +135,62 @@ class LocalFirst(GreedyBacklog):
         return super().choose(obs, task, valid, extra)
 
 
+class Threshold(Policy):
+    """Keep the task while the own queue (as last reported, plus the tasks this batch kept) is below
+    ``threshold`` tasks; from there on, offload it to the neighbour with the least greedy_backlog estimate,
+    or keep it when no neighbour can take it. The classic threshold rule; ``threshold`` is tuned on the
+    validation suite (``python -m experiments.tune_baselines``)."""
+
+    name = "threshold"
+    params = ("threshold",)
+    threshold: ClassVar[float] = 2.0
+
+    def choose(self, obs, task, valid, extra):
+        if obs.own.queue + extra[0] < self.threshold:
+            return 0
+        costs = {a: GreedyBacklog.estimate(obs, task, a, extra[a]) for a in valid if a}
+        best = min(costs, key=lambda a: (costs[a], a), default=0)
+        return best if best and math.isfinite(costs[best]) else 0
+
+
+class DriftPlusPenalty(Policy):
+    """Lyapunov drift-plus-penalty: the target minimising drift + ``v`` x penalty.
+
+    The queues are each target's CPU queue and the link to it, in seconds of work. Sending a task adds
+    its service time s to the target's queue Q (the queue as last heard, plus this batch's tasks, times
+    s), and its transfer time u to the link's backlog B; the growth of the quadratic Lyapunov function
+    ½ΣQ² is then (Q + s/2)·s + (B + u/2)·u. The penalty is the task's expected response time, greedy_backlog's
+    estimate; a target whose buffer is full costs infinity. ``v`` (seconds) trades queue balance (small)
+    against each task's own response (large: greedy_backlog); it is tuned on the validation suite."""
+
+    name = "drift_plus_penalty"
+    params = ("v",)
+    v: ClassVar[float] = 1.0
+
+    def choose(self, obs, task, valid, extra):
+        return min(valid, key=lambda a: (self.cost(obs, task, a, extra[a]), a))
+
+    def cost(self, obs: Observation, task: TaskView, action: int, extra: int) -> float:
+        node = _target(obs, action)
+        service = task.size.cycles / node.capacity
+        drift = ((node.queue + extra) * service + service / 2) * service
+        if action:
+            transfer = (task.size.input_bytes + task.size.output_bytes) * 8.0 / node.rate_bps
+            drift += (node.backlog_s + transfer / 2) * transfer
+        return drift + self.v * GreedyBacklog.estimate(obs, task, action, extra)
+
+
 POLICIES: dict[str, type[Policy]] = {p.name: p for p in (Local, Random, RoundRobin, LeastQueue, Greedy, GreedyBacklog,
-                                                         LocalFirst)}
+                                                         LocalFirst, Threshold, DriftPlusPenalty)}
+
+
+def configured(rule: type[Policy], **params: float) -> type[Policy]:
+    """``rule`` with parameters set (``Threshold.threshold``, ``DriftPlusPenalty.v``): a subclass of the same
+    name, which ``agents.baselines.baseline`` runs as an agent. A name the rule does not take is a ValueError."""
+    unknown = sorted(set(params) - set(rule.params))
+    if unknown:
+        raise ValueError(f"{rule.name} takes {', '.join(rule.params) or 'no parameters'}, not {', '.join(unknown)}")
+    return type(rule.__name__, (rule,), {k: float(v) for k, v in params.items()} | {"__doc__": rule.__doc__})
 
 
 def make_policy(name: str) -> Policy:

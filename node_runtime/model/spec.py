@@ -56,6 +56,7 @@ class Hardware(Strict):
     tx_power_dbm: Decibels
     idle_power_w: NonNeg
     kappa: NonNeg  # switched capacitance: compute energy = kappa * cycles * frequency**2
+    payload_hz: Pos | None = None  # cycles per CPU-second of a payload measured on the host (None: cores x frequency)
 
 
 class NodeSpec(Hardware):
@@ -116,6 +117,36 @@ Deadline = Annotated[Annotated[Pos, Tag("<number>")] | Annotated[DeadlineRange, 
                      Discriminator(lambda v: "<range>" if isinstance(v, dict | DeadlineRange) else "<number>")]
 
 
+class Payload(Strict):
+    """``workload.tasks[].payload``: the callable a worker runs for each task of the type, as
+    ``call(task_id, **args)``; what it returns is ignored."""
+
+    call: str  # import path "package.module:function"
+    args: dict[str, Any] = Field(default_factory=dict)  # keyword arguments of every call
+
+    @field_validator("call")
+    @classmethod
+    def _import_path(cls, v: str) -> str:
+        if not is_import_path(v):
+            raise ValueError(f"expected an import path like 'package.module:function' (got {v!r})")
+        return v
+
+
+class PayloadLog(Strict):
+    """What a run does with its payloads' measured times (a run setting, not a scenario key:
+    ``--payload-record``, ``--payload-replay``; ``node_runtime.model.payload``): measure only, measure and
+    append each to ``path``, or replay ``path``."""
+
+    mode: Literal["measure", "record", "replay"] = "measure"
+    path: str = ""
+
+    @model_validator(mode="after")
+    def _path(self) -> PayloadLog:
+        if (self.mode == "measure") != (not self.path):
+            raise ValueError("record and replay need a path; measure takes none")
+        return self
+
+
 class TaskType(Strict):
     """A kind of task the clients create, tau = <rho, alpha_in, alpha_out, xi, delta>, and how often
     (``weight``, relative to the other types). Defaults follow the paper's parameter table."""
@@ -127,6 +158,7 @@ class TaskType(Strict):
     output_bytes: Pos = 150.0 * MIB  # alpha_out
     cpi: Pos = 1.0  # xi, cycles per instruction
     deadline: Deadline = 100.0  # delta: seconds from creation until the result must be back
+    payload: Payload | None = None  # real work a worker runs when a task of this type starts service
 
     @property
     def cycles(self) -> float:
@@ -245,6 +277,7 @@ class Scenario(SimulationSettings):
     kinds: tuple[tuple[str, str], ...] = ()  # role kinds the nodes have, in canonical order: (name, class path)
     source: str = ""  # the file it came from, for messages only
     extra: dict[str, Any] = Field(default_factory=dict)  # free-form metadata (description ...)
+    payload_log: PayloadLog = PayloadLog()  # the run's payload times: measured, recorded or replayed (not hashed)
 
     def replace(self, **changes: Any) -> Scenario:
         """A copy with ``changes``, validated again (its derived views are computed afresh)."""
@@ -380,14 +413,17 @@ def _hashed_task_type(t: TaskType) -> dict[str, Any]:
     d = t.deadline
     deadline = {"deadline": d.low, "deadline_high": d.high, "grace": d.grace} if isinstance(d, DeadlineRange) \
         else {"deadline": d, "deadline_high": None, "grace": 0.0}
+    payload = {} if t.payload is None else {"payload": t.payload.model_dump()}
     return {"name": t.name, "weight": t.weight, "instructions": t.instructions, "input_bytes": t.input_bytes,
-            "output_bytes": t.output_bytes, "cpi": t.cpi, **deadline}
+            "output_bytes": t.output_bytes, "cpi": t.cpi, **deadline, **payload}
 
 
 def _hashed_node(node: dict[str, Any]) -> dict[str, Any]:
     """A node as the digest has always hashed it: ``<kind>: bool`` and ``<kind>_impl: str`` for the
     ``DIGEST_KINDS`` and for every other kind the node has or names a class for."""
     node = dict(node)
+    if node.get("payload_hz") is None:  # added later: left out while unset
+        node.pop("payload_hz", None)
     roles, impls = node.pop("roles"), dict(node.pop("impls"))
     for kind in dict.fromkeys((*DIGEST_KINDS, *roles, *impls)):
         node[kind] = kind in roles

@@ -31,4 +31,5 @@ def optional(model: type[BaseModel]) -> dict[str, Any]:
     """``model``'s fields, each optional (None when not given) with the same type and constraints: for a
     section of a file that may give any of them (a hardware profile gives some of a node's hardware)."""
     fields = model.model_fields.items()
-    return {name: (Annotated[info.annotation, *info.metadata] | None, None) for name, info in fields}
+    return {name: ((Annotated[info.annotation, *info.metadata] if info.metadata else info.annotation) | None, None)
+            for name, info in fields}

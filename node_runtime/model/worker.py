@@ -30,6 +30,7 @@ from itertools import islice
 
 from node_runtime.model.energy import compute_energy, idle_energy
 from node_runtime.model.messages import Decision, Envelope, Kind, NodeState, Pending, Report, Result, Task
+from node_runtime.model.payload import Payloads
 from node_runtime.model.radio import Radio
 from node_runtime.model.registry import RoleKind, register
 from node_runtime.model.rng import stream
@@ -60,6 +61,7 @@ class Worker(Role):
         self.topic = state_topic(node.id)
         self.budget = node.capacity * scenario.dt
         self.idle_w = node.idle_power_w
+        self.payloads = Payloads.of(node, scenario)  # None: no task type has real work to run
         # a class that serves or publishes otherwise may act in every tick of a service: it never coasts
         self.coasts = type(self).serve is Worker.serve and type(self).publish is Worker.publish
         self.reset(scenario.seed)
@@ -83,6 +85,8 @@ class Worker(Role):
         self._imposed = 0.0  # ... and the delay its service has imposed so far
         self.drift = None
         self._coasting = -1  # while ``drift`` is set: the last tick this worker ran
+        if self.payloads is not None:
+            self.payloads.seed = seed
 
     # ----- helpers -----
 
@@ -123,7 +127,12 @@ class Worker(Role):
         if not self.decides:
             return []
         max_hops = self.scenario.max_hops
-        return [e for e in self.queue if e[1] == e[0].size.cycles and not e[3] and e[0].hops < max_hops]
+        return [e for e in self.queue if not self.started(e) and not e[3] and e[0].hops < max_hops]
+
+    def started(self, entry: list) -> bool:
+        """Whether a queued task has had cycles of the CPU (a payload's task starts with other cycles than its
+        nominal ones, so its remaining count alone cannot tell)."""
+        return entry[1] != entry[0].size.cycles or entry[0].id == self._serving
 
     def transmit(self, t: int, kind: Kind, dst_node: str, dst_role: str, body: Task | Result, bits: float,
                  out: Outbox) -> None:
@@ -303,7 +312,7 @@ class Worker(Role):
         for d in decisions:
             at = next((i for i, e in enumerate(self.queue) if e[0].id == d.task_id), None)
             entry = self.queue[at] if at is not None else None
-            if entry is None or entry[1] != entry[0].size.cycles or entry[3]:
+            if entry is None or self.started(entry) or entry[3]:
                 st.stale_decisions += 1
                 continue
             if not d.target or d.target == self.node.id:
@@ -348,6 +357,8 @@ class Worker(Role):
             task = entry[0]
             if task.id != self._serving:  # a new head (the last one finished, or left the queue)
                 self._serving, self._imposed = task.id, 0.0
+                if self.payloads is not None and (cycles := self.payloads.cycles(task)) is not None:
+                    entry[1] = cycles  # its real work, run now: the tick waits for it
             remaining = entry[1]
             finishes = remaining <= budget + EPS_CYCLES
             if len(queue) > 1:

@@ -11,15 +11,15 @@ allowed is dropped by the router, silently for publications, with no answer for 
 - each placement group (login = group name): publishes only the ``Done`` and liveliness tokens of its
   own processes (on the clock's keys, or on its host's aggregator's and the group's ``…/clock/dones``
   key), mail to the inboxes those processes may send to, their broadcasts (states) and events of their
-  own nodes;
+  own nodes; queries ``…/register/<group>`` for its own keys (origin.py);
 - ``driver``: publishes ticks and per-tick metrics, queries ``…/control``, announces ``…/alive/driver/*``;
 - ``monitor`` and everyone above: subscribes, watches tokens, queries ``…/session``.
 
 Only ``orchestrator`` may declare a queryable (or reply): nobody else can answer ``…/session`` or
 ``…/control``, so a driver, a monitor and ``zenohedge-node`` hear the orchestrator's answers alone.
 
-What the router cannot know stays with the orchestrator: that a ``Done`` names the process that sent
-it, and that a release of the clock comes from the driver that claimed it (its secret token).
+What the router cannot know stays with the orchestrator: that a ``Done`` comes from the process it names
+(its MAC), and that a release of the clock comes from the driver that claimed it (its secret token).
 """
 
 from __future__ import annotations
@@ -93,9 +93,10 @@ def access_control(keys: Keys, plan: ProcessLayout, placement: dict[str, list[st
     for group, procs in placement.items():
         puts, tokens = group_keys(keys, plan, group, procs)
         rules += [_rule(f"group-{group}-put", ["put"], puts),
-                  _rule(f"group-{group}-token", ["liveliness_token"], tokens)]
-        policies.append({"id": f"group-{group}", "rules": [*read, f"group-{group}-put", f"group-{group}-token"],
-                         "subjects": [group]})
+                  _rule(f"group-{group}-token", ["liveliness_token"], tokens),
+                  _rule(f"group-{group}-register", ["query"], [keys.register(group)])]
+        policies.append({"id": f"group-{group}", "rules": [*read, f"group-{group}-put", f"group-{group}-token",
+                                                          f"group-{group}-register"], "subjects": [group]})
     subjects = [(_host_subject if on_host else _subject)(name) for name in (*IDENTITIES, *placement)]
     return {"enabled": True, "default_permission": "deny", "rules": rules, "subjects": subjects,
             "policies": policies}

@@ -14,27 +14,38 @@ the others: it then travels in a batch of its own. A report is never held for a 
 report either: a failure (a ``Done`` with an error) goes at once, and whatever waits is forwarded when
 the bus has been quiet for a moment (``flush``), so the orchestrator blames only the silent. The
 orchestrator checks each report in a batch as if it had come alone.
+
+Proof of origin (``origin``): the aggregator takes only reports that carry their process's MAC, and seals
+what it forwards with the host's own key, which is what the orchestrator checks; it takes only the ticks
+that carry the clock's. A second report of a process for one tick is never merged into the first: the first
+goes on at once, so that the orchestrator sees both and judges.
 """
 
 from __future__ import annotations
 
 from node_runtime.runtime.keys import Keys
+from node_runtime.runtime.origin import Keyring, authentic
 from node_runtime.runtime.protocol import Done, Dones, Tick
-from node_runtime.runtime.rejections import UNKNOWN_SENDER, WRONG_SHAPE
+from node_runtime.runtime.rejections import BAD_MAC, UNKNOWN_SENDER, WRONG_SHAPE
 from node_runtime.runtime.transport import Transport
 
 TickId = tuple[int, int]  # (episode, tick)
 
 
 class DoneAggregator:
-    def __init__(self, transport: Transport, keys: Keys, group: str, procs: list[str]) -> None:
+    def __init__(self, transport: Transport, keys: Keys, group: str, procs: list[str], keyring: Keyring) -> None:
+        """``keyring``: the clock's key, the processes' and the host's own (``Server._register``)."""
         self.transport = transport
+        self.keyring = keyring
+        self.epoch = 0  # the newest epoch of the clock heard
         self.group = group
         self.procs = frozenset(procs)
         self.report_keys = {keys.host_done(group, p): p for p in procs}
         self.out_key = keys.dones(group)
         self.opened: dict[TickId, set[str]] = {}  # the local processes each tick was opened for, as heard
         self.reports: dict[TickId, dict[str, Done]] = {}  # reports not yet forwarded
+        self.sent: dict[TickId, set[str]] = {}  # the processes whose reports of a tick went on: a tick heard after
+        # them waits for them no more (or only a quiet bus, which a flood of refused messages never is, would)
         self.rejections = transport.rejections
         self.tick_keys = {keys.tick(p): p for p in procs}
         transport.subscribe(keys.tick(), self.on_tick)
@@ -43,15 +54,21 @@ class DoneAggregator:
         transport.subscribe(keys.host_done(group), self.on_done)
 
     def on_tick(self, key: str, cmd: Tick) -> None:
-        if type(cmd) is not Tick or cmd.command == "stop":  # the processes refuse and count a bad tick
+        if type(cmd) is not Tick or not authentic(self.keyring.clock_key(cmd.epoch), cmd) or cmd.epoch < self.epoch:
+            return  # the processes refuse and count a bad tick
+        self.epoch = cmd.epoch
+        if cmd.command in ("stop", "fence"):
             return
         tick = (cmd.episode, cmd.tick)
         for old in [t for t in self.reports if t < tick]:  # the clock moved on: nobody still waits for these
             self.forward(old)
         for old in [t for t in self.opened if t < tick]:
             del self.opened[old]
+        for old in [t for t in self.sent if t < tick]:
+            del self.sent[old]
         proc = self.tick_keys.get(key)
-        self.opened.setdefault(tick, set()).update(self.procs if proc is None else (proc,))
+        opened = self.procs if proc is None else {proc}
+        self.opened.setdefault(tick, set()).update(opened - self.sent.get(tick, set()))
         self.maybe_forward(tick)
 
     def on_done(self, key: str, done: Done) -> None:
@@ -61,7 +78,12 @@ class DoneAggregator:
         if self.report_keys.get(key) != done.proc:
             self.rejections.add(key, UNKNOWN_SENDER, f"a done of {done.proc!r}, which does not publish on this key")
             return
+        if not authentic(self.keyring.proc_key(done.proc, done.epoch), done):
+            self.rejections.add(key, BAD_MAC, f"a done of {done.proc} for tick {done.tick} without its MAC")
+            return
         tick = (done.episode, done.tick)
+        if done.proc in self.reports.get(tick, ()):  # a second one: both go on, and the orchestrator judges
+            self.forward(tick)
         self.reports.setdefault(tick, {})[done.proc] = done
         if done.error is not None:
             self.forward(tick)
@@ -80,7 +102,10 @@ class DoneAggregator:
             opened = self.opened.get(tick)
             if opened is not None:
                 opened.difference_update(reports)
-            self.transport.publish(self.out_key, Dones(self.group, list(reports.values())))
+            self.sent.setdefault(tick, set()).update(reports)
+            for epoch in sorted({d.epoch for d in reports.values()}):  # one epoch a tick, but for a forgery
+                dones = Dones(self.group, [d for d in reports.values() if d.epoch == epoch], epoch)
+                self.transport.publish(self.out_key, dones, self.keyring.host_key(self.group, epoch))
 
     def flush(self) -> None:
         """Forward everything waiting: the bus is quiet, so a process the reports wait for may be hung."""

@@ -16,6 +16,7 @@ from pydantic import ValidationError
 
 from node_runtime.model.spec import Scenario
 from node_runtime.runtime.layout import check_layout
+from node_runtime.runtime.origin import CLOCK, KEY_BYTES
 
 EPISODES = 2**31  # episode numbers run from -1 (none yet) below this, as ticks do
 TOKEN = re.compile(r"^[0-9a-f]{32}$")  # serve.py's secrets.token_hex(16)
@@ -35,6 +36,17 @@ def _episode(x: Any) -> bool:
 
 def _str_lists(m: Any) -> bool:
     return type(m) is dict and all(_is_str(k) and type(v) is list and all(map(_is_str, v)) for k, v in m.items())
+
+
+def _key(k: Any) -> bool:
+    return type(k) is bytes and len(k) == KEY_BYTES
+
+
+def _epoch_keys(grant: Any) -> bool:
+    """A grant's keys (origin.Keyring.grant): its epoch, the clock's key, and every process's and host's."""
+    return (type(grant) is dict and type(grant.get("epoch")) is int and _key(grant.get(CLOCK))
+            and all(type(m) is dict and all(_is_str(n) and _key(k) for n, k in m.items())
+                    for m in (grant.get("procs"), grant.get("hosts"))))
 
 
 def session_answer(info: Any, key: str) -> dict[str, Any]:
@@ -65,9 +77,9 @@ def session_answer(info: Any, key: str) -> dict[str, Any]:
 
 
 def claim_answer(answer: Any, key: str, seen: int) -> dict[str, Any]:
-    """``answer`` if it is the answer to a claim: refused with a reason, or granted with a token and the latest
-    episode, which is never below ``seen``, the episode the session description gave before the claim
-    (episode numbers only grow)."""
+    """``answer`` if it is the answer to a claim: refused with a reason, or granted with a token, the keys of its
+    epoch and the latest episode, which is never below ``seen``, the episode the session description gave
+    before the claim (episode numbers only grow)."""
     def wrong(what: str) -> AnswerError:
         return AnswerError(f"{key} answered the claim with {what}")
 
@@ -79,6 +91,8 @@ def claim_answer(answer: Any, key: str, seen: int) -> dict[str, Any]:
         return answer
     if not (type(answer.get("token")) is str and TOKEN.match(answer["token"])):
         raise wrong("a grant without a token of 32 hexadecimal digits")
+    if not _epoch_keys(answer.get("keys")):
+        raise wrong("a grant without the keys of its epoch")
     if not (_episode(answer.get("episode")) and answer["episode"] >= seen):
         raise wrong(f"a grant at episode {answer.get('episode')!r}, where the session said {seen}: episode numbers "
                     "only grow")

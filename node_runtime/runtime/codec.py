@@ -8,6 +8,10 @@ Anyone who reaches the router can publish, so decoding checks the shape of every
 (fields present, of the right types, arrays of the right length) and raises ``CodecError`` with the
 reason for anything else: handlers only ever see well-formed messages. Whether a well-formed
 message may be trusted (its sender, its tick) is for the handlers to decide.
+
+A tick, done or dones may be sealed (``encode(msg, seal=key)``): a ``mac`` field, last, holds the keyed
+BLAKE2b of every byte before it (``origin``). ``decode`` hands the message over with ``mac`` and ``signed``
+(those bytes) set, for the handlers to check against the key of the sender the message names.
 """
 
 from __future__ import annotations
@@ -21,6 +25,7 @@ import msgpack
 from node_runtime.model.messages import Decision, Envelope, Kind, NodeState, Pending, Report, Result, Task, TaskSize
 from node_runtime.model.role import STAT_FIELDS
 from node_runtime.model.view import Observation
+from node_runtime.runtime.origin import MAC_BYTES, mac
 from node_runtime.runtime.protocol import SCHEMA_VERSION, Batch, Done, Dones, Tick
 from node_runtime.runtime.rejections import BAD_MSGPACK, TOO_LARGE, WRONG_SHAPE
 from node_runtime.runtime.rejections import SCHEMA_VERSION as OTHER_SCHEMA
@@ -171,13 +176,13 @@ def _maybe_str(x: Any) -> bool:
     return x is None or isinstance(x, str)
 
 
-COMMANDS = ("run", "reset", "stop")
-TICK_FIELDS = (("e", _is_int), ("t", _is_int), ("cmd", COMMANDS.__contains__), ("expect", _int_map),
-               ("actions", _actions), ("seed", _is_int), ("external", _str_list), ("policy", _maybe_str),
-               ("st", _tick_states))
-DONE_FIELDS = (("proc", _is_str), ("e", _is_int), ("t", _is_int), ("sent", _int_map), ("stats", _stats),
-               ("rt", _times), ("fl", _flights), ("wake", _maybe_int), ("obs", _observations), ("error", _maybe_str),
-               ("led", _ledger), ("dr", _drift), ("hd", _held), ("st", _states),
+COMMANDS = ("run", "reset", "stop", "fence")
+TICK_FIELDS = (("ep", _is_int), ("e", _is_int), ("t", _is_int), ("cmd", COMMANDS.__contains__),
+               ("expect", _int_map), ("actions", _actions), ("seed", _is_int), ("external", _str_list),
+               ("policy", _maybe_str), ("st", _tick_states))
+DONE_FIELDS = (("proc", _is_str), ("ep", _is_int), ("e", _is_int), ("t", _is_int), ("sent", _int_map),
+               ("stats", _stats), ("rt", _times), ("fl", _flights), ("wake", _maybe_int), ("obs", _observations),
+               ("error", _maybe_str), ("led", _ledger), ("dr", _drift), ("hd", _held), ("st", _states),
                ("rp", _reports))
 # "rej" (optional) comes last: a done that passes every field above is malformed there
 BATCH_FIELDS = (("e", _is_int), ("t", _is_int), ("src", _is_str), ("msgs", list.__instancecheck__))
@@ -259,13 +264,13 @@ def to_wire(msg: Any) -> dict[str, Any]:
         return {"type": "batch", "e": msg.episode, "t": msg.tick, "src": msg.src,
                 "msgs": [_envelope(e) for e in msg.envelopes]}
     if isinstance(msg, Tick):
-        return {"type": "tick", "e": msg.episode, "t": msg.tick, "cmd": msg.command, "expect": msg.expect,
-                "actions": msg.actions, "seed": msg.seed, "external": msg.external, "policy": msg.policy,
-                "st": msg.states}
+        return {"type": "tick", "ep": msg.epoch, "e": msg.episode, "t": msg.tick, "cmd": msg.command,
+                "expect": msg.expect, "actions": msg.actions, "seed": msg.seed, "external": msg.external,
+                "policy": msg.policy, "st": msg.states}
     if isinstance(msg, Done):
         return _done_wire(msg)
     if isinstance(msg, Dones):
-        return {"type": "dones", "group": msg.group, "dones": [_done_wire(d) for d in msg.dones]}
+        return {"type": "dones", "group": msg.group, "ep": msg.epoch, "dones": [_done_wire(d) for d in msg.dones]}
     if isinstance(msg, dict):
         if "type" not in msg:
             raise CodecError("a plain message needs a 'type' field")
@@ -274,7 +279,7 @@ def to_wire(msg: Any) -> dict[str, Any]:
 
 
 def _done_wire(msg: Done) -> dict[str, Any]:
-    d = {"type": "done", "proc": msg.proc, "e": msg.episode, "t": msg.tick, "sent": msg.sent,
+    d = {"type": "done", "proc": msg.proc, "ep": msg.epoch, "e": msg.episode, "t": msg.tick, "sent": msg.sent,
          "stats": msg.stats, "rt": msg.response_times, "fl": msg.flights, "wake": msg.wake,
          "obs": {k: o.to_wire() for k, o in msg.obs.items()}, "error": msg.error, "led": msg.ledger,
          "dr": msg.drift, "hd": msg.held, "st": msg.states, "rp": msg.reports}
@@ -307,11 +312,12 @@ NONE: list = []
 
 
 def _done(d: dict[str, Any]) -> Done:
-    proc, e, t, sent, stats, rt, fl = d["proc"], d["e"], d["t"], d["sent"], d["stats"], d["rt"], d["fl"]
+    proc, ep, e, t, sent, stats = d["proc"], d["ep"], d["e"], d["t"], d["sent"], d["stats"]
+    rt, fl = d["rt"], d["fl"]
     wake, obs, error, ledger, drift, held, states = d["wake"], d["obs"], d["error"], d["led"], d["dr"], d["hd"], d["st"]
     reports = d["rp"]
     rejected = d.get("rej", EMPTY)
-    if not (isinstance(proc, str) and isinstance(e, int) and isinstance(t, int)
+    if not (isinstance(proc, str) and isinstance(ep, int) and isinstance(e, int) and isinstance(t, int)
             and (wake is None or isinstance(wake, int)) and (error is None or isinstance(error, str))
             and (sent == EMPTY or _int_map(sent))
             and (stats == EMPTY or _stats(stats)) and (rt == EMPTY or _times(rt)) and (fl == EMPTY or _flights(fl))
@@ -323,16 +329,18 @@ def _done(d: dict[str, Any]) -> Done:
     return Done(proc, e, t, sent, stats, rt, fl, wake, {k: Observation.from_wire(o) for k, o in obs.items()},
                 error, rejected, {k: [tuple(x) for x in v] for k, v in ledger.items()}, drift,
                 {k: tuple(v) for k, v in held.items()},
-                {k: tuple(v) for k, v in states.items()}, {k: tuple(v) for k, v in reports.items()})
+                {k: tuple(v) for k, v in states.items()}, {k: tuple(v) for k, v in reports.items()}, ep)
 
 
 def _dones(d: dict[str, Any]) -> Dones:
-    group, dones = d["group"], d["dones"]
+    group, ep, dones = d["group"], d["ep"], d["dones"]
     if not isinstance(group, str):
         _malformed("dones field 'group' is not of the documented shape")
+    if not isinstance(ep, int):
+        _malformed("dones field 'ep' is not of the documented shape")
     if not (type(dones) is list and all(type(x) is dict and x.get("type") == "done" for x in dones)):
         _malformed("dones field 'dones' is not a list of done maps")
-    return Dones(group, [_done(x) for x in dones])
+    return Dones(group, [_done(x) for x in dones], ep)
 
 
 def _batch(d: dict[str, Any]) -> Batch:
@@ -343,21 +351,31 @@ def _batch(d: dict[str, Any]) -> Batch:
 
 
 def _tick(d: dict[str, Any]) -> Tick:
-    e, t, cmd, expect, actions = d["e"], d["t"], d["cmd"], d["expect"], d["actions"]
+    ep, e, t, cmd, expect, actions = d["ep"], d["e"], d["t"], d["cmd"], d["expect"], d["actions"]
     seed, external, policy, states = d["seed"], d["external"], d["policy"], d["st"]
-    if not (isinstance(e, int) and isinstance(t, int) and cmd in COMMANDS and (expect == EMPTY or _int_map(expect))
+    if not (isinstance(ep, int) and isinstance(e, int) and isinstance(t, int) and cmd in COMMANDS
+            and (expect == EMPTY or _int_map(expect))
             and (actions == EMPTY or _actions(actions)) and isinstance(seed, int)
             and (external == NONE or _str_list(external)) and (policy is None or isinstance(policy, str))
             and (states == EMPTY or _tick_states(states))):
         _diagnose(d, "tick", TICK_FIELDS)
     return Tick(e, t, cmd, expect, actions, seed, external, policy,
-                {k: tuple(v) for k, v in states.items()} if states else {})
+                {k: tuple(v) for k, v in states.items()} if states else {}, ep)
 
 
-def encode(msg: Any) -> bytes:
+SEALED = (Tick, Done, Dones)
+NO_MAC = bytes(MAC_BYTES)
+
+
+def encode(msg: Any, seal: bytes | None = None) -> bytes:
+    """``seal``: the sender's key; the MAC goes last, over every byte before it."""
     d = to_wire(msg)
     d["v"] = SCHEMA_VERSION
-    return msgpack.packb(d, use_bin_type=True)
+    if seal is None:
+        return msgpack.packb(d, use_bin_type=True)
+    d["mac"] = NO_MAC
+    signed = msgpack.packb(d, use_bin_type=True)[:-MAC_BYTES]
+    return signed + mac(seal, signed)
 
 
 def check_size(size: int, limit: int) -> None:
@@ -381,4 +399,10 @@ def decode(data: bytes, limit: int | None = None) -> Any:
     if d.get("v") != SCHEMA_VERSION:
         raise CodecError(f"schema version {d.get('v')!r}, expected {SCHEMA_VERSION}: every host needs the same "
                          "ZenohEdge version", OTHER_SCHEMA)
-    return from_wire(d)
+    msg = from_wire(d)
+    if type(msg) in SEALED:
+        tag = d.get("mac")
+        if type(tag) is bytes and len(tag) == MAC_BYTES and data.endswith(tag):  # else ``mac`` stays None
+            msg.mac = tag
+            msg.signed = data[:-MAC_BYTES]
+    return msg

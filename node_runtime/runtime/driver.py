@@ -8,12 +8,15 @@ Publications can overtake the tick that announces them, or belong to an episode 
 not started yet, so they are buffered by (episode, sent tick) until their turn.
 
 Anyone on the bus can publish on this process's keys, so what cannot be trusted is refused, counted
-and logged (docs/bus.md, "Rejected messages"): a tick of another episode or one already run, mail
+and logged (docs/bus.md, "Rejected messages"): a tick without the clock's MAC (``origin``), or of an
+epoch older than the newest it has seen (a holder of the clock whose claim is over), a tick of another
+episode or one already run, mail
 from a process that never sends here or for roles that are not here, mail that comes after its tick
 ran, a second batch from the same sender on the same key in one tick, a tick that gives this process
 nothing to do or skips the tick it has work due in. Mail that passes every check
-but outnumbers what the clock announced cannot be told from the genuine mail: the process then
-stops with an error rather than run with it.
+but outnumbers what the clock announced, or differs from a batch the same sender already sent on the
+same key in the same tick, cannot be told from the genuine mail: the process then stops with an error
+rather than run with it. Its reports are sealed with its own key of the tick's epoch.
 """
 
 from __future__ import annotations
@@ -24,18 +27,23 @@ from node_runtime.model.messages import Kind
 from node_runtime.runtime.failure import account
 from node_runtime.runtime.host import Host
 from node_runtime.runtime.keys import Keys
+from node_runtime.runtime.origin import Keyring, authentic
 from node_runtime.runtime.protocol import Batch, Done, Tick
-from node_runtime.runtime.rejections import UNKNOWN_SENDER, WRONG_SHAPE, WRONG_TICK
+from node_runtime.runtime.rejections import BAD_MAC, STALE_EPOCH, UNKNOWN_SENDER, WRONG_SHAPE, WRONG_TICK
 from node_runtime.runtime.transport import Monitored, Transport
 
 
 class HostDriver:
-    def __init__(self, host: Host, transport: Transport, keys: Keys, done_key: str | None = None) -> None:
-        """``done_key``: where to report, when not to the clock itself (a host's aggregator)."""
+    def __init__(self, host: Host, transport: Transport, keys: Keys, keyring: Keyring,
+                 done_key: str | None = None) -> None:
+        """``keyring``: the clock's key and this process's own; ``done_key``: where to report, when not to the
+        clock itself (a host's aggregator)."""
         self.host = host
         self.transport = transport
         self.keys = keys
+        self.keyring = keyring
         self.proc = host.proc
+        self.epoch = 0  # the newest epoch of the clock seen in a tick it sealed
         plan = host.plan
         self.proc_index = plan.proc_index[host.proc]
         self.episode = -1
@@ -44,6 +52,7 @@ class HostDriver:
         self.pending: Tick | None = None
         self.stopped = False
         self.failed: str | None = None
+        self.conflict: str | None = None  # two different batches came from one sender in one tick: fail in the next
         # (episode, sent tick) -> {(sending process, key): its batch}: one per sender and key in a tick
         self.buffer: defaultdict[tuple[int, int], dict[tuple[str, str], Batch]] = defaultdict(dict)
         self.rejections = transport.rejections
@@ -70,6 +79,16 @@ class HostDriver:
     def on_tick(self, key: str, cmd: Tick) -> None:
         if type(cmd) is not Tick:
             self.rejections.add(key, WRONG_SHAPE, f"a {type(cmd).__name__} where a tick was expected")
+            return
+        if not authentic(self.keyring.clock_key(cmd.epoch), cmd):
+            self.rejections.add(key, BAD_MAC, f"a {cmd.command} tick {cmd.tick} without the clock's MAC")
+            return
+        if cmd.epoch < self.epoch:
+            self.rejections.add(key, STALE_EPOCH, f"a {cmd.command} tick {cmd.tick} of epoch {cmd.epoch}; the clock "
+                                                  f"is in epoch {self.epoch}")
+            return
+        self.epoch = cmd.epoch
+        if cmd.command == "fence":
             return
         if cmd.command == "stop":
             self.stopped = True
@@ -114,8 +133,12 @@ class HostDriver:
             self.rejections.add(key, *why)
             return
         slot = self.buffer[(batch.episode, batch.tick)]
-        if (batch.src, key) in slot:
+        first = slot.get((batch.src, key))
+        if first is not None:
             self.rejections.add(key, WRONG_TICK, f"a second batch from {batch.src} sent in tick {batch.tick}")
+            if first != batch and self.conflict is None:  # one of them is forged, and nothing tells which
+                self.conflict = (f"received two different batches from {batch.src} sent in tick {batch.tick}: "
+                                 "another publisher is on the bus (see the rejected-message log)")
             return
         slot[(batch.src, key)] = batch
         self.advance()
@@ -142,6 +165,10 @@ class HostDriver:
         cmd = self.pending
         if cmd is None or self.failed:
             return
+        if self.conflict is not None:
+            self.pending = None
+            self.fail(cmd, self.conflict)
+            return
         if cmd.command == "reset":
             self.pending = None
             for key in [k for k in self.buffer if k[0] < cmd.episode]:
@@ -158,7 +185,7 @@ class HostDriver:
             return
         self.pending = None
         if arrived > expected:
-            self.fail(cmd.tick, f"received {arrived} publications sent since tick {self.tick}, {expected} "
+            self.fail(cmd, f"received {arrived} publications sent since tick {self.tick}, {expected} "
                                 "announced: another publisher is on the bus (see the rejected-message log)")
             return
         for key in due:
@@ -168,10 +195,11 @@ class HostDriver:
             self.host.take_states(cmd.states)
         self.run(cmd)
 
-    def fail(self, t: int, why: str) -> None:
-        """Report a failure, then stop: the orchestrator names this process and shows ``why``."""
+    def fail(self, cmd: Tick, why: str) -> None:
+        """Report a failure in tick ``cmd``, then stop: the orchestrator names this process and shows ``why``."""
         self.failed = why
-        self.transport.publish(self.done_key, Done(self.proc, self.episode, t, {}, {}, error=why))
+        self.transport.publish(self.done_key, Done(self.proc, self.episode, cmd.tick, {}, {}, error=why,
+                                                   epoch=cmd.epoch), self.keyring.proc_key(self.proc, cmd.epoch))
 
     def run(self, cmd: Tick) -> None:
         t = self.tick = cmd.tick
@@ -179,9 +207,10 @@ class HostDriver:
         try:
             out = self.host.run(t, cmd.actions)
         except Exception as exc:
-            self.fail(t, account(exc))
+            self.fail(cmd, account(exc))
             return
         done = out.done
+        done.epoch = cmd.epoch
         self.wake = done.wake
         if self.rejections.changed:  # rare: only after something was refused
             self.rejections.changed = False
@@ -190,7 +219,7 @@ class HostDriver:
             self.transport.publish(self.inbox_keys[proc], Batch(self.episode, t, self.proc, envelopes))
         if out.broadcasts:
             self.transport.publish(self.broadcast_key, Batch(self.episode, t, self.proc, out.broadcasts))
-        self.transport.publish(self.done_key, done)
+        self.transport.publish(self.done_key, done, self.keyring.proc_key(self.proc, cmd.epoch))
         for kind, node, fields in out.events:  # best effort: monitors never slow the emulation down
             monitor = self.monitors.get((kind, node))
             fresh = monitor is None  # a new publisher may not have heard of its subscribers yet

@@ -2,7 +2,8 @@
 
 Delivery is synchronous and in publication order: ``publish`` queues the message for every
 matching subscriber and, unless a delivery is already running, delivers until the queue is empty.
-Messages are passed as objects (no encoding), which is what makes this path fast. Requests, rare
+Messages are passed as objects (no encoding), which is what makes this path fast; a sealed one
+(``origin``) carries a MAC over who sent it for which tick, since its content cannot change on the way. Requests, rare
 and never on the tick path, do go through the codec and its size limits (limits.py), so that an answer
 is a copy with the types it would have over Zenoh. Nothing here is thread-safe: one thread owns the bus.
 """
@@ -13,7 +14,7 @@ from collections import deque
 from collections.abc import Callable
 from typing import Any
 
-from node_runtime.runtime import codec
+from node_runtime.runtime import codec, origin
 from node_runtime.runtime.limits import payload_limit
 from node_runtime.runtime.rejections import Rejections
 from node_runtime.runtime.transport import (
@@ -220,7 +221,9 @@ class InprocEndpoint(Transport):
         self._served: list[str] = []
         self.rejections = Rejections()
 
-    def publish(self, key: str, message: Any) -> None:
+    def publish(self, key: str, message: Any, seal: bytes | None = None) -> None:
+        if seal is not None:  # the object never leaves this process: its MAC covers who sent it (origin.identity)
+            origin.seal(message, seal)
         self.bus.publish(key, message)
 
     def subscribe(self, key_expr: str, handler: Handler) -> None:

@@ -58,6 +58,10 @@ class Keys:
         """Queryable: what a remote driver or monitor needs to know about the simulation."""
         return f"{self.root}/session"
 
+    def register(self, group: str) -> str:
+        """Queryable: a host's keys (origin.py), for the host that runs ``group``."""
+        return f"{self.root}/register/{group}"
+
     def control(self) -> str:
         """Queryable: claim or release the clock (attach mode)."""
         return f"{self.root}/control"

@@ -23,6 +23,7 @@ from node_runtime.runtime.failure import ChildFailed
 from node_runtime.runtime.host import Host
 from node_runtime.runtime.keys import Keys
 from node_runtime.runtime.layout import Layout, ProcessLayout
+from node_runtime.runtime.origin import Keyring
 from node_runtime.runtime.security import Security
 from node_runtime.runtime.zenoh_bus import ZenohTransport, use_lean_runtime
 
@@ -38,6 +39,7 @@ class ProcSpec:
     layout: Layout
     endpoint: str  # the router to connect to
     keys: Keys
+    keyring: Keyring  # the clock's key and this process's own (origin.py): handed over here, never on the bus
     paths: tuple[str, ...] = ()  # the orchestrator's sys.path, where user extensions may live
     security: Security | None = None  # TLS and login for the session (deploy/README.md)
     settings: dict[str, Any] | None = None  # a user's Zenoh configuration (zenohedge-node --zenoh-config)
@@ -81,7 +83,7 @@ def run(spec: ProcSpec) -> int:
         plan = ProcessLayout(spec.scenario, spec.layout)
         _prctl(PR_SET_NAME, short_name(spec.proc, plan).encode())
         host = Host(spec.proc, plan)
-        driver = HostDriver(host, transport, spec.keys, spec.done_key)
+        driver = HostDriver(host, transport, spec.keys, spec.keyring, spec.done_key)
         orchestrator = {"seen": False, "gone": False}
 
         def on_orchestrator(key: str, alive: bool) -> None:

@@ -14,7 +14,10 @@ order): every participant derives the same indices from the scenario and the lay
 decode faster than strings in dozens of processes every tick.
 
 Every message names its episode, so mail from a previous episode that is still on the wire after
-a reset is recognised and ignored.
+a reset is recognised and ignored. Ticks, reports and hosts' reports also name the *epoch* of the clock
+they belong to (who held it: the orchestrator, or one claim of a driver) and carry a MAC that proves who
+sent them (``origin``, docs/security.md); ``mac`` and ``signed`` (what the MAC covers) are filled as the
+message is sent and received, and are no part of its content.
 """
 
 from __future__ import annotations
@@ -25,8 +28,8 @@ from typing import Any, Literal
 from node_runtime.model.messages import Envelope
 from node_runtime.model.view import Observation
 
-SCHEMA_VERSION = 11
-Command = Literal["run", "reset", "stop"]
+SCHEMA_VERSION = 12
+Command = Literal["run", "reset", "stop", "fence"]  # fence: only says a new epoch began (docs/protocol.md)
 
 
 @dataclass(slots=True)
@@ -43,6 +46,9 @@ class Tick:
     states: dict[int, tuple[int, int, int, int]] = field(default_factory=dict)  # worker role index -> (queue,
     # occupancy, tick sent, seq): the latest state it broadcast that roles of this process (of any, in a tick
     # for all) have yet to read, when its states go through the clock (``host.states_by_clock``)
+    epoch: int = 0  # of the clock: a node takes ticks of the newest epoch it has seen only
+    mac: bytes | None = field(default=None, compare=False, repr=False)
+    signed: bytes = field(default=b"", compare=False, repr=False)
 
 
 @dataclass(slots=True)
@@ -82,6 +88,9 @@ class Done:
     reports: dict[int, tuple[int, int, list[float] | None]] = field(default_factory=dict)  # controller role index
     # -> (arrival tick, tasks pending, links' busy-until ticks or None) of a report its worker sent it this tick
     # that it reads later (``Role.reads_later``); only while an agent drives the episode, as ``states``
+    epoch: int = 0  # of the tick it answers: the report is sealed with the process's key of that epoch
+    mac: bytes | None = field(default=None, compare=False, repr=False)
+    signed: bytes = field(default=b"", compare=False, repr=False)
 
 
 @dataclass(slots=True)
@@ -90,3 +99,6 @@ class Dones:
 
     group: str  # the placement group the host runs
     dones: list[Done]
+    epoch: int = 0  # of the tick they answer: sealed with the host's key of that epoch
+    mac: bytes | None = field(default=None, compare=False, repr=False)
+    signed: bytes = field(default=b"", compare=False, repr=False)

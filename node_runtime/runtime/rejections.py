@@ -20,10 +20,12 @@ UNKNOWN_SENDER = "unknown_sender"  # a process or role that is not of this layou
 WRONG_TICK = "wrong_tick"  # an episode or tick that is not the current one, a duplicate, or too late
 CLOCK_TAKEN = "clock_taken"  # a claim of the clock while a driver holds it, or while the orchestrator keeps it
 NOT_HOLDER = "not_holder"  # a release of the clock without the name and token of the driver that holds it
+BAD_MAC = "bad_mac"  # a tick or report without the MAC of the sender it names (origin.py): a forgery
+STALE_EPOCH = "stale_epoch"  # a tick, report or release of a holder of the clock whose epoch is over
 TOO_LARGE = "too_large"  # a payload larger than its kind of message may be (limits.py)
 SEVERAL_ANSWERS = "several_answers"  # answers to one request from more than one session: none is believed
-REASONS = (BAD_MSGPACK, SCHEMA_VERSION, WRONG_SHAPE, UNKNOWN_SENDER, WRONG_TICK, CLOCK_TAKEN, NOT_HOLDER, TOO_LARGE,
-           SEVERAL_ANSWERS)
+REASONS = (BAD_MSGPACK, SCHEMA_VERSION, WRONG_SHAPE, UNKNOWN_SENDER, WRONG_TICK, CLOCK_TAKEN, NOT_HOLDER, BAD_MAC,
+           STALE_EPOCH, TOO_LARGE, SEVERAL_ANSWERS)
 
 LOG_INTERVAL = 10.0  # seconds: at most one line per key in this interval
 MAX_KEYS = 256  # keys tracked one by one; past that, further keys share one line (senders choose keys)

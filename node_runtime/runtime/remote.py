@@ -11,7 +11,9 @@ This command's session is a Zenoh router joined to the orchestrator's: the proce
 connect to it over a unix socket in a private directory, so that mail between them stays on this host
 and the orchestrator's router holds one session per host, not one per process. The processes report
 the end of each tick to this command, which forwards a tick's reports as one message
-(``aggregator.py``): the orchestrator hears one report per host and tick, not one per process.
+(``aggregator.py``): the orchestrator hears one report per host and tick, not one per process. Before
+anything starts, this command registers the group (``…/register/<group>``) and gets the keys its processes
+and its aggregator prove their reports with (``origin.py``); a group registers once.
 ``--direct`` connects every process straight to the orchestrator's router instead, each reporting on
 its own; ``--no-aggregate`` keeps the router but lets each process report on its own.
 """
@@ -40,6 +42,7 @@ from node_runtime.runtime.cli_options import TIMEOUT, add_security_options, add_
 from node_runtime.runtime.forkserver import ForkServer
 from node_runtime.runtime.keys import Keys
 from node_runtime.runtime.layout import Layout, ProcessLayout
+from node_runtime.runtime.origin import KEY_BYTES, Keyring
 from node_runtime.runtime.process import ORCHESTRATOR, ProcSpec
 from node_runtime.runtime.security import Security, SecurityError
 from node_runtime.runtime.zenoh_bus import ZenohTransport
@@ -80,6 +83,7 @@ def run_group(endpoint: str, keys: Keys, group: str, timeout: float = 30.0, secu
         transport = connect(lambda: ZenohTransport.client(endpoint, security, settings), endpoint)
         try:
             info = group_info(transport, endpoint, keys, group, timeout)
+            keyring = register(transport, endpoint, keys, group, info.procs, timeout)
         except GroupError:
             transport.close()
             raise
@@ -88,7 +92,7 @@ def run_group(endpoint: str, keys: Keys, group: str, timeout: float = 30.0, secu
         if direct:
             transport = connect(lambda: ZenohTransport.client(endpoint, security, {**lease, **(settings or {})}),
                                 endpoint)
-            return run_processes(transport, info, endpoint, keys, security, settings)
+            return run_processes(transport, info, keyring, endpoint, keys, security, settings)
         with tempfile.TemporaryDirectory(prefix="zenohedge-node-") as folder:  # mode 0700: this user's only
             local = f"{LOCAL_LINK}/{folder}/router.sock"
             rules = {}
@@ -98,7 +102,7 @@ def run_group(endpoint: str, keys: Keys, group: str, timeout: float = 30.0, secu
             router = connect(lambda: ZenohTransport.router(local, [endpoint], host_login(security, Path(folder)),
                                                            {**FAIL_FAST, **lease, **rules, **(settings or {})}),
                              endpoint)
-            return run_processes(router, info, local, keys, security, settings, aggregate)
+            return run_processes(router, info, keyring, local, keys, security, settings, aggregate)
     except GroupError as exc:
         print(f"zenohedge-node: {exc}", file=sys.stderr)
         return EXIT_USAGE
@@ -129,6 +133,22 @@ def group_info(transport: ZenohTransport, endpoint: str, keys: Keys, group: str,
     return GroupInfo(Scenario.from_dict(info["scenario"]), info["layout"], placement, group, *map(float, timing))
 
 
+def register(transport: ZenohTransport, endpoint: str, keys: Keys, group: str, procs: list[str],
+             timeout: float) -> Keyring:
+    """The keys of this group's processes, its host's and the clock's, from the orchestrator (once per group)."""
+    try:
+        answer = transport.request(keys.register(group), {"type": "register"}, timeout=timeout)
+        keyring = Keyring.from_wire(answer)
+    except Exception as exc:  # refused (registered already), no answer (another version), or not a registration
+        raise GroupError(f"simulation {keys.sim_id} at {endpoint}: group {group} cannot register: {exc}") from None
+    if not (set(procs) <= keyring.procs.keys() and group in keyring.hosts and all(
+            type(k) is bytes and len(k) == KEY_BYTES for k in (keyring.clock, *keyring.procs.values(),
+                                                              *keyring.hosts.values()))):
+        raise GroupError(f"simulation {keys.sim_id} at {endpoint}: the registration of group {group} did not give "
+                         "its keys: is it another ZenohEdge version?")
+    return keyring
+
+
 def host_login(security: Security | None, folder: Path) -> Security | None:
     """The host router's identity: the group's, accepting one login, the group's own, from local processes
     (a Zenoh router that logs in with a password refuses every session unless it has a list of logins)."""
@@ -139,10 +159,11 @@ def host_login(security: Security | None, folder: Path) -> Security | None:
     return dataclasses.replace(security, users=str(users))
 
 
-def run_processes(transport: ZenohTransport, info: GroupInfo, endpoint: str, keys: Keys,
+def run_processes(transport: ZenohTransport, info: GroupInfo, keyring: Keyring, endpoint: str, keys: Keys,
                   security: Security | None, settings: dict[str, Any] | None, aggregate: bool = False) -> int:
     """Start the group's processes, connected to ``endpoint``, and stay until they end; closes ``transport``.
-    ``aggregate``: their reports come here, and go on to the orchestrator one message a tick."""
+    ``keyring``: the group's (``register``); ``aggregate``: their reports come here, and go on to the
+    orchestrator one message a tick."""
     forks: ForkServer | None = None
     pids: list[int] = []
     procs = info.procs
@@ -150,11 +171,11 @@ def run_processes(transport: ZenohTransport, info: GroupInfo, endpoint: str, key
     aggregator: DoneAggregator | None = None
     try:
         if aggregate and len(procs) > 1:
-            aggregator = DoneAggregator(transport, keys, info.group, procs)
+            aggregator = DoneAggregator(transport, keys, info.group, procs, keyring)
             transport.wait_matching([aggregator.out_key], info.ready_timeout)  # reports can go on: processes may start
         forks = ForkServer.shared()
         for proc in procs:
-            spec = ProcSpec(proc, info.scenario, info.layout, endpoint, keys, security=security,
+            spec = ProcSpec(proc, info.scenario, info.layout, endpoint, keys, keyring.of([proc]), security=security,
                             settings=settings, lease_s=info.lease_s, ready_timeout=info.ready_timeout,
                             done_key=keys.host_done(info.group, proc) if aggregator else None)
             pids.append(forks.start(proc, node_process.main, spec))

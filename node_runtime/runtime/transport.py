@@ -42,8 +42,9 @@ class Transport(ABC):
     rejections: Rejections  # messages refused: undecodable ones by ``dispatch``, untrusted ones by handlers
 
     @abstractmethod
-    def publish(self, key: str, message: Any) -> None:
-        """Send ``message`` to every subscriber of ``key``; reliable, ordered per publisher."""
+    def publish(self, key: str, message: Any, seal: bytes | None = None) -> None:
+        """Send ``message`` to every subscriber of ``key``; reliable, ordered per publisher. ``seal``: the
+        sender's key, for a tick, done or dones that must prove its origin (``origin``)."""
 
     @abstractmethod
     def subscribe(self, key_expr: str, handler: Handler) -> None:

@@ -205,8 +205,8 @@ class ZenohTransport(Transport):
             refused = " or it refused this certificate or login" if security is not None else ""
             raise TransportError(f"cannot reach {endpoint}: no Zenoh router answers there{refused}") from None
 
-    def publish(self, key: str, message: Any) -> None:
-        self.put(key, codec.encode(message))
+    def publish(self, key: str, message: Any, seal: bytes | None = None) -> None:
+        self.put(key, codec.encode(message, seal))
 
     def put(self, key: str, payload: bytes) -> None:
         pub = self._pubs.get(key) or self.put_publisher(key)

@@ -99,6 +99,10 @@ def report(sc: Scenario) -> list[str]:
     intro = (f"one task alone: service = instructions x cpi / (cores x frequency); input and output at the median "
              f"rate of the links into the device; tasks arrive at {len(arriving)} node(s) and are offloaded at most "
              f"{sc.max_hops} hop(s)")
+    paid = [t.name for t in sc.workload.task_types if t.payload is not None]
+    if paid:  # their real service is known only when they run
+        intro += (f"; task type(s) {', '.join(paid)} run a payload: their service is its measured CPU time x the "
+                  "node's payload_hz, the nominal one above until they run")
     return [intro, *table, *warnings]
 
 
@@ -119,6 +123,15 @@ def overloads(sc: Scenario, kinds: list[Device]) -> list[str]:
                        f"tasks/s of {cycles / d.capacity:.3g} s of service at {worst}): what they do not offload "
                        "queues, and is dropped when the buffer is full or the deadline passes")
     return out
+
+
+def load_ratio(sc: Scenario) -> float:
+    """The work the task sources bring each second (nominal arrivals x a task's mean cycles) over the cycles
+    every worker of the network serves each second. Above 1 no policy serves every task: some must be lost."""
+    total = sum(t.weight for t in sc.workload.task_types)
+    cycles = sum(t.weight * t.cycles for t in sc.workload.task_types) / total
+    capacity = sum(n.capacity for n in sc.nodes if n.has("worker"))
+    return sum(nominal_arrivals(sc).values()) * cycles / capacity if capacity else math.inf
 
 
 def undecided(sc: Scenario) -> list[str]:

@@ -18,6 +18,7 @@ import networkx as nx
 from pydantic import ConfigDict, ValidationError, validate_call
 
 from node_runtime.model.messages import LONGEST_DEADLINE_TICKS, TaskSize
+from node_runtime.model.payload import size_key
 from node_runtime.model.plugins import PluginError, extend_path, is_import_path, load
 from node_runtime.model.radio import free_space_loss_db, log_distance_gain_db, shannon_rate
 from node_runtime.model.registry import ROLE_KINDS
@@ -169,6 +170,9 @@ class _Resolver:
             checks[("simulation.policy", cfg.simulation.policy)] = (Policy, False)
         if cfg.workload.source:
             checks[("workload.source", cfg.workload.source)] = (TaskSource, False)
+        for i, task in enumerate(cfg.workload.tasks):
+            if task.payload is not None:
+                checks[(f"workload.tasks[{i}].payload.call", task.payload.call)] = (None, True)
         if cfg.reward and cfg.reward not in REWARD_NAMES:
             if is_import_path(cfg.reward):
                 checks[("reward", cfg.reward)] = (None, True)
@@ -270,7 +274,7 @@ class _Resolver:
             values: dict[str, Any] = dict(NODE_DEFAULTS)
             values.update({name: kind.default for name, kind in ROLE_KINDS.items()})
             values.update(tx_power_dbm=cfg.network.tx_power_dbm, idle_power_w=cfg.energy.idle_power_w,
-                          kappa=cfg.energy.kappa, policy=cfg.simulation.policy)
+                          kappa=cfg.energy.kappa, policy=cfg.simulation.policy, payload_hz=None)
             # an imported device whose profile is not defined plays the part its type implies
             device = node.device if profile_name == node.profile else {}
             if (profile_name and profile_name not in BUILTIN_PROFILES and profile_name not in cfg.profiles
@@ -411,6 +415,7 @@ class _Resolver:
                 self.error(f"node {n.id!r}", "a task source without a worker needs a worker neighbour")
         self.check_arrivals(wl)
         self.check_deadlines(wl)
+        self.check_payload_sizes(wl)
         trace = None
         if wl.trace is not None:
             trace = self.trace(self.file(wl.trace), by_id)
@@ -422,6 +427,19 @@ class _Resolver:
             trace=trace,
             source=wl.source or "",
         )
+
+    def check_payload_sizes(self, wl: WorkloadCfg) -> None:
+        """A task carries its size, not its type: a type with a payload needs a size no other type has."""
+        for i, task in enumerate(wl.tasks):
+            if task.payload is None:
+                continue
+            key = size_key(*task.size(0.0)[:4])
+            for j, other in enumerate(wl.tasks):
+                if j != i and size_key(*other.size(0.0)[:4]) == key:
+                    self.error(f"workload.tasks[{i}].payload", f"task type {other.name!r} (tasks[{j}]) has the same "
+                               "instructions, input_bytes, output_bytes and cpi; a type with a payload needs a size "
+                               "of its own (a worker knows a task's type by its size)")
+                    break
 
     def check_arrivals(self, wl: WorkloadCfg) -> None:
         """Every rate a source may draw with, times dt, within MAX_TASKS_PER_TICK."""
