@@ -102,6 +102,7 @@ class Clock:
         self.reports = {"alone": 0, "from_hosts": 0, "host_messages": 0}
         self.host_keys = {keys.dones(group): frozenset(p for p in procs if p in plan.proc_index)
                           for group, procs in (placement or {}).items()}
+        self.groups = {group: frozenset(procs) for group, procs in (placement or {}).items()}
         transport.subscribe(keys.done(), self.on_done)
         if self.host_keys:
             transport.subscribe(keys.dones(), self.on_dones)
@@ -295,6 +296,17 @@ class Clock:
     def stop(self) -> None:
         self.transport.publish(self.keys.tick(), Tick(self.episode, self.tick + 1, "stop"))
 
+    def _silent_hosts(self, opened: Sequence[int]) -> str:
+        """The hosts from which no report came for any process the tick was opened for: a stopped or cut-off
+        ``zenohedge-node`` silences all of its processes, a stopped process only itself (its host forwards the
+        others' reports)."""
+        groups = [group for group, procs in self.groups.items()
+                  if any(self.procs[i] in procs for i in opened) and procs.isdisjoint(self.dones)]
+        if not groups:
+            return ""
+        return (f"; nothing came from the host of group {', group '.join(groups)} for any of its processes: its "
+                "zenohedge-node stood still or the network to it failed (or every one of them hung)")
+
     def _collect(self, opened: Sequence[int]) -> list[Done]:
         """Wait for the Done of every process the tick was opened for, in canonical order."""
         n = len(opened)
@@ -308,6 +320,7 @@ class Clock:
             state = self.why_silent(silent) if self.why_silent else ""
             raise ClockError(f"tick {self.tick}: {', '.join(silent[:8])}{' ...' if len(silent) > 8 else ''} "
                              f"(nodes {', '.join(nodes[:8])}) hung: no report within {self.timeout:g} s{state}"
+                             + self._silent_hosts(opened)
                              + (f"; refused from them: {'; '.join(refused[:3])}" if refused else "")) from None
         dones = [self.dones[self.procs[i]] for i in opened]
         expect: dict[int, int] = {}

@@ -242,7 +242,7 @@ class Simulation:
         """Supervise, clock and serve the Zenoh simulation, then start its local processes and wait for all."""
         refuse_taken_id(self.transport, self.keys)
         placement = dict(remote.placement) if remote is not None else None
-        self.supervisor = Supervisor(self.transport, self.keys, self.plan)
+        self.supervisor = Supervisor(self.transport, self.keys, self.plan, placement=placement)
         self.clock = Clock(self.transport, self.keys, self.plan, timeout, health=self.supervisor.check,
                            why_silent=self.supervisor.hung, placement=placement)
         self.live = self.transport.monitored(self.keys.metrics())
@@ -298,7 +298,8 @@ class Simulation:
         transport.rejections.who = driver
         self._secret = secret
         try:
-            self.supervisor = Supervisor(transport, keys, self.plan, token=None)  # ``claim`` declared ours
+            self.supervisor = Supervisor(transport, keys, self.plan, token=None,  # ``claim`` declared ours
+                                         placement=info.get("placement"))
             self.supervisor.wait_ready(timeout)
             self.clock = Clock(transport, keys, self.plan, timeout, health=self.supervisor.check,
                                placement=info.get("placement"))
