@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import contextlib
 import csv
+import dataclasses
 import fcntl
 import json
 import os
@@ -135,6 +136,9 @@ def hosts():
     if os.geteuid() != 0 or shutil.which("ip") is None:
         pytest.skip("network namespaces need root and iproute2")
     with machine_lock(NETNS_LOCK, NETNS_WAIT_S):
+        for ns in subprocess.run(["ip", "netns", "list"], capture_output=True, text=True).stdout.split():
+            if ns.startswith("zedge-wire"):  # a wire (``wire``) a killed test session left, with a host's address
+                subprocess.run(["ip", "netns", "delete", ns], capture_output=True)
         subprocess.run([NETNS, "down"], check=True, capture_output=True)
         made = subprocess.run([NETNS, "up", "2"], capture_output=True, text=True)
         if made.returncode != 0:
@@ -167,13 +171,24 @@ def cut(host: int, down: bool) -> None:
     subprocess.run(["ip", "link", "set", f"zedge{host}-o", "down" if down else "up"], check=True, capture_output=True)
 
 
+@dataclasses.dataclass
+class Wire:
+    """A wire's process, made faulty by ``strike``; ``counts``, once its block is over: how many frames it
+    forwarded, dropped and reordered since."""
+
+    relay: subprocess.Popen
+    counts: dict[str, int] = dataclasses.field(default_factory=dict)
+
+    def strike(self) -> None:
+        self.relay.send_signal(signal.SIGUSR1)
+
+
 @contextlib.contextmanager
 def wire(host: int, loss: float, delay: float, jitter: float) -> Any:
-    """Host ``host``'s link through a lossy, slow, reordering wire (tests/wire.py, netem in user space): its
-    veth's end here moves to a namespace zedge-wire<host> of its own, where the wire forwards its frames to a
-    new veth pair that takes its address. Undone after, whatever happened: that namespace, the wire's process
-    and the veths go (the host's end of its link with them). Yields a dict that holds, once the block is over,
-    how many frames the wire forwarded, dropped and reordered."""
+    """Host ``host``'s link through a wire that can turn lossy, slow and reordering (tests/wire.py, netem in user
+    space): its veth's end here moves to a namespace zedge-wire<host> of its own, where the wire forwards its
+    frames to a new veth pair that takes its address. Undone after, whatever happened: that namespace, the
+    wire's process and the veths go (the host's end of its link with them). Yields a ``Wire``."""
     ns, here, there = f"zedge-wire{host}", f"zedge{host}-w", f"zedge{host}-x"
     subprocess.run(["ip", "netns", "delete", ns], capture_output=True)  # one a killed test left
     relay = None
@@ -193,11 +208,11 @@ def wire(host: int, loss: float, delay: float, jitter: float) -> Any:
                                  stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=ROOT)
         ready, _, _ = select.select([relay.stdout], [], [], 60)
         assert ready and relay.stdout.readline() == "ready\n", relay.stderr.read() if relay.poll() else "no answer"
-        counts: dict[str, int] = {}
-        yield counts
+        handle = Wire(relay)
+        yield handle
         relay.terminate()
         said = relay.communicate(timeout=60)[0].split()
-        counts.update(zip(said[::2], map(int, said[1::2]), strict=True))
+        handle.counts.update(zip(said[::2], map(int, said[1::2]), strict=True))
     finally:
         if relay is not None and relay.poll() is None:
             relay.kill()

@@ -4,9 +4,10 @@ for kernels built without netem (this one has only tbf and htb).
     python -m tests.wire IF_A IF_B --loss 0.05 --delay 0.02 --jitter 0.005   # forward frames both ways
     python -m tests.wire --software IF ...                                   # no offloads on IF (see below)
 
-Each Ethernet frame read on one interface is dropped with probability ``loss``, or written to the other after
-``delay`` ± ``jitter`` seconds (uniform), each frame on its own: frames sent close together overtake each
-other. Prints "ready" once both interfaces are open and, at SIGTERM, what it did: "forwarded N dropped N
+It forwards each Ethernet frame read on one interface to the other at once until SIGUSR1; from then on, it
+drops each with probability ``loss``, or writes it after ``delay`` ± ``jitter`` seconds (uniform), each frame
+on its own: frames sent close together overtake each other. Prints "ready" once both interfaces are open
+and, at SIGTERM, what it did since SIGUSR1: "forwarded N dropped N
 reordered N" (frames sent before one read earlier in the same direction). The two interfaces are the
 wire's ends (veths in a namespace of their own); the interfaces that send into them must checksum and
 segment in software (``--software``), or frames read off the wire would carry checksums left to a NIC and
@@ -50,6 +51,7 @@ class Wire:
             sock.bind((end, 0))
             self.socks.append(sock)
         self.loss, self.delay, self.jitter = loss, delay, jitter
+        self.faulty = False  # from SIGUSR1
         self.rng = random.Random(seed)
         self.due: list[tuple[float, int, int, bytes]] = []  # (when, order, to which end, frame)
         self.order = 0
@@ -64,10 +66,13 @@ class Wire:
             if address[2] == PACKET_OUTGOING:
                 continue
             with self.changed:
-                if self.rng.random() < self.loss:
+                if not self.faulty:
+                    when = time.monotonic()
+                elif self.rng.random() < self.loss:
                     self.counts["dropped"] += 1
                     continue
-                when = time.monotonic() + self.delay + self.rng.uniform(-self.jitter, self.jitter)
+                else:
+                    when = time.monotonic() + self.delay + self.rng.uniform(-self.jitter, self.jitter)
                 self.counts["reordered"] += when < self.last[1 - end]
                 self.last[1 - end] = max(when, self.last[1 - end])
                 self.order += 1
@@ -80,7 +85,7 @@ class Wire:
                 while not self.due or (left := self.due[0][0] - time.monotonic()) > 0:
                     self.changed.wait(None if not self.due else left)
                 _, _, end, frame = heapq.heappop(self.due)
-                self.counts["forwarded"] += 1
+                self.counts["forwarded"] += self.faulty
             self.socks[end].send(frame)
 
     def run(self) -> None:
@@ -88,7 +93,11 @@ class Wire:
             print(" ".join(f"{k} {v}" for k, v in self.counts.items()), flush=True)
             sys.exit(0)
 
+        def strike(signum: int, frame: object) -> None:
+            self.faulty = True
+
         signal.signal(signal.SIGTERM, report)
+        signal.signal(signal.SIGUSR1, strike)
         for end in (0, 1):
             threading.Thread(target=self.read, args=(end,), daemon=True).start()
         print("ready", flush=True)
