@@ -146,6 +146,9 @@ def hosts():
             pytest.skip(f"cannot create network namespaces here: {made.stderr.strip()}")
         yield ["zedge-host1", "zedge-host2"]
         subprocess.run([NETNS, "down"], check=True, capture_output=True)
+        left = [ns for ns in subprocess.run(["ip", "netns", "list"], capture_output=True, text=True).stdout.split()
+                if ns.startswith("zedge-")]
+        assert not left, f"namespaces left behind: {left}"
 
 
 def shape(host: int, rule: str) -> None:
