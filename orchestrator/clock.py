@@ -29,6 +29,7 @@ that passes every check is indistinguishable from the process's own report.
 from __future__ import annotations
 
 import math
+import time
 from collections.abc import Callable, Collection, Sequence
 from typing import Any
 
@@ -103,6 +104,8 @@ class Clock:
         self.host_keys = {keys.dones(group): frozenset(p for p in procs if p in plan.proc_index)
                           for group, procs in (placement or {}).items()}
         self.groups = {group: frozenset(procs) for group, procs in (placement or {}).items()}
+        self.group_keys = {keys.dones(group): group for group in self.groups}
+        self.heard: dict[str, float] = {}  # group -> when its host last sent a batch (its reports, or an empty one)
         transport.subscribe(keys.done(), self.on_done)
         if self.host_keys:
             transport.subscribe(keys.dones(), self.on_dones)
@@ -136,6 +139,8 @@ class Clock:
         if type(dones) is not Dones:
             self.rejections.add(key, WRONG_SHAPE, f"a {type(dones).__name__} where a host's dones were expected")
             return
+        if (group := self.group_keys.get(key)) is not None:
+            self.heard[group] = time.monotonic()
         placed = self.host_keys.get(key, frozenset())
         accepted = 0
         for done in dones.dones:
@@ -296,16 +301,21 @@ class Clock:
     def stop(self) -> None:
         self.transport.publish(self.keys.tick(), Tick(self.episode, self.tick + 1, "stop"))
 
-    def _silent_hosts(self, opened: Sequence[int]) -> str:
-        """The hosts from which no report came for any process the tick was opened for: a stopped or cut-off
-        ``zenohedge-node`` silences all of its processes, a stopped process only itself (its host forwards the
-        others' reports)."""
-        groups = [group for group, procs in self.groups.items()
-                  if any(self.procs[i] in procs for i in opened) and procs.isdisjoint(self.dones)]
-        if not groups:
-            return ""
-        return (f"; nothing came from the host of group {', group '.join(groups)} for any of its processes: its "
-                "zenohedge-node stood still or the network to it failed (or every one of them hung)")
+    def _silent_hosts(self, silent: list[str]) -> list[tuple[str, float | None]]:
+        """The hosts to blame for silent processes: (group, seconds since anything came from its host). One that
+        beats (an aggregator, ``DoneAggregator.beat``) is to blame once silent for half the timeout; one that does
+        not, when none of its processes reported this tick (a stopped process alone is named, as its host
+        forwards the others' reports)."""
+        now, quiet = time.monotonic(), []
+        for group, procs in self.groups.items():
+            if procs.isdisjoint(silent):
+                continue
+            heard = self.heard.get(group)
+            if heard is not None and now - heard > self.timeout / 2:
+                quiet.append((group, now - heard))
+            elif heard is None and procs.isdisjoint(self.dones):
+                quiet.append((group, None))
+        return quiet
 
     def _collect(self, opened: Sequence[int]) -> list[Done]:
         """Wait for the Done of every process the tick was opened for, in canonical order."""
@@ -318,9 +328,14 @@ class Clock:
             last = self.rejections.last
             refused = [f"{p}: {last[k]}" for p in silent if (k := self.keys.done(p)) in last]
             state = self.why_silent(silent) if self.why_silent else ""
-            raise ClockError(f"tick {self.tick}: {', '.join(silent[:8])}{' ...' if len(silent) > 8 else ''} "
-                             f"(nodes {', '.join(nodes[:8])}) hung: no report within {self.timeout:g} s{state}"
-                             + self._silent_hosts(opened)
+            hosts = self._silent_hosts(silent)
+            blame = "".join(f"the host of group {group} hung or was cut off: nothing came from it"
+                            + (f" for {quiet:.1f} s" if quiet is not None else " for any of its processes")
+                            + "; " for group, quiet in hosts)
+            raise ClockError(f"tick {self.tick}: {blame}{', '.join(silent[:8])}{' ...' if len(silent) > 8 else ''} "
+                             f"(nodes {', '.join(nodes[:8])}) " + ("sent" if hosts else "hung:")
+                             + f" no report within {self.timeout:g} s{state}"
+                             + ("; its zenohedge-node stood still, or the network to it failed" if hosts else "")
                              + (f"; refused from them: {'; '.join(refused[:3])}" if refused else "")) from None
         dones = [self.dones[self.procs[i]] for i in opened]
         expect: dict[int, int] = {}

@@ -14,9 +14,16 @@ the others: it then travels in a batch of its own. A report is never held for a 
 report either: a failure (a ``Done`` with an error) goes at once, and whatever waits is forwarded when
 the bus has been quiet for a moment (``flush``), so the orchestrator blames only the silent. The
 orchestrator checks each report in a batch as if it had come alone.
+
+A host that has forwarded nothing for ``BEAT_S`` sends an empty batch: the orchestrator then tells a host that
+stood still or was cut off (nothing from it, not even that) from a stopped process (its host still beats).
+By its reports alone, a host stopped between two batches of one tick would look like its unforwarded
+process stopped.
 """
 
 from __future__ import annotations
+
+import time
 
 from node_runtime.runtime.keys import Keys
 from node_runtime.runtime.protocol import Done, Dones, Tick
@@ -24,6 +31,7 @@ from node_runtime.runtime.rejections import UNKNOWN_SENDER, WRONG_SHAPE
 from node_runtime.runtime.transport import Transport
 
 TickId = tuple[int, int]  # (episode, tick)
+BEAT_S = 0.25  # the longest a host stays silent while it runs (an empty batch says it is there)
 
 
 class DoneAggregator:
@@ -36,6 +44,7 @@ class DoneAggregator:
         self.opened: dict[TickId, set[str]] = {}  # the local processes each tick was opened for, as heard
         self.reports: dict[TickId, dict[str, Done]] = {}  # reports not yet forwarded
         self.rejections = transport.rejections
+        self.sent = time.monotonic()  # when anything last went to the orchestrator
         self.tick_keys = {keys.tick(p): p for p in procs}
         transport.subscribe(keys.tick(), self.on_tick)
         for key in self.tick_keys:
@@ -53,6 +62,7 @@ class DoneAggregator:
         proc = self.tick_keys.get(key)
         self.opened.setdefault(tick, set()).update(self.procs if proc is None else (proc,))
         self.maybe_forward(tick)
+        self.beat()
 
     def on_done(self, key: str, done: Done) -> None:
         if type(done) is not Done:
@@ -81,8 +91,16 @@ class DoneAggregator:
             if opened is not None:
                 opened.difference_update(reports)
             self.transport.publish(self.out_key, Dones(self.group, list(reports.values())))
+            self.sent = time.monotonic()
 
     def flush(self) -> None:
         """Forward everything waiting: the bus is quiet, so a process the reports wait for may be hung."""
         for tick in list(self.reports):
             self.forward(tick)
+        self.beat()
+
+    def beat(self) -> None:
+        """An empty batch, if nothing went to the orchestrator for ``BEAT_S``: this host is still there."""
+        if time.monotonic() - self.sent >= BEAT_S:
+            self.transport.publish(self.out_key, Dones(self.group, []))
+            self.sent = time.monotonic()
