@@ -8,7 +8,8 @@ stand. Mail a process may hold (``Done.held``: it arrives later, or is broadcast
 nobody before it is due: it is added to the count of the next tick its process runs, which comes at the
 latest when it is due or once ``HOLD_LIMIT`` publications wait. A reset opens tick 0 for all. A process
 that reports an error, dies, or stays silent past the timeout ends the run with an error that names it
-and the nodes it hosted.
+and the nodes it hosted; silent processes on a host from which nothing came for half the timeout (a
+``zenohedge-node`` beats while it runs) are blamed on that host, by its group.
 
 A driver that gives actions (the environment) may open the next tick ahead (``open_next``) for the
 processes that cannot get any, so that they run while its agents decide; ``step`` then opens it for the
