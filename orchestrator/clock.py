@@ -8,7 +8,8 @@ stand. Mail a process may hold (``Done.held``: it arrives later, or is broadcast
 nobody before it is due: it is added to the count of the next tick its process runs, which comes at the
 latest when it is due or once ``HOLD_LIMIT`` publications wait. A reset opens tick 0 for all. A process
 that reports an error, dies, or stays silent past the timeout ends the run with an error that names it
-and the nodes it hosted.
+and the nodes it hosted; silent processes on a host from which nothing came for half the timeout (a
+``zenohedge-node`` beats while it runs) are blamed on that host, by its group.
 
 A driver that gives actions (the environment) may open the next tick ahead (``open_next``) for the
 processes that cannot get any, so that they run while its agents decide; ``step`` then opens it for the
@@ -35,6 +36,7 @@ newest they have seen (``fence`` tells them of a new one when nobody ticks).
 from __future__ import annotations
 
 import math
+import time
 from collections.abc import Callable, Collection, Sequence
 from typing import Any
 
@@ -113,7 +115,9 @@ class Clock:
         self.reports = {"alone": 0, "from_hosts": 0, "host_messages": 0}
         self.host_keys = {keys.dones(group): frozenset(p for p in procs if p in plan.proc_index)
                           for group, procs in (placement or {}).items()}
-        self.host_groups = {keys.dones(group): group for group in placement or {}}
+        self.groups = {group: frozenset(procs) for group, procs in (placement or {}).items()}
+        self.group_keys = {keys.dones(group): group for group in self.groups}
+        self.heard: dict[str, float] = {}  # group -> when its host last sent a batch (its reports, or an empty one)
         transport.subscribe(keys.done(), self.on_done)
         if self.host_keys:
             transport.subscribe(keys.dones(), self.on_dones)
@@ -147,12 +151,13 @@ class Clock:
         if type(dones) is not Dones:
             self.rejections.add(key, WRONG_SHAPE, f"a {type(dones).__name__} where a host's dones were expected")
             return
-        group = self.host_groups.get(key)
+        group = self.group_keys.get(key)
         if group is None or dones.group != group:
             self.rejections.add(key, UNKNOWN_SENDER, f"the dones of group {dones.group!r}, which does not publish here")
             return
         if not self.proven(key, self.keyring.host_key(group, dones.epoch), dones):
             return
+        self.heard[group] = time.monotonic()  # only a batch with the host's MAC says it is there
         placed = self.host_keys[key]
         accepted = 0
         for done in dones.dones:
@@ -356,6 +361,22 @@ class Clock:
         ticks of older ones."""
         self._send(self.keys.tick(), Tick(self.episode, self.tick, "fence"))
 
+    def _silent_hosts(self, silent: list[str]) -> list[tuple[str, float | None]]:
+        """The hosts to blame for silent processes: (group, seconds since anything came from its host). One that
+        beats (an aggregator, ``DoneAggregator.beat``) is to blame once silent for half the timeout; one that does
+        not, when none of its processes reported this tick (a stopped process alone is named, as its host
+        forwards the others' reports)."""
+        now, quiet = time.monotonic(), []
+        for group, procs in self.groups.items():
+            if procs.isdisjoint(silent):
+                continue
+            heard = self.heard.get(group)
+            if heard is not None and now - heard > self.timeout / 2:
+                quiet.append((group, now - heard))
+            elif heard is None and procs.isdisjoint(self.dones):
+                quiet.append((group, None))
+        return quiet
+
     def _collect(self, opened: Sequence[int]) -> list[Done]:
         """Wait for the Done of every process the tick was opened for, in canonical order."""
         n = len(opened)
@@ -367,8 +388,14 @@ class Clock:
             last = self.rejections.last
             refused = [f"{p}: {last[k]}" for p in silent if (k := self.keys.done(p)) in last]
             state = self.why_silent(silent) if self.why_silent else ""
-            raise ClockError(f"tick {self.tick}: {', '.join(silent[:8])}{' ...' if len(silent) > 8 else ''} "
-                             f"(nodes {', '.join(nodes[:8])}) hung: no report within {self.timeout:g} s{state}"
+            hosts = self._silent_hosts(silent)
+            blame = "".join(f"the host of group {group} hung or was cut off: nothing came from it"
+                            + (f" for {quiet:.1f} s" if quiet is not None else " for any of its processes")
+                            + "; " for group, quiet in hosts)
+            raise ClockError(f"tick {self.tick}: {blame}{', '.join(silent[:8])}{' ...' if len(silent) > 8 else ''} "
+                             f"(nodes {', '.join(nodes[:8])}) " + ("sent" if hosts else "hung:")
+                             + f" no report within {self.timeout:g} s{state}"
+                             + ("; its zenohedge-node stood still, or the network to it failed" if hosts else "")
                              + (f"; refused from them: {'; '.join(refused[:3])}" if refused else "")) from None
         dones = [self.dones[self.procs[i]] for i in opened]
         expect: dict[int, int] = {}

@@ -244,7 +244,7 @@ class Simulation:
         """Supervise, clock and serve the Zenoh simulation, then start its local processes and wait for all."""
         refuse_taken_id(self.transport, self.keys)
         placement = dict(remote.placement) if remote is not None else None
-        self.supervisor = Supervisor(self.transport, self.keys, self.plan)
+        self.supervisor = Supervisor(self.transport, self.keys, self.plan, placement=placement)
         keyring = Keyring.new(self.plan.procs, list(placement or ()))  # hosts get theirs as they register (serve.py)
         self.clock = Clock(self.transport, self.keys, self.plan, keyring, timeout, health=self.supervisor.check,
                            why_silent=self.supervisor.hung, placement=placement)
@@ -301,7 +301,8 @@ class Simulation:
         transport.rejections.who = driver
         self._secret = secret
         try:
-            self.supervisor = Supervisor(transport, keys, self.plan, token=None)  # ``claim`` declared ours
+            self.supervisor = Supervisor(transport, keys, self.plan, token=None,  # ``claim`` declared ours
+                                         placement=info.get("placement"))
             self.supervisor.wait_ready(timeout)
             self.clock = Clock(transport, keys, self.plan, keyring, timeout, health=self.supervisor.check,
                                placement=info.get("placement"))

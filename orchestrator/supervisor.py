@@ -3,7 +3,8 @@
 Processes come from the node fork server, which has already imported zenoh, numpy and msgpack
 (70 processes start in under a second that way; docs/protocol.md, "Process life"). Readiness is each
 process's liveliness token; death is the token vanishing (any host) or the process's exit (local ones, checked when
-idle). The error names the process and, for a local one, gives its own account of the failure.
+idle). The error names the process and, for a local one, gives its own account of the failure; when every
+process of another host vanishes at once, it names that host's group instead.
 Every child also dies with the fork server and when the orchestrator's token goes.
 """
 
@@ -15,6 +16,7 @@ import signal
 import sys
 import threading
 import time
+from collections.abc import Mapping
 
 import psutil
 
@@ -71,6 +73,11 @@ class Stalled(ClockError):
     took it for gone and left, and none of them is to blame."""
 
 
+class HostLost(ClockError):
+    """Every process of a host (``zenohedge-node``) vanished at once: the host, or the network to it, is gone;
+    none of its processes is to blame on its own."""
+
+
 def how(status: int) -> str:
     """An exit status as a person reads it: 'status 1', 'killed by SIGKILL'."""
     if status >= 0:
@@ -96,13 +103,17 @@ class Supervisor:
     """Watches the processes of a simulation; starts the local ones when asked.
 
     ``token`` is this side's own liveliness: the orchestrator's (node processes exit when it
-    vanishes); None for a remote driver, which declared its own as it claimed the clock.
+    vanishes); None for a remote driver, which declared its own as it claimed the clock. ``placement``
+    (group -> processes): the processes each other host runs, for naming a host that is gone.
     """
 
-    def __init__(self, transport: Transport, keys: Keys, plan: ProcessLayout, token: str | None = ORCHESTRATOR) -> None:
+    def __init__(self, transport: Transport, keys: Keys, plan: ProcessLayout, token: str | None = ORCHESTRATOR,
+                 placement: Mapping[str, list[str]] | None = None) -> None:
         self.transport = transport
         self.keys = keys
         self.plan = plan
+        self.placement = dict(placement or {})  # group -> the processes its host runs
+        self.vanished: list[str] = []  # processes on other hosts whose token vanished, in order (``check``)
         self.children: dict[str, int] = {}  # process name -> pid
         self.forks: ForkServer | None = None
         self.ready: set[str] = set()
@@ -130,8 +141,26 @@ class Supervisor:
                     self._exited(proc, pid)  # a local child: its exit notice says why
                 if state := paused(pid):
                     raise ProcessFailed(proc, self.nodes(proc), f"hung: {state}; its Zenoh session lapsed")
+            if pid is None:  # on another host: the others of that host may be vanishing with it (``check``)
+                self.vanished.append(proc)
+                return
             self._unless_we_stalled(proc)
             raise ProcessFailed(proc, self.nodes(proc), "died: its liveliness token vanished")
+
+    def _lost(self) -> None:
+        """Raise for processes on other hosts whose tokens vanished: a host all of whose processes vanished
+        (their tokens go together when its router's session closes) is named; otherwise the first process."""
+        proc = self.vanished[0]
+        self._unless_we_stalled(proc)
+        group = next((g for g, procs in self.placement.items() if proc in procs), None)
+        if group is None:
+            raise ProcessFailed(proc, self.nodes(proc), "died: its liveliness token vanished")
+        procs = self.placement[group]
+        if len(procs) > 1 and set(procs) <= set(self.vanished):
+            raise HostLost(f"the host of group {group} is gone: the liveliness tokens of all its {len(procs)} "
+                           f"processes ({', '.join(procs[:6])}{' ...' if len(procs) > 6 else ''}) vanished at once; "
+                           "its zenohedge-node was stopped or killed, or the network to it failed")
+        raise ProcessFailed(proc, self.nodes(proc), f"on the host of group {group} died: its liveliness token vanished")
 
     def _unless_we_stalled(self, proc: str) -> None:
         """Raise ``Stalled`` if this process stood still for about a lease: ``proc`` left because of that."""
@@ -149,8 +178,13 @@ class Supervisor:
         return f" ({'; '.join(states)})" if states else ""
 
     def check(self) -> None:
-        """Raise if a local child has exited while it should be running."""
-        if self.stopping or self.forks is None:
+        """Raise if a local child has exited while it should be running, or a process on another host vanished
+        (called when the bus is idle: a host's tokens have all vanished by then)."""
+        if self.stopping:
+            return
+        if self.vanished:
+            self._lost()
+        if self.forks is None:
             return
         for proc, pid in self.children.items():
             if self.forks.exit_status(pid) is not None:

@@ -135,10 +135,17 @@ def _launch(case: Case, scenario: Any, transport: str = "inproc") -> dict[str, A
     with tempfile.TemporaryDirectory() as tmp, Simulation.open(scenario, transport, layout=case.layout) as sim:
         summary = sim.run(case.steps, seed=case.seed, policy=case.policy)
         sim.metrics.write(Path(tmp), summary)
-        tables = {name: _sha((Path(tmp) / name).read_bytes()) for name in ("ticks.csv", "nodes.csv")}
+        digests = outputs(Path(tmp))
     totals = summary["totals"]
-    return {"summary": _digest(_model_part(summary)), **tables,
-            "totals": {k: totals[k] for k in ("generated", "completed") if k in totals}}
+    return {**digests, "totals": {k: totals[k] for k in ("generated", "completed") if k in totals}}
+
+
+def outputs(out: Path) -> dict[str, str]:
+    """The digests of a launch's outputs in ``out``: the model's part of summary.json, ticks.csv and nodes.csv.
+    Any run written there compares with a case: a launch of the real CLI over several hosts too."""
+    summary = json.loads((out / "summary.json").read_text())
+    return {"summary": _digest(_model_part(summary)),
+            **{name: _sha((out / name).read_bytes()) for name in ("ticks.csv", "nodes.csv")}}
 
 
 def _episode(case: Case, scenario: Any) -> dict[str, Any]:

@@ -14,6 +14,8 @@ from typing import Any, ClassVar
 
 import psutil
 
+from node_runtime.runtime.keys import Keys
+from node_runtime.runtime.zenoh_bus import ZenohTransport
 from tests.conftest import ROOT
 
 TIMEOUT = 120.0  # seconds any single wait may take on a loaded machine before the test fails
@@ -23,6 +25,7 @@ class Launch:
     """``orchestrator launch`` in a subprocess, with its stderr read line by line in the background."""
 
     running: ClassVar[list[Launch]] = []  # every launch not yet stopped by ``end_all``
+    hosts: ClassVar[list[subprocess.Popen]] = []  # every ``zenohedge-node`` started by ``spread``
 
     def __init__(self, *args: str) -> None:
         self.proc = subprocess.Popen([sys.executable, "-m", "orchestrator.cli", "launch", *args],
@@ -71,7 +74,7 @@ class Launch:
 
 def end_all(keep: list[Launch], grace: float = 30.0) -> None:
     """SIGTERM every launch still running but those in ``keep`` (the orchestrator then stops its node
-    processes), SIGKILL one that does not end within ``grace`` seconds."""
+    processes), SIGKILL one that does not end within ``grace`` seconds; SIGKILL every host still running."""
     for run in [r for r in Launch.running if r not in keep]:
         if run.proc.poll() is None:
             run.proc.terminate()
@@ -81,6 +84,11 @@ def end_all(keep: list[Launch], grace: float = 30.0) -> None:
                 run.proc.kill()
                 run.proc.wait()
     Launch.running[:] = keep
+    for host in Launch.hosts:  # a host outlives its orchestrator by a lease at most; one stopped by a test, for ever
+        if host.poll() is None:
+            host.kill()
+            host.wait()
+    Launch.hosts.clear()
 
 
 def paused_run(run: Launch, victim: psutil.Process, timeout: float) -> tuple[int, float, str]:
@@ -98,6 +106,40 @@ def paused_run(run: Launch, victim: psutil.Process, timeout: float) -> tuple[int
     return code, time.monotonic() - paused_at, errors[0]
 
 
+def spread(out: Path, scenario: str, placement: dict[str, list[str]], *args: str,
+           sim: str = "spread") -> tuple[Launch, list[subprocess.Popen]]:
+    """``scenario`` launched with the nodes of ``placement``'s i-th group on host i + 1 (network namespace
+    zedge-host<i + 1> of deploy/netns.sh, under ``zenohedge-node``), the rest here; started and ready. The
+    hosts' pids are their ``zenohedge-node``'s (``ip netns exec`` becomes it)."""
+    from orchestrator.session import free_port
+
+    out.mkdir(parents=True, exist_ok=True)
+    where = out.parent / f"{out.name}-placement.yaml"
+    where.write_text("groups:\n" + "".join(f"  {g}: [{', '.join(nodes)}]\n" for g, nodes in placement.items()))
+    port = free_port("0.0.0.0")
+    run = Launch(scenario, "--layout", "per-node", "--listen", f"0.0.0.0:{port}", "--insecure", "--sim-id", sim,
+                 "--placement", str(where), "--out", str(out), *args)
+    run.wait_for("processes on other hosts")
+    for i, group in enumerate(placement, start=1):
+        Launch.hosts.append(subprocess.Popen(
+            ["ip", "netns", "exec", f"zedge-host{i}", sys.executable, "-m", "node_runtime.runtime.remote",
+             "--connect", f"tcp/10.77.{i}.1:{port}", "--sim", sim, "--group", group],
+            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True))
+    run.wait_for("processes ready")
+    return run, Launch.hosts[-len(placement):]
+
+
+def assert_host_empty(ns: str, timeout: float = 30.0) -> None:
+    """No process is left in network namespace ``ns`` (within ``timeout`` s: the last may still be leaving)."""
+    deadline = time.monotonic() + timeout
+    while True:
+        listed = subprocess.run(["ip", "netns", "pids", ns], capture_output=True, text=True, check=True)
+        if not listed.stdout.split():
+            return
+        assert time.monotonic() < deadline, f"left behind in {ns}: pids {listed.stdout.split()}"
+        time.sleep(0.1)  # polling the namespace: no event says it emptied
+
+
 def assert_all_gone(procs: list[psutil.Process], timeout: float = 10.0) -> None:
     _, alive = psutil.wait_procs(procs, timeout=timeout)
     assert not alive, f"left behind: {[(p.pid, p.name()) for p in alive]}"
@@ -110,6 +152,51 @@ def served(run: Launch) -> tuple[str, str]:
     sim = re.search(r"simulation id (\w+)", text)
     assert endpoint and sim, text
     return endpoint.group(1), sim.group(1)
+
+
+class TickWatch:
+    """The ticks of a run as a monitor on its bus sees them (``…/metrics``): a test waits on the clock itself,
+    never on the time. A thread dispatches the monitor's session; ``seen`` holds (monotonic time, tick) of
+    each new highest tick."""
+
+    def __init__(self, run: Launch) -> None:
+        endpoint, sim = served(run)
+        self.transport = ZenohTransport.client(endpoint)
+        self.seen: list[tuple[float, int]] = []
+        self._changed = threading.Condition()
+        self._stop = threading.Event()
+        self.transport.subscribe(Keys(sim).metrics(), self._on_metrics)
+        self._thread = threading.Thread(target=self.transport.dispatch, args=(self._stop.is_set,), daemon=True)
+        self._thread.start()
+
+    @property
+    def latest(self) -> int:
+        return self.seen[-1][1] if self.seen else -1
+
+    def _on_metrics(self, key: str, record: dict[str, Any]) -> None:
+        if record["tick"] > self.latest:
+            with self._changed:
+                self.seen.append((time.monotonic(), record["tick"]))
+                self._changed.notify_all()
+
+    def wait(self, tick: int, run: Launch, timeout: float = TIMEOUT) -> None:
+        """Until the clock has done ``tick``; fails if ``run`` ends first or the time is up."""
+        deadline = time.monotonic() + timeout
+        with self._changed:
+            while self.latest < tick:
+                assert run.proc.poll() is None, f"the run ended before tick {tick}:\n{''.join(run.err[-5:])}"
+                left = deadline - time.monotonic()
+                assert left > 0, f"tick {tick} not seen within {timeout} s (latest {self.latest})"
+                self._changed.wait(min(left, 0.5))  # and look at the run now and then
+
+    def ticks_between(self, start: float, end: float) -> list[int]:
+        """The new highest ticks seen from ``start`` to ``end`` (monotonic times)."""
+        return [tick for at, tick in self.seen if start <= at <= end]
+
+    def close(self) -> None:
+        self._stop.set()
+        self._thread.join(TIMEOUT)
+        self.transport.close()
 
 
 class Output:

@@ -21,7 +21,7 @@ from orchestrator import metrics
 from orchestrator.cli import keep_partial
 from orchestrator.scenario import load_scenario
 from orchestrator.session import Simulation
-from tests.conftest import write_scenario
+from tests.conftest import check_outputs, write_scenario
 from tests.launcher import TIMEOUT, Launch
 
 BLOCK = 4  # rows written every 4 ticks here, so that a short run crosses several blocks
@@ -33,25 +33,6 @@ SCENARIO = {"simulation": {"steps": 100000},
             "topology": {"nodes": [{"id": "a", "client": True, "controller": True}, {"id": "b"}, {"id": "c"}],
                          "links": [["a", "b"], ["b", "c"]]},
             "workload": {"arrival": {"rate": 0.5}}}
-
-
-def check(out: Path, nodes: int) -> dict:
-    """The tables hold ticks 0 .. last once each (every node once a tick) and the summary says so."""
-    summary = json.loads((out / "summary.json").read_text())
-    if summary["ticks"] == 0:  # interrupted before the first tick: the summary says why, tables may be missing
-        assert summary["incomplete"]["last_tick"] is None
-        return summary
-    with (out / "ticks.csv").open() as fh:
-        ticks = [int(row["tick"]) for row in csv.DictReader(fh)]
-    with (out / "nodes.csv").open() as fh:
-        node_rows = [(int(row["tick"]), row["node"]) for row in csv.DictReader(fh)]
-    assert ticks == list(range(len(ticks))), f"ticks.csv: {len(ticks)} rows, {len(set(ticks))} distinct ticks"
-    assert len(node_rows) == len(set(node_rows)) == nodes * len(ticks), "nodes.csv repeats or misses rows"
-    assert sorted({t for t, _ in node_rows}) == ticks
-    assert summary["ticks"] == len(ticks)
-    if "incomplete" in summary:
-        assert summary["incomplete"]["last_tick"] == (ticks[-1] if ticks else None)
-    return summary
 
 
 def interrupted_at(n: int, tmp_path: Path, scenario_path: Path, where: str) -> bool:
@@ -93,11 +74,11 @@ def test_an_interrupt_at_any_line_of_the_metrics_keeps_every_row_once(tmp_path, 
     monkeypatch.setattr(metrics, "STREAM_BLOCK", BLOCK)
     path = write_scenario(tmp_path, SCENARIO)
     assert not interrupted_at(0, tmp_path, path, "whole")
-    whole = check(tmp_path / "whole", 3)
+    whole = check_outputs(tmp_path / "whole", 3)
     assert "incomplete" not in whole and whole["ticks"] == TICKS
     n, seen = 1, set()
     while interrupted_at(n, tmp_path, path, f"at-{n}"):
-        summary = check(tmp_path / f"at-{n}", 3)
+        summary = check_outputs(tmp_path / f"at-{n}", 3)
         assert summary["incomplete"]["reason"] == "interrupted (Ctrl-C)"
         seen.add(summary["ticks"])
         n += 1
@@ -136,7 +117,7 @@ def test_rows_half_written_when_the_interrupt_comes_are_completed_not_repeated(t
             for _ in range(TICKS):
                 sim.step()
         keep_partial(sim, out, exc.value, 0.0, Console(quiet=True))
-    assert check(out, 3)["ticks"] == BLOCK * ((n + 1) // 2)  # the n-th write: the tables' (n + 1) // 2-th block
+    assert check_outputs(out, 3)["ticks"] == BLOCK * ((n + 1) // 2)  # the n-th write: the tables' (n + 1) // 2-th block
 
 
 def rows(path: Path) -> int:
@@ -163,7 +144,7 @@ def test_a_real_ctrl_c_keeps_every_row_once(tmp_path, after):
     wait_rows(out / "ticks.csv", after, run)
     run.proc.send_signal(signal.SIGINT)
     assert run.finish(TIMEOUT) == 130, "".join(run.err)
-    assert check(out, 3)["incomplete"]["reason"] == "interrupted (Ctrl-C)"
+    assert check_outputs(out, 3)["incomplete"]["reason"] == "interrupted (Ctrl-C)"
 
 
 def test_a_killed_run_leaves_a_summary_that_says_it_is_incomplete(tmp_path):

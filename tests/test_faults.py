@@ -5,87 +5,53 @@ namespaces (deploy/netns.sh); tc shapes their link, and taking it down partition
 from __future__ import annotations
 
 import json
-import os
-import shutil
 import subprocess
-import sys
 import time
 
 import psutil
 import pytest
 
 from orchestrator.scenario import load_scenario
-from tests.conftest import model_part, run_summary
-from tests.launcher import Launch, assert_all_gone
+from tests.conftest import cut, model_part, run_summary, shape
+from tests.launcher import Launch, assert_all_gone, spread
 
 pytestmark = pytest.mark.zenoh
 
 GROUP = ["rpi3_0", "rpi3_1", "rpi3_2", "nuc_0"]  # the nodes of aot1 placed on the remote host
 
 
-def shape(hosts: list[str], rule: str) -> None:
-    """A tc qdisc on both directions of host 1's link, e.g. "tbf rate 1mbit ..." (empty: remove it)."""
-    if shutil.which("tc") is None:
-        pytest.skip("tc (iproute2) is needed for link faults")
-    for cmd in (["tc", "qdisc", "del", "dev", "zedge1-o", "root"],
-                ["ip", "netns", "exec", hosts[0], "tc", "qdisc", "del", "dev", "zedge1-h", "root"]):
-        subprocess.run(cmd, capture_output=True)  # nothing to delete is fine
-    if not rule:
-        return
-    for cmd in (["tc", "qdisc", "add", "dev", "zedge1-o", "root", *rule.split()],
-                ["ip", "netns", "exec", hosts[0], "tc", "qdisc", "add", "dev", "zedge1-h", "root", *rule.split()]):
-        made = subprocess.run(cmd, capture_output=True, text=True)
-        if made.returncode != 0:
-            pytest.skip(f"tc {rule.split()[0]} is not available here: {made.stderr.strip()}")
-
-
-def cut(hosts: list[str], down: bool) -> None:
-    """Take host 1's link down (a partition: no packet passes, no connection is reset) or up again."""
-    subprocess.run(["ip", "link", "set", "zedge1-o", "down" if down else "up"], check=True, capture_output=True)
-
-
-def remote_run(tmp_path, hosts: list[str], *args: str) -> tuple[Launch, subprocess.Popen]:
+def remote_run(tmp_path, *args: str) -> tuple[Launch, subprocess.Popen]:
     """aot1 with GROUP's processes on host 1 (per-node layout), the rest here; started and ready."""
-    from orchestrator.session import free_port
-
-    placement = tmp_path / "placement.yaml"
-    placement.write_text(f"groups:\n  edge: [{', '.join(GROUP)}]\n")
-    port = free_port("0.0.0.0")
-    run = Launch("aot1", "--layout", "per-node", "--listen", f"0.0.0.0:{port}", "--insecure", "--sim-id", "faulttest",
-                 "--placement", str(placement), "--out", str(tmp_path / "run"), *args)
-    run.wait_for(f"waiting for {len(GROUP)} processes on other hosts")
-    group = subprocess.Popen(["ip", "netns", "exec", hosts[0], sys.executable, "-m", "node_runtime.runtime.remote",
-                              "--connect", f"tcp/10.77.1.1:{port}", "--sim", "faulttest", "--group", "edge"],
-                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=os.environ.copy())
-    run.wait_for("processes ready")
-    return run, group
+    run, hosts = spread(tmp_path / "run", "aot1", {"edge": GROUP}, *args, sim="faulttest")
+    return run, hosts[0]
 
 
 def test_a_slow_lossy_link_to_a_host_changes_nothing(tmp_path, hosts):
     """1 Mbit/s with at most 50 ms of queue each way (tbf): packets wait and overflowing ones are dropped.
     Zenoh over TCP retransmits, the clock waits, and the emulation is the same as in one process."""
-    shape(hosts, "tbf rate 1mbit burst 16kbit latency 50ms")
+    shape(1, "tbf rate 1mbit burst 16kbit latency 50ms")
     try:
-        run, group = remote_run(tmp_path, hosts, "--steps", "60", "--seed", "2", "--policy", "random")
+        run, group = remote_run(tmp_path, "--steps", "60", "--seed", "2", "--policy", "random")
         assert run.finish(180) == 0, "".join(run.err)
         assert group.wait(60) == 0, group.stderr.read()
     finally:
-        shape(hosts, "")
+        shape(1, "")
     deployed = json.loads((tmp_path / "run" / "summary.json").read_text())
     assert "incomplete" not in deployed
     assert model_part(deployed) == model_part(run_summary(load_scenario("aot1"), ticks=60, seed=2, policy="random"))
 
 
 def test_a_partition_ends_the_run_as_hung_and_keeps_what_was_measured(tmp_path, hosts):
-    run, group = remote_run(tmp_path, hosts, "--steps", "100000", "--timeout", "5")
+    run, group = remote_run(tmp_path, "--steps", "100000", "--timeout", "5")
     remote = psutil.Process(group.pid).children(recursive=True)
-    cut(hosts, down=True)
+    cut(1, down=True)
     try:
         cut_at = time.monotonic()
         assert run.finish(60) == 1
         elapsed = time.monotonic() - cut_at
         message = [ln for ln in run.err if ln.startswith("error:")]
-        assert message and "hung: no report within 5 s" in message[0], "".join(run.err)
+        assert message and "the host of group edge hung or was cut off" in message[0], "".join(run.err)
+        assert "no report within 5 s" in message[0], message[0]
         assert any(f"node-{n}" in message[0] for n in GROUP), message[0]
         assert elapsed < 5 + 20, f"took {elapsed:.1f} s"  # the timeout, plus shutdown on a loaded machine
         summary = json.loads((tmp_path / "run" / "summary.json").read_text())
@@ -94,7 +60,7 @@ def test_a_partition_ends_the_run_as_hung_and_keeps_what_was_measured(tmp_path, 
         group.wait(60)
         assert_all_gone(remote, timeout=30)
     finally:
-        cut(hosts, down=False)
+        cut(1, down=False)
         if group.poll() is None:
             group.kill()
 

@@ -7,6 +7,7 @@ status, with a timeout that fails loudly.
 
 from __future__ import annotations
 
+import time
 from collections.abc import Callable, Iterator
 
 import pytest
@@ -93,3 +94,27 @@ def test_closing_an_endpoint_ends_its_subscriptions(connect):
     hub.dispatch(until=lambda: monitored.listened, timeout=TIMEOUT)
     client.close()
     hub.dispatch(until=lambda: not monitored.listened, timeout=TIMEOUT)
+
+
+@pytest.mark.zenoh
+def test_a_stall_in_a_handler_does_not_count_against_a_wait():
+    """Time this process stood still does not count against a wait for others (they were not silent): a stall
+    in a handler (here one that sleeps 2 s; in the orchestrator, SIGSTOP while it handles a report at hundreds
+    of ticks a second) used not to count as one, so its wait for the other reports ended at once and it
+    blamed them. The wait goes on for its 1 s after the stall, and ends with a timeout."""
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    hub = ZenohTransport.router(endpoint)
+    client = ZenohTransport.client(endpoint)
+    try:
+        got: list[float] = []
+        client.subscribe("t/x/data", lambda key, message: (time.sleep(2), got.append(time.monotonic())))
+        hub.wait_matching(["t/x/data"], TIMEOUT)
+        hub.publish("t/x/data", {"type": "data", "n": 0})
+        started = time.monotonic()
+        with pytest.raises(TimeoutError):
+            client.dispatch(until=lambda: False, timeout=1.0)
+        assert len(got) == 1 and time.monotonic() - got[0] >= 0.9, f"ended {time.monotonic() - got[0]:.2f} s after"
+        assert time.monotonic() - started >= 2.9
+    finally:
+        client.close()
+        hub.close()

@@ -19,9 +19,16 @@ Proof of origin (``origin``): the aggregator takes only reports that carry their
 what it forwards with the host's own key, which is what the orchestrator checks; it takes only the ticks
 that carry the clock's. A second report of a process for one tick is never merged into the first: the first
 goes on at once, so that the orchestrator sees both and judges.
+
+A host that has forwarded nothing for ``BEAT_S`` sends an empty batch, sealed like any other: the
+orchestrator then tells a host that stood still or was cut off (nothing from it, not even that) from a
+stopped process (its host still beats). By its reports alone, a host stopped between two batches of one
+tick would look like its unforwarded process stopped.
 """
 
 from __future__ import annotations
+
+import time
 
 from node_runtime.runtime.keys import Keys
 from node_runtime.runtime.origin import Keyring, authentic
@@ -30,6 +37,7 @@ from node_runtime.runtime.rejections import BAD_MAC, UNKNOWN_SENDER, WRONG_SHAPE
 from node_runtime.runtime.transport import Transport
 
 TickId = tuple[int, int]  # (episode, tick)
+BEAT_S = 0.25  # the longest a host stays silent while it runs (an empty batch says it is there)
 
 
 class DoneAggregator:
@@ -47,6 +55,7 @@ class DoneAggregator:
         self.sent: dict[TickId, set[str]] = {}  # the processes whose reports of a tick went on: a tick heard after
         # them waits for them no more (or only a quiet bus, which a flood of refused messages never is, would)
         self.rejections = transport.rejections
+        self.last_sent = time.monotonic()  # when anything last went to the orchestrator
         self.tick_keys = {keys.tick(p): p for p in procs}
         transport.subscribe(keys.tick(), self.on_tick)
         for key in self.tick_keys:
@@ -70,6 +79,7 @@ class DoneAggregator:
         opened = self.procs if proc is None else {proc}
         self.opened.setdefault(tick, set()).update(opened - self.sent.get(tick, set()))
         self.maybe_forward(tick)
+        self.beat()
 
     def on_done(self, key: str, done: Done) -> None:
         if type(done) is not Done:
@@ -104,10 +114,19 @@ class DoneAggregator:
                 opened.difference_update(reports)
             self.sent.setdefault(tick, set()).update(reports)
             for epoch in sorted({d.epoch for d in reports.values()}):  # one epoch a tick, but for a forgery
-                dones = Dones(self.group, [d for d in reports.values() if d.epoch == epoch], epoch)
-                self.transport.publish(self.out_key, dones, self.keyring.host_key(self.group, epoch))
+                self._publish(Dones(self.group, [d for d in reports.values() if d.epoch == epoch], epoch))
+
+    def _publish(self, dones: Dones) -> None:
+        self.transport.publish(self.out_key, dones, self.keyring.host_key(self.group, dones.epoch))
+        self.last_sent = time.monotonic()
 
     def flush(self) -> None:
         """Forward everything waiting: the bus is quiet, so a process the reports wait for may be hung."""
         for tick in list(self.reports):
             self.forward(tick)
+        self.beat()
+
+    def beat(self) -> None:
+        """An empty batch, if nothing went to the orchestrator for ``BEAT_S``: this host is still there."""
+        if time.monotonic() - self.last_sent >= BEAT_S:
+            self._publish(Dones(self.group, [], self.epoch))

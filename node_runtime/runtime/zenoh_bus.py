@@ -340,13 +340,17 @@ class ZenohTransport(Transport):
     def dispatch(self, until: Callable[[], bool], timeout: float | None = None,
                  idle: Callable[[], None] | None = None) -> None:
         """A time this process stood still (SIGSTOP, a starved machine) does not count against ``timeout``: what
-        others sent meanwhile waits in buffers, and they were not silent."""
+        others sent meanwhile waits in buffers, and they were not silent. That is any time it did not look at
+        the queue for more than ``STALL_S``, whether it stood still waiting on it or running a handler."""
         deadline = None if timeout is None else time.monotonic() + timeout
         get = self._queue.get
+        looked = time.monotonic()  # when the last wait on the queue ended
         while not until():
             wait = IDLE_SLICE
             now = time.monotonic()
             if deadline is not None:
+                if (late := now - looked) > STALL_S:  # stood still in a handler, ``until`` or ``idle``
+                    deadline += late
                 left = deadline - now
                 if left <= 0:
                     raise TimeoutError(f"nothing satisfied the wait within {timeout:.1f} s")
@@ -355,7 +359,8 @@ class ZenohTransport(Transport):
                 handler, key, data = get(timeout=wait)
             except queue.Empty:
                 handler = None
-            if deadline is not None and (late := time.monotonic() - now - wait) > STALL_S:
+            looked = time.monotonic()
+            if deadline is not None and (late := looked - now - wait) > STALL_S:
                 deadline += late
             if handler is None:
                 if idle is not None:
