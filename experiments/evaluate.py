@@ -18,7 +18,7 @@ from typing import Any
 
 from agents import BASELINES, AgentPolicy, Learner, evaluate, load_learner, make_policy
 from agents.training import EVAL_SEED, progress_bar, write_csv
-from experiments import marl_eval
+from experiments import marl_eval, raw
 from experiments.common import Parser, add_env_arguments, check_scenario, make_env, positive_int, seed_int, set_threads
 from experiments.distributed import add_ray_arguments, ray_problem, run_on_ray, wants_ray
 from experiments.plot import mean_ci
@@ -68,7 +68,8 @@ def main(argv: Sequence[str] | None = None) -> None:
                                   "module:Class (docs/extending.md), or a checkpoint file (.pt)")
     p.add_argument("--episodes", type=positive_int, default=10, help="evaluation episodes (default 10)")
     p.add_argument("--seed", type=seed_int, default=0, help="seed of the baselines' random choices (default 0)")
-    p.add_argument("--csv", type=Path, default=None, help="write one row per episode here")
+    p.add_argument("--csv", type=Path, default=None,
+                   help="write one row per episode here (experiments.raw's columns, then the episode's others)")
     p.add_argument("--marl-eval", type=Path, default=None, metavar="JSON",
                    help="add the episodes to this marl-eval JSON file (created if missing; docs/agents.md)")
     p.add_argument("--device", default="cpu", help="cpu (default) or cuda, for checkpoints")
@@ -108,6 +109,11 @@ def main(argv: Sequence[str] | None = None) -> None:
         with progress or nullcontext():
             rows = evaluate(env, policy, args.episodes, progress=progress, label=f"evaluate {policy.name}")
         env.close()
+    # a checkpoint's run is its training seed; a baseline's, the seed of its random choices
+    seed, trained = (policy.config.seed, policy.env_steps) if isinstance(policy, Learner) else (args.seed, 0)
+    regime = Path(args.scenario).stem if args.lam is None else f"{Path(args.scenario).stem}-lam{args.lam:g}"
+    rows = [raw.row(policy.name, seed if isinstance(policy, Learner) else None, args.scenario, regime, r)
+            for r in rows]
     for metric in ("response_time_mean", "completion_ratio", "penalised_response_time", "dropped",
                    "overloaded_node_ticks", "completed", "return"):
         mean, ci = mean_ci([r[metric] for r in rows])
@@ -115,8 +121,6 @@ def main(argv: Sequence[str] | None = None) -> None:
     if args.csv:
         write_csv(args.csv, rows)
     if args.marl_eval:
-        # a checkpoint's run is its training seed; a baseline's, the seed of its random choices
-        seed, trained = (policy.config.seed, policy.env_steps) if isinstance(policy, Learner) else (args.seed, 0)
         data: dict = {}
         task_name = args.scenario if args.lam is None else f"{args.scenario}-lam{args.lam:g}"
         marl_eval.add_run(data, task_name, policy.name, seed,
