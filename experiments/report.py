@@ -311,19 +311,23 @@ def main(argv: Sequence[str] | None = None) -> None:
     p.add_argument("--out", type=Path, default=OUT, help=f"the page to write (default {OUT}); figures go to "
                                                          "figures/ beside it")
     p.add_argument("--reps", type=positive_int, default=2000, help="bootstrap resamples (default 2000)")
-    p.add_argument("--note", default="", help="a line printed in bold under the title (what the run was)")
+    p.add_argument("--note", default=None, help="a line printed in bold under the title: what the run was "
+                                               f"(default: {DATA}/note.txt when reading {DATA})")
     p.add_argument("--no-progress", dest="progress", action="store_false", help="no progress bar")
     args = p.parse_args(argv)
     inputs = args.csv or sorted(DATA.glob("*.csv"))
     if not inputs:
         p.error(f"{DATA}: no CSV files; name the raw per-episode CSV files to read")
+    note = args.note
+    if note is None:
+        note = (DATA / "note.txt").read_text().strip() if not args.csv and (DATA / "note.txt").is_file() else ""
     progress = progress_bar() if args.progress else None
     try:
         rows = raw.read(inputs)
         if not rows:
             p.error(f"{', '.join(map(str, inputs))}: no rows")
         with progress or nullcontext():
-            text = page(inputs, rows, args.out, args.note, args.reps, progress)
+            text = page(inputs, rows, args.out, note, args.reps, progress)
     except (raw.RawError, ValueError) as e:
         p.error(str(e))
     args.out.parent.mkdir(parents=True, exist_ok=True)

@@ -10,7 +10,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from experiments import bound, raw, report, suite
+from experiments import bound, evaluate, raw, report, suite
+from tests.conftest import ROOT
 
 pytestmark = pytest.mark.slow
 
@@ -115,3 +116,24 @@ def test_bad_input_is_one_line(pipeline, tmp_path, capsys):
     with pytest.raises(SystemExit):
         build(tmp_path, tmp_path / "nowhere.csv")
     assert re.search(r"nowhere.csv: No such file", capsys.readouterr().err)
+
+
+def test_evaluate_writes_the_rows_the_bound_writes(pipeline, tmp_path):
+    """experiments.evaluate on a suite's regime and seed set gives the bound command's rows for that policy:
+    one schema, the same episodes."""
+    regime = sorted((pipeline / "test").glob("*.yaml"))[0]
+    evaluate.main(["greedy", "--scenario", str(regime), "--split", "test", "--episodes", "2",
+                   "--csv", str(tmp_path / "greedy.csv"), "--no-progress"])
+    columns = (*raw.KEYS, *raw.METRICS)
+    mine = [{k: r[k] for k in columns} for r in raw.read([tmp_path / "greedy.csv"])]
+    theirs = [{k: r[k] for k in columns} for r in raw.read([pipeline / "raw.csv"])
+              if r["policy"] == "greedy" and r["regime"] == regime.stem]
+    assert len(mine) == 2 and [r["seed"] for r in mine] == [200_000, 200_001]
+    assert str(mine) == str(theirs)  # str: NaN equals NaN
+
+
+def test_the_committed_page_is_what_the_committed_rows_give(tmp_path, monkeypatch):
+    """docs/benchmark-results.md is python -m experiments.report's output on docs/benchmark-data/, unedited."""
+    monkeypatch.chdir(ROOT)
+    report.main(["--out", str(tmp_path / "benchmark-results.md"), "--no-progress"])
+    assert (tmp_path / "benchmark-results.md").read_text() == (ROOT / report.OUT).read_text()
