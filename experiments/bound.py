@@ -323,9 +323,9 @@ def measure(scenario: str | Path, seeds: Sequence[int], max_steps: int | None, p
         local = done["local"][k]["completed"]
         for b in policies:
             episode = done[b][k]
-            rows.append(raw.row(b, None, scenario, Path(scenario).stem, episode, local=local, bound=bd.value,
-                                bound_kind=bd.kind, bound_s=round(bd.seconds, 3),
-                                normalised_score=normalised_score(episode["completed"], local, bd.value)))
+            rows.append(raw.row(b, None, scenario, Path(scenario).stem, episode, {
+                "local": local, "bound": bd.value, "bound_kind": bd.kind, "bound_s": round(bd.seconds, 3),
+                "normalised_score": normalised_score(episode["completed"], local, bd.value)}))
     return rows
 
 

@@ -1,5 +1,5 @@
 """The raw per-episode rows every benchmark table is built from: one schema for experiments.evaluate,
-experiments.bound and anything else that runs policies, read back by experiments.report.
+experiments.bound, experiments.regimes and anything else that runs policies, read back by experiments.report.
 
 One row per policy, training run and episode (docs/benchmark.md, "Raw per-episode rows"):
 
@@ -43,13 +43,13 @@ def suite_of(scenario: str | Path) -> str:
 
 
 def row(policy: str, train_seed: int | None, scenario: str | Path, regime: str, episode: Mapping[str, Any],
-        **extra: Any) -> dict[str, Any]:
+        extra: Mapping[str, Any] | None = None) -> dict[str, Any]:
     """A raw row from an ``agents.training.evaluate`` row of ``policy`` on ``regime`` (of ``scenario``'s suite);
-    ``extra``: the optional columns, then the rest of the episode's columns."""
+    then ``extra`` (the optional columns, or a caller's own), then the rest of the episode's columns."""
     head = {"policy": policy, "train_seed": "" if train_seed is None else train_seed, "suite": suite_of(scenario),
             "split": split_of(int(episode["seed"])) or "", "regime": regime, "episode": episode["episode"],
             "seed": episode["seed"], "steps": episode["steps"], **{m: episode[m] for m in METRICS}}
-    return {**head, **extra, **{k: v for k, v in episode.items() if k not in head and k != "wall_s"}}
+    return {**head, **(extra or {}), **{k: v for k, v in episode.items() if k not in head and k != "wall_s"}}
 
 
 def read(paths: Iterable[str | Path]) -> list[dict[str, Any]]:
