@@ -42,7 +42,7 @@ from scipy.sparse import coo_array
 
 from agents import BASELINES, Baseline, evaluate
 from agents.training import progress_bar, write_csv
-from experiments import tune_baselines
+from experiments import raw, tune_baselines
 from experiments.common import Parser, make_env, positive_int, positive_number
 from experiments.protocol import EPISODES, SPLITS
 from node_runtime.model.client import Client
@@ -307,22 +307,26 @@ def normalised_score(completed: float, local: float, bound: float) -> float:
 
 def measure(scenario: str | Path, seeds: Sequence[int], max_steps: int | None, policies: Mapping[str, type[Baseline]],
             time_limit: float, progress: Any = None) -> list[dict[str, Any]]:
-    """One row per episode (seeds: consecutive) and policy: completed, the bound (and the seconds it took) and
-    the normalised score.
+    """One raw row (``experiments.raw``) per episode (seeds: consecutive) and policy: its metrics, what ``local``
+    completed, the bound (its kind and the seconds it took) and the normalised score.
     ``policies`` must hold ``local``, which the score starts from."""
     env = make_env(str(scenario), None, max_steps)
     try:
         bounds = [episode_bound(env.scenario, s, env.max_steps, time_limit) for s in seeds]
-        done = {b: [row["completed"] for row in evaluate(env, cls(0), len(seeds), seed=seeds[0],
-                                                         progress=progress, label=f"{Path(scenario).stem} {b}")]
+        done = {b: evaluate(env, cls(0), len(seeds), seed=seeds[0], progress=progress,
+                            label=f"{Path(scenario).stem} {b}")
                 for b, cls in policies.items()}
     finally:
         env.close()
-    return [{"regime": Path(scenario).stem, "episode": k, "seed": s, "baseline": b, "generated": bd.tasks,
-             "completed": done[b][k], "local": done["local"][k], "bound": bd.value, "bound_kind": bd.kind,
-             "bound_s": round(bd.seconds, 3),
-             "normalised_score": normalised_score(done[b][k], done["local"][k], bd.value)}
-            for k, (s, bd) in enumerate(zip(seeds, bounds, strict=True)) for b in policies]
+    rows = []
+    for k, bd in enumerate(bounds):
+        local = done["local"][k]["completed"]
+        for b in policies:
+            episode = done[b][k]
+            rows.append(raw.row(b, None, scenario, Path(scenario).stem, episode, {
+                "local": local, "bound": bd.value, "bound_kind": bd.kind, "bound_s": round(bd.seconds, 3),
+                "normalised_score": normalised_score(episode["completed"], local, bd.value)}))
+    return rows
 
 
 def main(argv: Sequence[str] | None = None) -> None:

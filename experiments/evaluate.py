@@ -5,6 +5,7 @@
     python -m experiments.evaluate greedy --scenario aot2 --episodes 10 --marl-eval runs/marl_eval.json
     python -m experiments.evaluate mylab.rules:ShortQueues --scenario aot2   # a Baseline subclass of your own
     python -m experiments.evaluate runs/ddqn-aot2/ddqn.pt --episodes 100 --ray   # one Ray task per episode
+    python -m experiments.evaluate greedy --scenario runs/suites/test/test-000-ring.yaml --split test --csv runs/g.csv
 """
 
 from __future__ import annotations
@@ -17,11 +18,12 @@ from pathlib import Path
 from typing import Any
 
 from agents import BASELINES, AgentPolicy, Learner, evaluate, load_learner, make_policy
-from agents.training import EVAL_SEED, progress_bar, write_csv
-from experiments import marl_eval
+from agents.training import progress_bar, write_csv
+from experiments import marl_eval, raw
 from experiments.common import Parser, add_env_arguments, check_scenario, make_env, positive_int, seed_int, set_threads
 from experiments.distributed import add_ray_arguments, ray_problem, run_on_ray, wants_ray
 from experiments.plot import mean_ci
+from experiments.protocol import EPISODES, SPLITS
 from node_runtime.model.plugins import PluginError, is_import_path
 
 
@@ -29,7 +31,8 @@ from node_runtime.model.plugins import PluginError, is_import_path
 class Episode:
     """One evaluation episode as a Ray task: the policy travels as a baseline's name or a checkpoint's bytes."""
 
-    k: int  # the episode's index: its seed is EVAL_SEED + k
+    k: int  # the episode's index: its seed is first + k
+    first: int  # the first episode seed
     baseline: str | None  # a built-in's name or a user's import path
     checkpoint: bytes | None
     seed: int
@@ -56,7 +59,7 @@ def run_episode(job: Episode, scratch: Path) -> dict[str, Any]:
         (scratch / "policy.pt").unlink()  # not an output
     env = make_env(job.scenario, job.lam, job.max_steps, job.reward, job.transport, job.seed, job.congestion_price)
     try:
-        (row,) = evaluate(env, policy, 1, seed=EVAL_SEED + job.k)
+        (row,) = evaluate(env, policy, 1, seed=job.first + job.k)
     finally:
         env.close()
     return {**row, "episode": job.k}
@@ -67,8 +70,11 @@ def main(argv: Sequence[str] | None = None) -> None:
     p.add_argument("policy", help=f"a baseline ({', '.join(BASELINES)}), a Baseline subclass of your own as "
                                   "module:Class (docs/extending.md), or a checkpoint file (.pt)")
     p.add_argument("--episodes", type=positive_int, default=10, help="evaluation episodes (default 10)")
+    p.add_argument("--split", choices=SPLITS, default="validation",
+                   help="the seed set of the episodes (default validation: seeds 100000, 100001, ...)")
     p.add_argument("--seed", type=seed_int, default=0, help="seed of the baselines' random choices (default 0)")
-    p.add_argument("--csv", type=Path, default=None, help="write one row per episode here")
+    p.add_argument("--csv", type=Path, default=None,
+                   help="write one row per episode here (experiments.raw's columns, then the episode's others)")
     p.add_argument("--marl-eval", type=Path, default=None, metavar="JSON",
                    help="add the episodes to this marl-eval JSON file (created if missing; docs/agents.md)")
     p.add_argument("--device", default="cpu", help="cpu (default) or cuda, for checkpoints")
@@ -95,9 +101,10 @@ def main(argv: Sequence[str] | None = None) -> None:
     check_scenario(p.prog, args.scenario, args.lam)
     if why := ray_problem(args):
         p.error(why)
+    first = EPISODES[args.split].seeds(args.episodes)[0]
     if wants_ray(args):
         weights = Path(args.policy).read_bytes() if checkpoint else None
-        jobs = [Episode(k, None if checkpoint else args.policy, weights, args.seed, args.device,
+        jobs = [Episode(k, first, None if checkpoint else args.policy, weights, args.seed, args.device,
                         args.scenario, args.lam, args.max_steps, args.reward, args.transport, args.congestion_price)
                 for k in range(args.episodes)]
         rows = run_on_ray(run_episode, jobs, Path.cwd(), args)
@@ -106,8 +113,14 @@ def main(argv: Sequence[str] | None = None) -> None:
                        args.congestion_price)
         progress = progress_bar() if args.progress else None
         with progress or nullcontext():
-            rows = evaluate(env, policy, args.episodes, progress=progress, label=f"evaluate {policy.name}")
+            rows = evaluate(env, policy, args.episodes, seed=first, progress=progress,
+                            label=f"evaluate {policy.name}")
         env.close()
+    # a checkpoint's run is its training seed; a baseline's, the seed of its random choices
+    seed, trained = (policy.config.seed, policy.env_steps) if isinstance(policy, Learner) else (args.seed, 0)
+    regime = Path(args.scenario).stem if args.lam is None else f"{Path(args.scenario).stem}-lam{args.lam:g}"
+    rows = [raw.row(policy.name, seed if isinstance(policy, Learner) else None, args.scenario, regime, r)
+            for r in rows]
     for metric in ("response_time_mean", "completion_ratio", "penalised_response_time", "dropped",
                    "overloaded_node_ticks", "completed", "return"):
         mean, ci = mean_ci([r[metric] for r in rows])
@@ -115,8 +128,6 @@ def main(argv: Sequence[str] | None = None) -> None:
     if args.csv:
         write_csv(args.csv, rows)
     if args.marl_eval:
-        # a checkpoint's run is its training seed; a baseline's, the seed of its random choices
-        seed, trained = (policy.config.seed, policy.env_steps) if isinstance(policy, Learner) else (args.seed, 0)
         data: dict = {}
         task_name = args.scenario if args.lam is None else f"{args.scenario}-lam{args.lam:g}"
         marl_eval.add_run(data, task_name, policy.name, seed,

@@ -8,8 +8,8 @@ on completion and on the score?). Where one does, a learner has little to learn.
     python -m experiments.regimes --families compute wired --episodes 3 --out runs/regimes
 
 Every baseline runs the same evaluation episodes (seeds 100000, 100001, ..., as experiments.evaluate)
-with the scenario's own episode length. Outputs under ``--out``: ``<family>.csv`` (one row per rate,
-baseline and episode) and ``README.md`` (the cards, made from those rows).
+with the scenario's own episode length. Outputs under ``--out``: ``<family>.csv`` (one raw row,
+``experiments.raw``, per rate, baseline and episode) and ``README.md`` (the cards, made from those rows).
 """
 
 from __future__ import annotations
@@ -24,6 +24,7 @@ from typing import Any
 
 from agents import BASELINES, evaluate
 from agents.training import EVAL_SEED, progress_bar, write_csv
+from experiments import raw
 from experiments.common import Parser, check_scenario, make_env, positive_int
 from experiments.plot import mean_ci
 
@@ -68,15 +69,18 @@ def rate_label(lam: float | None) -> str:
 
 def measure(family: Family, episodes: int, max_steps: int | None = None, progress: Any = None,
             seed: int = EVAL_SEED) -> list[dict[str, Any]]:
-    """One row per rate, baseline and evaluation episode (seeds ``seed``, ``seed`` + 1, ...)."""
+    """One raw row (``experiments.raw``) per rate, baseline and evaluation episode (seeds ``seed``, ``seed`` + 1,
+    ...), with the family, its scenario and the rate. No wall time: the files are kept in git, and hold only what
+    the seed fixes."""
     rows = []
     for lam in family.lambdas:
         env = make_env(family.scenario, lam, max_steps)
+        regime = family.name if lam is None else f"{Path(family.scenario).stem}-lam{lam:g}"
         try:
             for name, cls in BASELINES.items():
                 label = f"{family.name} λ={rate_label(lam)} {name}"
-                rows += [{"family": family.name, "scenario": family.scenario, "lambda": lam, "baseline": name,
-                          **{k: v for k, v in r.items() if k != "wall_s"}}  # kept in git: only what the seed fixes
+                rows += [raw.row(name, None, family.scenario, regime, r,
+                                 {"family": family.name, "scenario": family.scenario, "lambda": lam})
                          for r in evaluate(env, cls(0), episodes, seed=seed, progress=progress, label=label)]
         finally:
             env.close()
@@ -89,7 +93,7 @@ def read_rows(path: Path) -> list[dict[str, Any]]:
         rows = list(csv.DictReader(f))
     for r in rows:
         for k, v in r.items():
-            if k not in ("family", "scenario", "baseline"):
+            if k not in ("family", "scenario", *raw.TEXT):
                 r[k] = int(v) if k in ("episode", "steps") else float(v) if v else math.nan
     return rows
 
@@ -99,7 +103,7 @@ def card(family: Family, rows: Sequence[dict[str, Any]]) -> str:
     The baselines are those the rows hold, in ``BASELINES`` order."""
     episodes = len({r["episode"] for r in rows})
     steps = rows[0]["steps"]
-    names = [b for b in BASELINES if any(r["baseline"] == b for r in rows)]
+    names = [b for b in BASELINES if any(r["policy"] == b for r in rows)]
     lines = [f"## {family.name}: `{family.scenario}`", "", family.about, "",
              f"{len(names)} baselines, {episodes} evaluation episodes of {steps} steps each (mean ± 95% CI). "
              "Score: mean time per generated task, a task not completed counts its deadline (lower is better).", ""]
@@ -107,7 +111,7 @@ def card(family: Family, rows: Sequence[dict[str, Any]]) -> str:
     lines += ["| " + " | ".join(header) + " |", "|" + " --- |" * len(header)]
     for lam in family.lambdas:
         at = [r for r in rows if _same(r["lambda"], lam)]
-        stats = {(b, m): mean_ci([r[m] * scale for r in at if r["baseline"] == b])
+        stats = {(b, m): mean_ci([r[m] * scale for r in at if r["policy"] == b])
                  for b in names for m, _, scale, _ in METRICS}
         best = {m: (max if way == "max" else min)(names, key=lambda b, m=m: stats[b, m][0])
                 for m, _, _, way in METRICS if way}

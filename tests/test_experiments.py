@@ -13,7 +13,7 @@ from typing import Any
 import pytest
 
 from agents import LEARNERS, DDQNConfig, PPOConfig
-from experiments import evaluate, rq1, rq2, train
+from experiments import evaluate, raw, rq1, rq2, train
 from experiments.common import learner_config
 from experiments.plot import mean_ci
 from experiments.sweep import AGENTS
@@ -121,6 +121,9 @@ def test_train_then_evaluate_command_lines(tmp_path, capsys):
                    "--csv", str(tmp_path / "eval.csv"), "--no-progress"])
     assert "response_time_mean" in capsys.readouterr().out
     assert len(read_csv(tmp_path / "eval.csv")) == 2
+    rows = raw.read([tmp_path / "eval.csv"])  # the raw schema experiments.report reads
+    assert [(r["policy"], r["train_seed"], r["suite"], r["split"], r["regime"], r["seed"]) for r in rows] == [
+        ("a2c", 0, "bundled", "validation", "aot1", 100_000 + k) for k in range(2)]
     # the default reward is the learner's: the paper's for the learners tuned on it, marginal for PPO
     assert json.loads((tmp_path / "config.json").read_text())["reward"] == "paper"
     train.main(["ppo", "--scenario", "aot1", "--episodes", "1", "--max-steps", "20", "--out", str(tmp_path / "ppo"),

@@ -5,7 +5,7 @@ from __future__ import annotations
 import pytest
 
 from agents import BASELINES, evaluate
-from experiments import regimes
+from experiments import raw, regimes
 from experiments.common import make_env
 from orchestrator.scenario import load_scenario
 
@@ -41,6 +41,9 @@ def test_the_command_writes_one_csv_per_family_and_the_cards(tmp_path):
     rows = regimes.read_rows(tmp_path / "compute.csv")
     assert len(rows) == 2 * len(BASELINES) * 2  # two rates, every baseline, two episodes
     assert {r["lambda"] for r in rows} == {0.03, 0.06} and {r["episode"] for r in rows} == {0, 1}
+    typed = raw.read([tmp_path / "compute.csv"])  # the raw schema experiments.report reads
+    assert {(r["suite"], r["split"], r["train_seed"]) for r in typed} == {("bundled", "validation", None)}
+    assert {r["regime"] for r in typed} == {"aot3_compute-lam0.03", "aot3_compute-lam0.06"}
     card = (tmp_path / "README.md").read_text()
     assert "## compute: `aot3_compute`" in card and card.count("| 0.06 | greedy |") == 1
     (tmp_path / "README.md").unlink()

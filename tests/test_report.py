@@ -1,0 +1,139 @@
+"""experiments.report rebuilds its tables from the raw per-episode CSVs: the whole pipeline on a small test
+suite (suite, bound and baselines, report), a table that follows an edited row, and bad input in one line."""
+
+from __future__ import annotations
+
+import csv
+import re
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from experiments import bound, evaluate, raw, report, suite
+from tests.conftest import ROOT
+
+pytestmark = pytest.mark.slow
+
+
+@pytest.fixture(scope="module")
+def pipeline(tmp_path_factory) -> Path:
+    """2 test regimes, every baseline and the bound on 2 test episodes of 30 steps each."""
+    folder = tmp_path_factory.mktemp("pipeline")
+    suite.write(suite.suite("test", 2, steps=30), folder / "test")
+    bound.main(["--suite", str(folder / "test"), "--episodes", "2", "--out", str(folder / "raw.csv"),
+                "--no-progress"])
+    return folder
+
+
+def rows_of(path: Path) -> list[dict[str, str]]:
+    with open(path, newline="") as f:
+        return list(csv.DictReader(f))
+
+
+def write(path: Path, rows: list[dict[str, str]]) -> None:
+    with open(path, "w", newline="") as f:
+        w = csv.DictWriter(f, fieldnames=list(rows[0]))
+        w.writeheader()
+        w.writerows(rows)
+
+
+def cell(text: str, policy: str, column: int) -> str:
+    """A cell of the aggregate table: the row of ``policy``, the ``column``-th (0: the policy)."""
+    line = next(line for line in text.splitlines() if line.startswith(f"| `{policy}` | ") and "[" in line)
+    return line.strip("|").split("|")[column].strip()
+
+
+def expected_completion(rows: list[dict[str, str]], policy: str) -> float:
+    """The mean over regimes of each regime's mean completion, in %: what the table must say."""
+    regimes = sorted({r["regime"] for r in rows})
+    return 100 * float(np.mean([np.mean([float(r["completion_ratio"]) for r in rows
+                                         if r["policy"] == policy and r["regime"] == g]) for g in regimes]))
+
+
+def build(folder: Path, *csvs: Path, reps: str = "200") -> str:
+    out = folder / "page" / "results.md"
+    report.main([*map(str, csvs), "--out", str(out), "--reps", reps, "--no-progress"])
+    return out.read_text()
+
+
+def test_the_tables_are_rebuilt_from_the_csv_and_follow_an_edited_row(pipeline, tmp_path):
+    rows = rows_of(pipeline / "raw.csv")
+    assert {r["split"] for r in rows} == {"test"} and {r["suite"] for r in rows} == {"test"}
+    text = build(tmp_path, pipeline / "raw.csv")
+    assert "## `test` suite, test episodes, 30 steps" in text and "(200000–200001)" in text
+    for policy in ("local", "greedy", "threshold", "drift_plus_penalty"):
+        got = float(cell(text, policy, 5).split()[0])
+        assert got == pytest.approx(expected_completion(rows, policy), abs=0.05), policy
+    assert cell(text, "local", 2).startswith("0.000")  # local is 0 on the normalised score, by definition
+    for name in ("profile", "aggregates", "improvement"):
+        assert (tmp_path / "page" / "figures" / f"benchmark-test-test-30-{name}.png").stat().st_size > 1000
+    assert text == build(tmp_path, pipeline / "raw.csv")  # the same rows give the same page
+
+    # greedy completes every task of one episode more: its completion cell moves to the new mean
+    edited = [dict(r) for r in rows]
+    target = next(r for r in edited if r["policy"] == "greedy" and int(r["generated"]) > 0)
+    target["completed"], target["completion_ratio"] = target["generated"], "1.0"
+    write(tmp_path / "edited.csv", edited)
+    changed = build(tmp_path, tmp_path / "edited.csv")
+    assert cell(changed, "greedy", 5) != cell(text, "greedy", 5)
+    assert float(cell(changed, "greedy", 5).split()[0]) == pytest.approx(expected_completion(edited, "greedy"),
+                                                                         abs=0.05)
+    assert cell(changed, "local", 5) == cell(text, "local", 5)
+
+
+def test_a_learner_with_several_runs_joins_the_bound_of_its_episodes(pipeline, tmp_path):
+    rows = rows_of(pipeline / "raw.csv")
+    learner = [{**r, "policy": "learner", "train_seed": str(s), "local": "", "bound": "", "bound_kind": "",
+                "normalised_score": ""} for s in (0, 1) for r in rows if r["policy"] == "greedy"]
+    write(tmp_path / "learner.csv", learner)
+    text = build(tmp_path, pipeline / "raw.csv", tmp_path / "learner.csv")
+    assert cell(text, "learner", 1) == "2"  # two runs
+    # the normalised score from the joined bound: greedy's episodes, so greedy's IQM
+    assert cell(text, "learner", 2).split()[0] == cell(text, "greedy", 2).split()[0]
+    scored = report.with_scores(raw.read([pipeline / "raw.csv", tmp_path / "learner.csv"]))
+    for r in scored:
+        if r["policy"] == "learner" and r["bound"] > r["local"]:
+            assert r["normalised_score"] == pytest.approx(
+                (r["completed"] - r["local"]) / (r["bound"] - r["local"]))
+
+
+def test_bad_input_is_one_line(pipeline, tmp_path, capsys):
+    rows = rows_of(pipeline / "raw.csv")
+    cases = {
+        "no_column.csv": [{k: v for k, v in r.items() if k != "completed"} for r in rows],
+        "not_a_number.csv": [{**r, "completed": "many" if i == 3 else r["completed"]} for i, r in enumerate(rows)],
+        "missing_episode.csv": [r for i, r in enumerate(rows) if not (r["policy"] == "random" and i > 20)],
+    }
+    expected = {"no_column.csv": "no column completed", "not_a_number.csv": "not_a_number.csv:5: column completed",
+                "missing_episode.csv": "random (training seed None) lacks"}
+    for name, bad in cases.items():
+        write(tmp_path / name, bad)
+        with pytest.raises(SystemExit) as e:
+            build(tmp_path, tmp_path / name)
+        err = capsys.readouterr().err
+        assert e.value.code == 2 and err.count("\n") == 1 and expected[name] in err, err
+    with pytest.raises(SystemExit):
+        build(tmp_path, tmp_path / "nowhere.csv")
+    assert re.search(r"nowhere.csv: No such file", capsys.readouterr().err)
+
+
+def test_evaluate_writes_the_rows_the_bound_writes(pipeline, tmp_path):
+    """experiments.evaluate on a suite's regime and seed set gives the bound command's rows for that policy:
+    one schema, the same episodes."""
+    regime = sorted((pipeline / "test").glob("*.yaml"))[0]
+    evaluate.main(["greedy", "--scenario", str(regime), "--split", "test", "--episodes", "2",
+                   "--csv", str(tmp_path / "greedy.csv"), "--no-progress"])
+    columns = (*raw.KEYS, *raw.METRICS)
+    mine = [{k: r[k] for k in columns} for r in raw.read([tmp_path / "greedy.csv"])]
+    theirs = [{k: r[k] for k in columns} for r in raw.read([pipeline / "raw.csv"])
+              if r["policy"] == "greedy" and r["regime"] == regime.stem]
+    assert len(mine) == 2 and [r["seed"] for r in mine] == [200_000, 200_001]
+    assert str(mine) == str(theirs)  # str: NaN equals NaN
+
+
+def test_the_committed_page_is_what_the_committed_rows_give(tmp_path, monkeypatch):
+    """docs/benchmark-results.md is python -m experiments.report's output on docs/benchmark-data/, unedited."""
+    monkeypatch.chdir(ROOT)
+    report.main(["--out", str(tmp_path / "benchmark-results.md"), "--no-progress"])
+    assert (tmp_path / "benchmark-results.md").read_text() == (ROOT / report.OUT).read_text()
