@@ -37,12 +37,13 @@ from typing import Any
 
 import numpy as np
 
-from agents import BASELINES, PPO, AgentPolicy, Learner, load_learner, make_policy
+from agents import BASELINES, PPO, AgentPolicy, Baseline, Learner, load_learner
 from agents.common import AgentSpec
 from agents.training import CsvWriter, progress_bar, run_episode, write_csv
 from env import ZenohEdgeEnv
 from env.reward import RewardSettings
 from experiments import train as train_command
+from experiments import tune_baselines
 from experiments.common import (
     Parser,
     add_learner_arguments,
@@ -231,13 +232,13 @@ class Entry:
     """A policy to evaluate: a baseline, the generalist's checkpoint, or a directory of specialists."""
 
     label: str
-    baseline: str | None = None
+    baseline: type[Baseline] | None = None
     checkpoint: Path | None = None
     specialists: Path | None = None
 
     def policy(self, regime: SuiteRegime, device: str) -> AgentPolicy:
         if self.baseline is not None:
-            return make_policy(self.baseline, seed=0)
+            return self.baseline(0)
         path = self.checkpoint or self.specialists / regime.name / "ppo.pt"
         return load_learner(path, device)
 
@@ -260,14 +261,21 @@ def entries(args: argparse.Namespace) -> list[Entry]:
             raise ValueError(f"{path}: not a generalist's checkpoint (python -m experiments.generalist train); "
                              "evaluate a per-regime checkpoint with --specialists")
         out.append(Entry("generalist", checkpoint=path))
-    for name in args.baselines:
+    names = list(BASELINES) if args.baselines == [] else args.baselines or []
+    for name in names:
         if name not in BASELINES:
             raise ValueError(f"--baselines {name}: not a baseline ({', '.join(BASELINES)})")
-        out.append(Entry(name, baseline=name))
+        out.append(Entry(name, baseline=BASELINES[name]))
+    if args.tuned is not None:
+        try:
+            tuned = tune_baselines.chosen(args.tuned)
+        except (OSError, ValueError, KeyError) as e:
+            raise ValueError(f"--tuned {args.tuned}: not a chosen.json of experiments.tune_baselines ({e})") from None
+        out += [Entry(f"{name}_tuned", baseline=cls) for name, cls in tuned.items()]
     if args.specialists is not None:
         out.append(Entry("specialist", specialists=args.specialists))
     if not out:
-        raise ValueError("nothing to evaluate: give checkpoints, --baselines or --specialists")
+        raise ValueError("nothing to evaluate: give checkpoints, --baselines, --tuned or --specialists")
     return out
 
 
@@ -348,7 +356,10 @@ def main(argv: Sequence[str] | None = None) -> None:
     e.add_argument("--suite", type=Path, required=True, help="the suite to evaluate on (the test suite, once)")
     e.add_argument("--split", choices=SPLITS, default=None, help="episode seeds of this set (default: the suite's)")
     e.add_argument("--specialists", type=Path, default=None, help="a folder of `specialist`: <regime>/ppo.pt")
-    e.add_argument("--baselines", nargs="*", default=[], metavar="NAME", help=f"of {', '.join(BASELINES)}")
+    e.add_argument("--baselines", nargs="*", default=None, metavar="NAME",
+                   help=f"baselines to run too, of {', '.join(BASELINES)} (--baselines alone: all of them)")
+    e.add_argument("--tuned", type=Path, default=None,
+                   help="a chosen.json of python -m experiments.tune_baselines: its baselines run too, as <name>_tuned")
     e.add_argument("--episodes", type=positive_int, default=5, help="episodes per regime (default 5)")
     e.add_argument("--max-steps", type=positive_int, default=None, help="steps per episode (default: the regime's)")
     e.add_argument("--greedy", action="store_true", help="learners take their most likely action (default: sample)")

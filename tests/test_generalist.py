@@ -104,7 +104,7 @@ def test_trained_on_two_regimes_it_runs_zero_shot_on_another_family(suites, tmp_
     assert [(r["policy"], r["regime"], r["split"], int(r["episode_seed"])) for r in rows] == [
         (p, "test-005-ether", "test", s) for p in ("generalist", "local") for s in EPISODES["test"].seeds(2)]
     ratios = np.array([float(r["completion_ratio"]) for r in rows])
-    assert ((0 <= ratios) & (ratios <= 1)).all() and all(int(r["steps"]) == STEPS for r in rows)
+    assert ((ratios >= 0) & (ratios <= 1)).all() and all(int(r["steps"]) == STEPS for r in rows)
     assert int(rows[0]["decisions"]) > 0  # the generalist decided on a topology it never saw
 
 
@@ -132,3 +132,6 @@ def test_the_seed_sets_never_mix(suites, tmp_path, capsys):
     err = refused("evaluate", str(suites["test"] / "manifest.csv"), "--suite", str(suites["test"]),
                   "--csv", str(tmp_path / "x.csv"))
     assert "not a checkpoint of this project's learners" in err
+    err = refused("evaluate", "--baselines", "greedy", "oracle", "--suite", str(suites["test"]),
+                  "--csv", str(tmp_path / "x.csv"))
+    assert "--baselines oracle: not a baseline" in err and not (tmp_path / "x.csv").exists()
