@@ -55,6 +55,7 @@ from experiments.common import (
 )
 from experiments.protocol import EPISODES, REGIMES, SPLITS, Split
 from experiments.tune_baselines import CRITERION
+from orchestrator.scenario import load_scenario
 from orchestrator.scenario.errors import ScenarioError
 
 SLOTS = 20  # neighbour slots: the largest degree of the first 100 train, 10 validation and 20 test regimes is 18
@@ -115,7 +116,9 @@ class OpenEnvs:
         self.open: OrderedDict[str, ZenohEdgeEnv] = OrderedDict()
 
     def get(self, regime: SuiteRegime) -> ZenohEdgeEnv:
-        env = self.open.pop(regime.name, None) or regime_env(regime, self.slots, self.max_steps, self.price)
+        env = self.open.pop(regime.name, None)
+        if env is None:
+            env = regime_env(regime, self.slots, self.max_steps, self.price)
         self.open[regime.name] = env
         while len(self.open) > self.keep:
             self.open.popitem(last=False)[1].close()
@@ -125,6 +128,18 @@ class OpenEnvs:
         for env in self.open.values():
             env.close()
         self.open.clear()
+
+
+def check_degrees(regimes: Sequence[SuiteRegime], slots: int) -> None:
+    """Every regime's largest degree fits ``slots``: checked before a long run starts, not when it draws one."""
+    for regime in regimes:
+        try:
+            sc = load_scenario(regime.path)
+        except ScenarioError as e:
+            raise ValueError(str(e).splitlines()[0]) from None
+        largest = max((len(sc.neighbours[n]) for n in sc.controllers), default=0)
+        if largest > slots:
+            raise ValueError(f"{regime.path}: an agent has {largest} neighbours, more than --slots {slots}")
 
 
 def generalist(slots: int, config: Any, device: str = "cpu") -> PPO:
@@ -157,6 +172,7 @@ def train(args: argparse.Namespace, p: Parser) -> None:
             raise ValueError("the generalist is one shared network without agent ids: leave shared, agent_id "
                              "and centralised_critic at their defaults")
         seeds = EPISODES["train"].seeds(args.episodes, offset=args.seed * args.episodes)
+        check_degrees([*regimes, *checks], args.slots)
     except ValueError as e:
         p.error(str(e))
     set_threads(args.threads)

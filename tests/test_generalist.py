@@ -128,6 +128,8 @@ def test_the_seed_sets_never_mix(suites, tmp_path, capsys):
     (forged / "test-005-ether.yaml").write_text((suites["test"] / "test-005-ether.yaml").read_text())
     err = refused("train", "--suite", str(forged), "--out", out)
     assert "regime seed 3000005 is not of the 'train' regime seeds" in err
+    err = refused("train", "--suite", str(suites["train"]), "--slots", "2", "--out", out)
+    assert err.endswith("train-001-grid.yaml: an agent has 4 neighbours, more than --slots 2")  # a ring has 2
     assert not (tmp_path / "run").exists()  # refused before any work
     err = refused("evaluate", str(suites["test"] / "manifest.csv"), "--suite", str(suites["test"]),
                   "--csv", str(tmp_path / "x.csv"))
