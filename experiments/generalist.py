@@ -13,6 +13,8 @@ the validation suite, for model selection only (``best.pt``); the test suite is 
     python -m experiments.generalist specialist --suite runs/suites/test --episodes 100 --out runs/specialists
     python -m experiments.generalist evaluate runs/generalist/seed-*/best.pt --specialists runs/specialists \\
         --baselines local greedy --suite runs/suites/test --episodes 5 --csv runs/generalist/test.csv
+    python -m experiments.generalist evaluate runs/generalist/seed-*/best.pt --baselines \\
+        --scenarios aot1 aot2 aot3 aot4 --episodes 5 --csv runs/generalist/aot.csv   # topologies it never saw
 
 ``evaluate`` writes one row per policy, regime and episode, in the columns of ``experiments.evaluate``'s
 CSV (``episode_seed`` is the episode's seed there called ``seed``) after ``policy``, ``seed`` (the
@@ -58,7 +60,8 @@ from experiments.tune_baselines import CRITERION
 from orchestrator.scenario import load_scenario
 from orchestrator.scenario.errors import ScenarioError
 
-SLOTS = 20  # neighbour slots: the largest degree of the first 100 train, 10 validation and 20 test regimes is 18
+SLOTS = 32  # neighbour slots: the largest degree is 18 in the first 100 train, 10 validation and 20 test regimes,
+# 30 in the bundled AoT networks (aot4), which the generalist is evaluated on as topologies it never saw
 REWARD = "marginal"  # experiments.train's for PPO: each decision learns from its own tasks' credit
 OPEN_ENVS = 8  # regimes whose simulation stays open between the episodes that draw them
 
@@ -68,9 +71,9 @@ class SuiteRegime:
     """One regime of a suite folder, as its manifest lists it."""
 
     name: str
-    path: Path
-    split: Split
-    seed: int
+    path: Path  # or a bundled scenario's name (aot1 ...)
+    split: Split | None  # None: a scenario of no suite
+    seed: int | None
 
 
 def read_suite(folder: Path, split: Split | None = None) -> list[SuiteRegime]:
@@ -100,6 +103,18 @@ def read_suite(folder: Path, split: Split | None = None) -> list[SuiteRegime]:
     if not regimes:
         raise ValueError(f"{manifest}: no regimes")
     return regimes
+
+
+def scenarios(names: Sequence[str]) -> list[SuiteRegime]:
+    """Scenarios of no suite (bundled names or files) to evaluate on, as regimes; a ValueError for a bad one."""
+    out = []
+    for name in names:
+        try:
+            load_scenario(name)
+        except ScenarioError as e:
+            raise ValueError(str(e).splitlines()[0]) from None
+        out.append(SuiteRegime(Path(name).stem, Path(name), None, None))
+    return out
 
 
 def regime_env(regime: SuiteRegime, slots: int, max_steps: int | None, price: float | None = None) -> ZenohEdgeEnv:
@@ -134,7 +149,7 @@ def check_degrees(regimes: Sequence[SuiteRegime], slots: int) -> None:
     """Every regime's largest degree fits ``slots``: checked before a long run starts, not when it draws one."""
     for regime in regimes:
         try:
-            sc = load_scenario(regime.path)
+            sc = load_scenario(str(regime.path))
         except ScenarioError as e:
             raise ValueError(str(e).splitlines()[0]) from None
         largest = max((len(sc.neighbours[n]) for n in sc.controllers), default=0)
@@ -297,15 +312,22 @@ def entries(args: argparse.Namespace) -> list[Entry]:
 
 def evaluate(args: argparse.Namespace, p: Parser) -> None:
     try:
-        regimes = read_suite(args.suite)
-        split = args.split or regimes[0].split
+        regimes = [*(read_suite(args.suite) if args.suite else []), *scenarios(args.scenarios)]
+        if not regimes:
+            raise ValueError("nothing to evaluate on: give --suite, --scenarios or both")
+        split = args.split or regimes[0].split or "test"
         seeds = EPISODES[split].seeds(args.episodes)
         todo = entries(args)
+        for entry in todo:
+            if entry.checkpoint is not None:
+                check_degrees(regimes, load_learner(entry.checkpoint).specs["agent"].slots)
         for regime in regimes:
             missing = args.specialists / regime.name / "ppo.pt" if args.specialists else None
             if missing is not None and not missing.is_file():
-                raise ValueError(f"{missing}: no specialist for {regime.name} (python -m experiments.generalist "
-                                 f"specialist --suite {args.suite} --out {args.specialists})")
+                how = (f"python -m experiments.generalist specialist --suite {args.suite} --out {args.specialists}"
+                       if regime.split else f"python -m experiments.train ppo --scenario {regime.path} --out "
+                                            f"{args.specialists / regime.name}")
+                raise ValueError(f"{missing}: no specialist for {regime.name} ({how})")
     except ValueError as e:
         p.error(str(e))
     set_threads(1)
@@ -369,8 +391,11 @@ def main(argv: Sequence[str] | None = None) -> None:
         add_learner_arguments(q)
     e = sub.add_parser("evaluate", help="evaluate generalists, specialists and baselines on a suite: one CSV")
     e.add_argument("checkpoints", type=Path, nargs="*", help="generalist checkpoints (best.pt of each seed)")
-    e.add_argument("--suite", type=Path, required=True, help="the suite to evaluate on (the test suite, once)")
-    e.add_argument("--split", choices=SPLITS, default=None, help="episode seeds of this set (default: the suite's)")
+    e.add_argument("--suite", type=Path, default=None, help="the suite to evaluate on (the test suite, once)")
+    e.add_argument("--scenarios", nargs="*", default=[], metavar="SCENARIO",
+                   help="scenarios of no suite to evaluate on too: bundled names (aot1 ...) or files")
+    e.add_argument("--split", choices=SPLITS, default=None,
+                   help="episode seeds of this set (default: the suite's; test without a suite)")
     e.add_argument("--specialists", type=Path, default=None, help="a folder of `specialist`: <regime>/ppo.pt")
     e.add_argument("--baselines", nargs="*", default=None, metavar="NAME",
                    help=f"baselines to run too, of {', '.join(BASELINES)} (--baselines alone: all of them)")

@@ -107,6 +107,12 @@ def test_trained_on_two_regimes_it_runs_zero_shot_on_another_family(suites, tmp_
     assert ((ratios >= 0) & (ratios <= 1)).all() and all(int(r["steps"]) == STEPS for r in rows)
     assert int(rows[0]["decisions"]) > 0  # the generalist decided on a topology it never saw
 
+    generalist.main(["evaluate", str(out / "best.pt"), "--scenarios", "examples/n_tier_cloud", "--episodes", "1",
+                     "--max-steps", str(STEPS), "--csv", str(csv_path), "--no-progress"])  # a scenario of no suite
+    (row,) = read_rows(csv_path)
+    assert (row["policy"], row["regime"], row["split"], int(row["episode_seed"])) == (
+        "generalist", "n_tier_cloud", "test", EPISODES["test"].start)
+
 
 def test_the_seed_sets_never_mix(suites, tmp_path, capsys):
     def refused(*argv):
@@ -134,6 +140,8 @@ def test_the_seed_sets_never_mix(suites, tmp_path, capsys):
     err = refused("evaluate", str(suites["test"] / "manifest.csv"), "--suite", str(suites["test"]),
                   "--csv", str(tmp_path / "x.csv"))
     assert "not a checkpoint of this project's learners" in err
+    err = refused("evaluate", "--baselines", "--csv", str(tmp_path / "x.csv"))
+    assert err.endswith("nothing to evaluate on: give --suite, --scenarios or both")
     err = refused("evaluate", "--baselines", "greedy", "oracle", "--suite", str(suites["test"]),
                   "--csv", str(tmp_path / "x.csv"))
     assert "--baselines oracle: not a baseline" in err and not (tmp_path / "x.csv").exists()
