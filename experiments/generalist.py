@@ -206,7 +206,8 @@ def train(args: argparse.Namespace, p: Parser) -> None:
         "congestion_price": first.reward_settings.congestion_price, "config": asdict(config)}, indent=1))
     learner.start_training(args.episodes * first.max_steps)
     draw = np.random.default_rng(args.seed)  # which regime each episode runs: from the training seed
-    log, checks_log = CsvWriter(args.out / "train.csv"), CsvWriter(args.out / "validation.csv")
+    log = CsvWriter(args.out / "train.csv")
+    checks_log = CsvWriter(args.out / "validation.csv") if checks else None
     best = -math.inf
     progress = progress_bar() if args.progress else None
     with progress or nullcontext():
@@ -226,14 +227,15 @@ def train(args: argparse.Namespace, p: Parser) -> None:
             if (k + 1) % args.checkpoint_every == 0 or k + 1 == args.episodes:
                 path = args.out / f"ckpt-{k + 1:05d}.pt"
                 learner.save(path)
-                if checks:
+                if checks_log is not None:
                     value = validate(learner, checks, checked, args.validation_episodes, progress)
                     checks_log.write({"episode": k + 1, "checkpoint": path.name, CRITERION: value})
                     if value > best:
                         best = value
                         shutil.copyfile(path, args.out / "best.pt")
     log.close()
-    checks_log.close()
+    if checks_log is not None:
+        checks_log.close()
     envs.close()
     checked.close()
     learner.save(args.out / "last.pt")
