@@ -63,6 +63,7 @@ from orchestrator.scenario.errors import ScenarioError
 SLOTS = 32  # neighbour slots: the largest degree is 18 in the first 100 train, 10 validation and 20 test regimes,
 # 30 in the bundled AoT networks (aot4), which the generalist is evaluated on as topologies it never saw
 REWARD = "marginal"  # experiments.train's for PPO: each decision learns from its own tasks' credit
+MODES = ("sampled", "greedy")  # how a learner acts when evaluated
 OPEN_ENVS = 8  # regimes whose simulation stays open between the episodes that draw them
 
 
@@ -336,31 +337,34 @@ def evaluate(args: argparse.Namespace, p: Parser) -> None:
     rows: list[dict[str, Any]] = []
     progress = progress_bar() if args.progress else None
     with progress or nullcontext():
-        bar = progress.add_task("evaluate", total=len(todo) * len(regimes) * len(seeds), info="") if progress else None
+        runs = sum(len(args.modes) if e.baseline is None else 1 for e in todo) * len(regimes) * len(seeds)
+        bar = progress.add_task("evaluate", total=runs, info="") if progress else None
         for entry in todo:
             for regime in regimes:
                 policy = entry.policy(regime, args.device)
-                if isinstance(policy, Learner) and args.greedy:
-                    policy.config.sample_eval = False
-                trained = policy.config.seed if isinstance(policy, Learner) else 0
-                label = f"{entry.label}_greedy" if isinstance(policy, Learner) and args.greedy else entry.label
                 try:
                     env = entry.env(policy, regime, args.max_steps, args.congestion_price)
                 except (ValueError, ScenarioError) as e:
                     p.error(f"{regime.path}: {str(e).splitlines()[0]}")
-                start = time.perf_counter()
-                for k, seed in enumerate(seeds):
-                    row = run_episode(env, policy, seed)
-                    rows.append({"policy": label, "seed": trained, "regime": regime.name, "split": split,
-                                 "episode": k, "episode_seed": row.pop("seed"), **row})
-                    if progress is not None:
-                        progress.update(bar, advance=1, info=f"{entry.label} {regime.name}")
+                for mode in args.modes if isinstance(policy, Learner) else [None]:
+                    label = entry.label
+                    if mode is not None:  # a learner: its sampled policy, or its most likely action
+                        policy.config.sample_eval = mode == "sampled"
+                        label += "" if mode == "sampled" else "_greedy"
+                    trained = policy.config.seed if isinstance(policy, Learner) else 0
+                    start = time.perf_counter()
+                    for k, seed in enumerate(seeds):
+                        row = run_episode(env, policy, seed)
+                        rows.append({"policy": label, "seed": trained, "regime": regime.name, "split": split,
+                                     "episode": k, "episode_seed": row.pop("seed"), **row})
+                        if progress is not None:
+                            progress.update(bar, advance=1, info=f"{label} {regime.name}")
+                    if progress is None:
+                        print(f"{label} on {regime.name}: {len(seeds)} episodes in {time.perf_counter() - start:.1f} s")
                 env.close()
-                if progress is None:
-                    print(f"{label} on {regime.name}: {len(seeds)} episodes in {time.perf_counter() - start:.1f} s")
     write_csv(args.csv, rows)
-    print(f"wrote {len(rows)} rows to {args.csv} ({split} episodes {seeds[0]}..{seeds[-1]}, "
-          f"{'greedy' if args.greedy else 'sampled'} learners)")
+    print(f"wrote {len(rows)} rows to {args.csv} ({split} episodes {seeds[0]}..{seeds[-1]}; learners: "
+          f"{', '.join(args.modes)})")
 
 
 def add_price_argument(parser: argparse.ArgumentParser, what: str) -> None:
@@ -405,7 +409,9 @@ def main(argv: Sequence[str] | None = None) -> None:
                    help="a chosen.json of python -m experiments.tune_baselines: its baselines run too, as <name>_tuned")
     e.add_argument("--episodes", type=positive_int, default=5, help="episodes per regime (default 5)")
     e.add_argument("--max-steps", type=positive_int, default=None, help="steps per episode (default: the regime's)")
-    e.add_argument("--greedy", action="store_true", help="learners take their most likely action (default: sample)")
+    e.add_argument("--modes", nargs="+", choices=MODES, default=["sampled"],
+                   help="how learners act: sampled (default: a sample of the learnt policy) and/or greedy (its most "
+                        "likely action, as <policy>_greedy); the default is chosen on validation")
     add_price_argument(e, ", for the return column")
     e.add_argument("--csv", type=Path, required=True, help="one row per policy, regime and episode")
     e.add_argument("--device", default="cpu", help="cpu (default) or cuda")

@@ -96,13 +96,15 @@ def test_trained_on_two_regimes_it_runs_zero_shot_on_another_family(suites, tmp_
 
     csv_path = tmp_path / "test.csv"
     generalist.main(["evaluate", str(out / "best.pt"), "--baselines", "local", "--suite", str(suites["test"]),
-                     "--episodes", "2", "--max-steps", str(STEPS), "--csv", str(csv_path), "--no-progress"])
+                     "--episodes", "2", "--max-steps", str(STEPS), "--modes", "sampled", "greedy",
+                     "--csv", str(csv_path), "--no-progress"])
     rows = read_rows(csv_path)
     assert list(rows[0])[:9] == ["policy", "seed", "regime", "split", "episode", "episode_seed", "steps", "decisions",
                                  "return"]
     assert {"completion_ratio", "penalised_response_time", "response_time_mean", "dropped"} <= set(rows[0])
     assert [(r["policy"], r["regime"], r["split"], int(r["episode_seed"])) for r in rows] == [
-        (p, "test-005-ether", "test", s) for p in ("generalist", "local") for s in EPISODES["test"].seeds(2)]
+        (p, "test-005-ether", "test", s) for p in ("generalist", "generalist_greedy", "local")
+        for s in EPISODES["test"].seeds(2)]
     ratios = np.array([float(r["completion_ratio"]) for r in rows])
     assert ((ratios >= 0) & (ratios <= 1)).all() and all(int(r["steps"]) == STEPS for r in rows)
     assert int(rows[0]["decisions"]) > 0  # the generalist decided on a topology it never saw
