@@ -152,7 +152,7 @@ class DDQN(Learner):
         for t, next_feats, next_mask in ready:
             p = t.pending
             reward = p.reward if p.credit is None else p.credit
-            self.store(self.nets[self.group[t.agent]], p, reward, t.discount, next_feats, next_mask)
+            self.store(self.nets[self.group(t.agent)], p, reward, t.discount, next_feats, next_mask)
 
     def store(self, net: QLearner, p: OpenTransition, reward: float, discount: float, next_feats: np.ndarray,
               next_mask: np.ndarray) -> None:

@@ -15,6 +15,8 @@ its tasks' own account as the environment credits it once they settle (``env.cre
 
 With ``shared=True`` one network serves every agent: the spaces must be uniform (pass
 ``uniform_spaces=True`` to the environment) and the agent's one-hot id is appended to its features.
+With ``agent_id=False`` as well it is not, and the network acts for any agent whose spaces match, of any
+scenario (``neighbour_slots=K``): a generalist sees its regime only through its observations.
 """
 
 from __future__ import annotations
@@ -56,10 +58,13 @@ class LearnerConfig:
     shared: bool = False  # one network for all agents (needs uniform spaces), agent id appended
     seed: int = 0
     credit: str = "step"  # "step": the rewards of the steps after a decision; "task": its tasks' credits (env.credit)
+    agent_id: bool = True  # shared: the agent's one-hot id is part of the input; False: any agent, any scenario
 
     def __post_init__(self) -> None:  # named choices are checked here, so a command line fails before any work
         if self.credit not in CREDITS:
             raise ValueError(f"credit must be one of {', '.join(CREDITS)}, not {self.credit!r}")
+        if not self.agent_id and not self.shared:
+            raise ValueError("agent_id=false applies to a shared network (shared=true) only")
 
 
 CREDITS = ("step", "task")
@@ -108,7 +113,6 @@ class Learner(ABC):
         if self.config.shared and len(set(self.specs.values())) > 1:
             raise ValueError("shared parameters need every agent to have the same spaces: "
                              "create the environment with uniform_spaces=True")
-        self.group = {a: SHARED if self.config.shared else a for a in self.agents}
         if self.config.credit == "task" and not self.task_credit:
             raise ValueError(f"{self.name} learns from step rewards only: credit='task' needs a learner that "
                              "waits for each decision's credit (ppo, a2c, ddqn)")
@@ -130,11 +134,20 @@ class Learner(ABC):
 
     # ----- features -----
 
+    def group(self, agent: str) -> str:
+        """The network that acts for ``agent``: the shared one, or its own."""
+        if self.config.shared:
+            if self.config.agent_id and agent not in self.index:
+                raise KeyError(f"{agent} is not an agent this learner was made for ({', '.join(self.agents)}); "
+                               "a network for any agent needs agent_id=false")
+            return SHARED
+        return agent
+
     def spec(self, group: str) -> AgentSpec:
         return self.specs[self.agents[0] if group == SHARED else group]
 
     def input_dim(self, group: str) -> int:
-        return flat_dim(self.spec(group).slots) + (len(self.agents) if group == SHARED else 0)
+        return flat_dim(self.spec(group).slots) + (len(self.agents) if group == SHARED and self.config.agent_id else 0)
 
     def n_actions(self, group: str) -> int:
         return self.spec(group).n_actions
@@ -144,7 +157,9 @@ class Learner(ABC):
 
     def features(self, agent: str, obs: Observation) -> np.ndarray:
         x = flatten_one(obs)
-        return np.concatenate([x, one_hot(self.index[agent], len(self.agents))]) if self.config.shared else x
+        if not (self.config.shared and self.config.agent_id):
+            return x
+        return np.concatenate([x, one_hot(self.index[agent], len(self.agents))])
 
     # ----- acting -----
 
@@ -171,7 +186,7 @@ class Learner(ABC):
         by_group: dict[str, list[str]] = {}
         for agent, obs in observations.items():
             if has_decision(obs):
-                by_group.setdefault(self.group[agent], []).append(agent)
+                by_group.setdefault(self.group(agent), []).append(agent)
         for group, agents in by_group.items():
             feats = np.stack([self.features(a, observations[a]) for a in agents])
             masks = np.stack([np.asarray(observations[a]["action_mask"], dtype=bool) for a in agents])

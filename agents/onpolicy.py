@@ -64,6 +64,8 @@ class ActorCriticConfig(LearnerConfig):
         if not self.eval_temperature > 0:
             raise ValueError(f"eval_temperature must be > 0, not {self.eval_temperature!r} (sample_eval=false "
                              "takes the most likely action)")
+        if self.centralised_critic and not self.agent_id:
+            raise ValueError("centralised_critic=true needs agent_id=true: it reads every agent of one scenario")
 
 
 ACTORS = ("targets", "mlp")
@@ -202,7 +204,7 @@ class OnPolicyLearner(Learner):
     def learn(self, closed: list[Closed], next_observations: Mapping[str, Observation]) -> None:
         by_group: dict[str, list[Closed]] = {}
         for c in closed:
-            by_group.setdefault(self.group[c.agent], []).append(c)
+            by_group.setdefault(self.group(c.agent), []).append(c)
         for group, items in by_group.items():
             boot = [c for c in items if c.next_obs is not None]
             next_values = {}

@@ -82,6 +82,9 @@ class ZenohEdgeEnv(ParallelEnv):
             is the reset tick plus ``max_steps`` decision epochs.
         agents: controllers the agents drive (node ids); the others keep their node-side policy.
         uniform_spaces: pad every agent to the largest degree, so one network fits all agents.
+        neighbour_slots: pad every agent to this many neighbour slots (at least the largest degree), so that
+            one network fits the agents of every scenario of up to that degree (a generalist across
+            topologies); padding slots are absent (present = 0) and their actions masked.
         invalid_action: what a choice the mask forbids does: "local" (default: the task stays local, and
             ``infos[agent]["invalid_action"]`` says so) or "raise" (``InvalidActionError``, for debugging).
             Penalise it with ``env.wrappers.InvalidActionPenalty``.
@@ -105,14 +108,15 @@ class ZenohEdgeEnv(ParallelEnv):
                  observation: type[ObservationBuilder] | str | None = None,
                  reward_weights: PaperWeights | None = None, overrides: ScenarioOverrides | None = None,
                  max_steps: int | None = None, agents: Sequence[str] | None = None, uniform_spaces: bool = False,
-                 invalid_action: str = "local", render_mode: str | None = None, info_numbers: bool = True,
+                 neighbour_slots: int | None = None, invalid_action: str = "local", render_mode: str | None = None,
+                 info_numbers: bool = True,
                  connect: str | None = None, sim_id: str | None = None, timeout: float = 30.0,
                  security: str | Path | None = None, congestion_price: float | None = None) -> None:
         self.connection = Connection(transport=transport, layout=layout, timeout=timeout, connect=connect,
                                      sim_id=sim_id, security=security)
         self.episode = EpisodeSettings(max_steps=max_steps, agents=agents, seed=seed)
         self.observing = ObservationSettings(observation=observation, uniform_spaces=uniform_spaces,
-                                             info_numbers=info_numbers)
+                                             neighbour_slots=neighbour_slots, info_numbers=info_numbers)
         self.reward_settings = RewardSettings(**_given(weights=reward_weights, congestion_price=congestion_price))
         if render_mode is not None and render_mode not in self.metadata["render_modes"]:
             raise ValueError(f"render_mode must be one of {self.metadata['render_modes']} or None")
@@ -147,11 +151,13 @@ class ZenohEdgeEnv(ParallelEnv):
         """Every agent's observation layout, builder and spaces, and the rules its actions follow."""
         sc = self.scenario
         degrees = {a: len(sc.neighbours[n]) for a, n in self.node_of.items()}
-        slots = max(degrees.values(), default=0)
+        largest = max(degrees.values(), default=0)
+        fixed = self.observing.slots(sc, largest)
+        slots = largest if fixed is None else fixed
         batch = None if sc.mode == "binary" else sc.batch_size
         builder = self.observing.builder(sc)
         self.flat = builder == FLAT
-        padded = self.observing.uniform_spaces or self.flat
+        padded = self.observing.uniform_spaces or self.flat or fixed is not None
         self.layouts = {a: ObservationLayout(d, slots if padded else d, batch) for a, d in degrees.items()}
         if self.flat:
             n = len(self.possible_agents)

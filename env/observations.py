@@ -12,8 +12,9 @@ in docs/env.md):
 - ``action_mask`` (1 + D,) int8 — in batch mode a tuple of B such arrays, one per task slot (the form
   ``MultiDiscrete.sample(mask)`` takes): 1 where the action is allowed.
 
-D is the agent's degree, or the largest degree of all agents with ``uniform_spaces=True`` (padding slots
-have present = 0 and a masked action), so that one network can serve every agent. The columns are
+D is the agent's degree, or the largest degree of all agents with ``uniform_spaces=True``, or K with
+``neighbour_slots=K`` whatever the scenario (padding slots have present = 0 and a masked action), so that
+one network can serve every agent, of one scenario or of many. The columns are
 named by ``OwnField``, ``TaskField`` and ``NeighbourField``, for the encoder here and for the agents.
 
 ``FlatObservation`` (``ZenohEdgeEnv(observation="flat")``) gives the same numbers as one float32 vector

@@ -68,12 +68,28 @@ class EpisodeSettings:
 class ObservationSettings:
     """What the agents see: ``observation`` (an ``ObservationBuilder`` subclass, its import path, ``FLAT``, or
     None for the scenario's or the Dict observation), ``uniform_spaces`` (every agent padded to the largest
-    degree) and ``info_numbers`` (flat mode only: False leaves the infos empty). Checked in ``builder``,
-    against the scenario."""
+    degree), ``neighbour_slots`` (every agent padded to this many slots, whatever the scenario: one shape
+    across scenarios) and ``info_numbers`` (flat mode only: False leaves the infos empty). Checked in
+    ``builder`` and ``slots``, against the scenario."""
 
     observation: type[ObservationBuilder] | str | None = None
     uniform_spaces: bool = False
+    neighbour_slots: int | None = None
     info_numbers: bool = True
+
+    def __post_init__(self) -> None:
+        k = self.neighbour_slots
+        if k is not None and (isinstance(k, bool) or not isinstance(k, Integral) or k < 1):
+            raise ValueError(f"neighbour_slots must be an integer >= 1 (or None: the scenario's degrees), not {k!r}")
+
+    def slots(self, sc: Scenario, largest: int) -> int | None:
+        """The padded slot count: ``neighbour_slots`` when set (at least the ``largest`` degree of ``sc``'s
+        agents), else None (each agent's own degree, or the largest with ``uniform_spaces`` or flat mode)."""
+        k = self.neighbour_slots
+        if k is not None and k < largest:
+            raise ValueError(f"neighbour_slots={k} is below the largest degree of an agent of {sc.name} ({largest}): "
+                             "a neighbour would have no slot")
+        return k
 
     def builder(self, sc: Scenario) -> type[ObservationBuilder] | str:
         """The builder asked for, else the scenario's ``observation`` key, else the Dict observation (``FLAT``

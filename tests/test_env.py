@@ -114,6 +114,19 @@ def test_parallel_api_batch_mode_and_uniform_spaces():
     env.close()
 
 
+def test_neighbour_slots_pad_every_agent_to_k_and_are_checked():
+    env = ZenohEdgeEnv("aot1", transport="inproc", neighbour_slots=15, max_steps=30)
+    assert {str(env.action_space(a)) for a in env.possible_agents} == {"Discrete(16)"}  # largest degree: 11
+    assert {env.observation_space(a)["neighbours"].shape for a in env.possible_agents} == {(15, 9)}
+    parallel_api_test(env, num_cycles=40)
+    env.close()
+    for bad in (0, True, 2.5):
+        with pytest.raises(ValueError, match="neighbour_slots must be an integer >= 1"):
+            ZenohEdgeEnv("aot1", transport="inproc", neighbour_slots=bad)
+    with pytest.raises(ValueError, match=r"neighbour_slots=10 is below the largest degree of an agent of aot1 \(11\)"):
+        ZenohEdgeEnv("aot1", transport="inproc", neighbour_slots=10)
+
+
 def test_render_modes_on_an_n_tier_network(n_tier):
     render_test(lambda render_mode=None: parallel_to_aec(
         ZenohEdgeEnv(n_tier, transport="inproc", render_mode=render_mode, max_steps=20)))

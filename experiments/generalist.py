@@ -1,0 +1,422 @@
+"""The generalist: one policy trained across the training suite, evaluated zero-shot on the test suite.
+
+Every training episode draws a regime from the training suite and an episode seed from the training
+episode seeds; one PPO network with shared parameters acts for every agent of every regime. It sees a
+regime only through its observations: every agent has ``neighbour_slots`` slots whatever its degree (the
+absent ones masked), its features are the scale-free ones of ``agents.common.flatten``, and no agent id
+is appended (``agent_id=false``: the number of agents differs between regimes). Checkpoints are scored on
+the validation suite, for model selection only (``best.pt``); the test suite is for ``evaluate``, once.
+
+    python -m experiments.suite --out runs/suites
+    python -m experiments.generalist train --suite runs/suites/train --validation runs/suites/validation \\
+        --episodes 300 --seed 0 --out runs/generalist/seed-0
+    python -m experiments.generalist specialist --suite runs/suites/test --episodes 100 --out runs/specialists
+    python -m experiments.generalist evaluate runs/generalist/seed-*/best.pt --specialists runs/specialists \\
+        --baselines local greedy --suite runs/suites/test --episodes 5 --csv runs/generalist/test.csv
+    python -m experiments.generalist evaluate runs/generalist/seed-*/best.pt --baselines \\
+        --scenarios aot1 aot2 aot3 aot4 --episodes 5 --csv runs/generalist/aot.csv   # topologies it never saw
+
+``evaluate`` writes one raw row (``experiments.raw``) per policy, training run, regime and episode, which
+``python -m experiments.report`` reads beside the bound's. docs/benchmark.md, "The generalist".
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import json
+import math
+import pickle
+import shutil
+import time
+from collections import OrderedDict
+from collections.abc import Sequence
+from contextlib import nullcontext
+from dataclasses import asdict, dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from agents import BASELINES, PPO, AgentPolicy, Baseline, Learner, load_learner
+from agents.common import AgentSpec
+from agents.training import CsvWriter, progress_bar, run_episode, write_csv
+from env import ZenohEdgeEnv
+from env.reward import RewardSettings
+from experiments import raw, tune_baselines
+from experiments import train as train_command
+from experiments.common import (
+    Parser,
+    add_learner_arguments,
+    congestion_price,
+    learner_config,
+    make_env,
+    positive_int,
+    set_threads,
+)
+from experiments.protocol import EPISODES, REGIMES, SPLITS, Split
+from experiments.tune_baselines import CRITERION
+from orchestrator.scenario import load_scenario
+from orchestrator.scenario.errors import ScenarioError
+
+SLOTS = 32  # neighbour slots: the largest degree is 18 in the first 100 train, 10 validation and 20 test regimes,
+# 30 in the bundled AoT networks (aot4), which the generalist is evaluated on as topologies it never saw
+REWARD = "marginal"  # experiments.train's for PPO: each decision learns from its own tasks' credit
+MODES = ("sampled", "greedy")  # how a learner acts when evaluated
+OPEN_ENVS = 8  # regimes whose simulation stays open between the episodes that draw them
+
+
+@dataclass(frozen=True)
+class SuiteRegime:
+    """One regime of a suite folder, as its manifest lists it."""
+
+    name: str
+    path: Path  # or a bundled scenario's name (aot1 ...)
+    split: Split | None  # None: a scenario of no suite
+    seed: int | None
+
+
+def read_suite(folder: Path, split: Split | None = None) -> list[SuiteRegime]:
+    """The regimes of a folder written by ``experiments.suite``; with ``split``, every one must belong to it
+    (its manifest's split and its regime seed): a ValueError names the first that does not."""
+    manifest = folder / "manifest.csv"
+    try:
+        with open(manifest, newline="") as f:
+            rows = list(csv.DictReader(f))
+    except FileNotFoundError:
+        raise ValueError(f"{manifest}: not found; write a suite with python -m experiments.suite first") from None
+    regimes = []
+    for row in rows:
+        try:
+            regime = SuiteRegime(row["name"], folder / f"{row['name']}.yaml", row["split"], int(row["seed"]))
+        except (KeyError, ValueError):
+            raise ValueError(f"{manifest}: a row without a name, split and integer seed: {row}") from None
+        if regime.split not in SPLITS or regime.seed not in REGIMES[regime.split]:
+            raise ValueError(f"{manifest}: {regime.name}: regime seed {regime.seed} is not of the {regime.split!r} "
+                             "regime seeds (experiments.protocol.REGIMES)")
+        if split is not None and regime.split != split:
+            raise ValueError(f"{manifest}: {regime.name} is a {regime.split} regime (seed {regime.seed}); "
+                             f"this takes {split} regimes only: the seed sets never mix")
+        if not regime.path.is_file():
+            raise ValueError(f"{regime.path}: not found (listed in {manifest})")
+        regimes.append(regime)
+    if not regimes:
+        raise ValueError(f"{manifest}: no regimes")
+    return regimes
+
+
+def scenarios(names: Sequence[str]) -> list[SuiteRegime]:
+    """Scenarios of no suite (bundled names or files) to evaluate on, as regimes; a ValueError for a bad one."""
+    out = []
+    for name in names:
+        try:
+            load_scenario(name)
+        except ScenarioError as e:
+            raise ValueError(str(e).splitlines()[0]) from None
+        out.append(SuiteRegime(Path(name).stem, Path(name), None, None))
+    return out
+
+
+def regime_env(regime: SuiteRegime, slots: int, max_steps: int | None, price: float | None = None) -> ZenohEdgeEnv:
+    """A regime's environment with ``slots`` neighbour slots for every agent: the generalist's one shape."""
+    return ZenohEdgeEnv(str(regime.path), transport="inproc", neighbour_slots=slots, max_steps=max_steps,
+                        reward=REWARD, congestion_price=price)
+
+
+class OpenEnvs:
+    """The environments of the regimes drawn last, kept open (starting one costs more than an episode's reset)."""
+
+    def __init__(self, slots: int, max_steps: int | None, price: float | None, keep: int = OPEN_ENVS) -> None:
+        self.slots, self.max_steps, self.price, self.keep = slots, max_steps, price, keep
+        self.open: OrderedDict[str, ZenohEdgeEnv] = OrderedDict()
+
+    def get(self, regime: SuiteRegime) -> ZenohEdgeEnv:
+        env = self.open.pop(regime.name, None)
+        if env is None:
+            env = regime_env(regime, self.slots, self.max_steps, self.price)
+        self.open[regime.name] = env
+        while len(self.open) > self.keep:
+            self.open.popitem(last=False)[1].close()
+        return env
+
+    def close(self) -> None:
+        for env in self.open.values():
+            env.close()
+        self.open.clear()
+
+
+def check_degrees(regimes: Sequence[SuiteRegime], slots: int) -> None:
+    """Every regime's largest degree fits ``slots``: checked before a long run starts, not when it draws one."""
+    for regime in regimes:
+        try:
+            sc = load_scenario(str(regime.path))
+        except ScenarioError as e:
+            raise ValueError(str(e).splitlines()[0]) from None
+        largest = max((len(sc.neighbours[n]) for n in sc.controllers), default=0)
+        if largest > slots:
+            raise ValueError(f"{regime.path}: an agent has {largest} neighbours, more than --slots {slots}")
+
+
+def generalist(slots: int, config: Any, device: str = "cpu") -> PPO:
+    """A PPO learner for any agent of any regime of up to ``slots`` neighbours."""
+    return PPO({"agent": AgentSpec(slots=slots, n_actions=1 + slots)}, config, device)
+
+
+def validate(policy: AgentPolicy, regimes: Sequence[SuiteRegime], envs: OpenEnvs, episodes: int,
+             progress: Any = None) -> float:
+    """Mean ``CRITERION`` (completion ratio) over the validation regimes, on the validation episode seeds."""
+    task = progress.add_task("validate", total=len(regimes) * episodes, info="") if progress else None
+    values = []
+    for regime in regimes:
+        for seed in EPISODES["validation"].seeds(episodes):
+            values.append(run_episode(envs.get(regime), policy, seed)[CRITERION])
+            if progress is not None:
+                progress.update(task, advance=1)
+    if progress is not None:
+        progress.remove_task(task)
+    return float(np.nanmean(values))
+
+
+def train(args: argparse.Namespace, p: Parser) -> None:
+    try:
+        regimes = read_suite(args.suite, "train")
+        checks = read_suite(args.validation, "validation") if args.validation else []
+        config = learner_config("ppo", seed=args.seed, reward=REWARD, hidden=args.hidden,
+                                base={"shared": True, "agent_id": False}, overrides=args.overrides)
+        if config.centralised_critic or not config.shared or config.agent_id:
+            raise ValueError("the generalist is one shared network without agent ids: leave shared, agent_id "
+                             "and centralised_critic at their defaults")
+        seeds = EPISODES["train"].seeds(args.episodes, offset=args.seed * args.episodes)
+        check_degrees([*regimes, *checks], args.slots)
+    except ValueError as e:
+        p.error(str(e))
+    set_threads(args.threads)
+    args.out.mkdir(parents=True, exist_ok=True)
+    envs = OpenEnvs(args.slots, args.max_steps, args.congestion_price)
+    checked = OpenEnvs(args.slots, args.max_steps, args.congestion_price, keep=len(checks))
+    learner = generalist(args.slots, config, args.device)
+    try:
+        first = envs.get(regimes[0])  # every regime's shape is checked as it is drawn; this sizes the schedules
+    except (ValueError, ScenarioError) as e:
+        p.error(f"{regimes[0].path}: {str(e).splitlines()[0]}")
+    (args.out / "config.json").write_text(json.dumps({
+        "algo": "ppo", "suite": str(args.suite), "regimes": [r.name for r in regimes],
+        "validation": str(args.validation) if args.validation else None, "episodes": args.episodes,
+        "max_steps": first.max_steps, "slots": args.slots, "reward": REWARD,
+        "congestion_price": first.reward_settings.congestion_price, "config": asdict(config)}, indent=1))
+    learner.start_training(args.episodes * first.max_steps)
+    draw = np.random.default_rng(args.seed)  # which regime each episode runs: from the training seed
+    log = CsvWriter(args.out / "train.csv")
+    checks_log = CsvWriter(args.out / "validation.csv") if checks else None
+    best = -math.inf
+    progress = progress_bar() if args.progress else None
+    with progress or nullcontext():
+        bar = progress.add_task("train generalist", total=args.episodes, info="") if progress else None
+        for k, seed in enumerate(seeds):
+            regime = regimes[int(draw.integers(len(regimes)))]
+            try:
+                env = envs.get(regime)
+            except (ValueError, ScenarioError) as e:
+                p.error(f"{regime.path}: {str(e).splitlines()[0]}")
+            row = run_episode(env, learner, seed, learner)
+            log.write({"episode": k, "regime": regime.name, "episode_seed": row.pop("seed"), **row,
+                       **learner.stats()})
+            if progress is not None:
+                progress.update(bar, advance=1, info=f"{regime.name}  completion {row['completion_ratio']:.2f}  "
+                                                     f"{row['wall_s']:.1f} s/episode")
+            if (k + 1) % args.checkpoint_every == 0 or k + 1 == args.episodes:
+                path = args.out / f"ckpt-{k + 1:05d}.pt"
+                learner.save(path)
+                if checks_log is not None:
+                    value = validate(learner, checks, checked, args.validation_episodes, progress)
+                    checks_log.write({"episode": k + 1, "checkpoint": path.name, CRITERION: value})
+                    if value > best:
+                        best = value
+                        shutil.copyfile(path, args.out / "best.pt")
+    log.close()
+    if checks_log is not None:
+        checks_log.close()
+    envs.close()
+    checked.close()
+    learner.save(args.out / "last.pt")
+    chosen = f"best.pt (validation {CRITERION} {best:.3f})" if checks else "no validation suite: no best.pt"
+    print(f"wrote {args.out / 'train.csv'}, checkpoints and last.pt; {chosen}")
+
+
+def specialist(args: argparse.Namespace, p: Parser) -> None:
+    """Per regime, ``experiments.train ppo`` on that regime alone (training episode seeds)."""
+    try:
+        regimes = read_suite(args.suite)
+    except ValueError as e:
+        p.error(str(e))
+    for regime in regimes:
+        argv = ["ppo", "--scenario", str(regime.path), "--episodes", str(args.episodes), "--seed", str(args.seed),
+                "--out", str(args.out / regime.name), "--threads", str(args.threads), "--device", args.device]
+        argv += [*(["--max-steps", str(args.max_steps)] if args.max_steps else []),
+                 *(["--hidden", *map(str, args.hidden)] if args.hidden else []),
+                 *(a for o in args.overrides for a in ("--set", o)),
+                 *([] if args.progress else ["--no-progress"]),
+                 "--reward", REWARD, "--price", str(args.congestion_price)]
+        train_command.main(argv)
+
+
+@dataclass(frozen=True)
+class Entry:
+    """A policy to evaluate: a baseline, the generalist's checkpoint, or a directory of specialists."""
+
+    label: str
+    baseline: type[Baseline] | None = None
+    checkpoint: Path | None = None
+    specialists: Path | None = None
+
+    def policy(self, regime: SuiteRegime, device: str) -> AgentPolicy:
+        if self.baseline is not None:
+            return self.baseline(0)
+        path = self.checkpoint or self.specialists / regime.name / "ppo.pt"
+        return load_learner(path, device)
+
+    def env(self, policy: AgentPolicy, regime: SuiteRegime, max_steps: int | None, price: float) -> ZenohEdgeEnv:
+        if self.checkpoint is not None:
+            return regime_env(regime, policy.specs["agent"].slots, max_steps, price)
+        return make_env(str(regime.path), None, max_steps, REWARD, congestion_price=price)
+
+
+def entries(args: argparse.Namespace) -> list[Entry]:
+    """What ``evaluate`` runs, checked before any episode: a ValueError names what is wrong."""
+    out = []
+    for path in args.checkpoints:
+        try:
+            learner = load_learner(path, "cpu")
+        except (OSError, RuntimeError, ValueError, KeyError, pickle.UnpicklingError) as e:
+            why = str(e).splitlines()[0]
+            raise ValueError(f"{path}: not a checkpoint of this project's learners ({why})") from None
+        if learner.config.agent_id or list(learner.specs) != ["agent"]:
+            raise ValueError(f"{path}: not a generalist's checkpoint (python -m experiments.generalist train); "
+                             "evaluate a per-regime checkpoint with --specialists")
+        out.append(Entry("generalist", checkpoint=path))
+    names = list(BASELINES) if args.baselines == [] else args.baselines or []
+    for name in names:
+        if name not in BASELINES:
+            raise ValueError(f"--baselines {name}: not a baseline ({', '.join(BASELINES)})")
+        out.append(Entry(name, baseline=BASELINES[name]))
+    if args.tuned is not None:
+        try:
+            tuned = tune_baselines.chosen(args.tuned)
+        except (OSError, ValueError, KeyError) as e:
+            raise ValueError(f"--tuned {args.tuned}: not a chosen.json of experiments.tune_baselines ({e})") from None
+        out += [Entry(f"{name}_tuned", baseline=cls) for name, cls in tuned.items()]
+    if args.specialists is not None:
+        out.append(Entry("specialist", specialists=args.specialists))
+    if not out:
+        raise ValueError("nothing to evaluate: give checkpoints, --baselines, --tuned or --specialists")
+    return out
+
+
+def evaluate(args: argparse.Namespace, p: Parser) -> None:
+    try:
+        regimes = [*(read_suite(args.suite) if args.suite else []), *scenarios(args.scenarios)]
+        if not regimes:
+            raise ValueError("nothing to evaluate on: give --suite, --scenarios or both")
+        split = args.split or regimes[0].split or "test"
+        seeds = EPISODES[split].seeds(args.episodes)
+        todo = entries(args)
+        for entry in todo:
+            if entry.checkpoint is not None:
+                check_degrees(regimes, load_learner(entry.checkpoint).specs["agent"].slots)
+        for regime in regimes:
+            missing = args.specialists / regime.name / "ppo.pt" if args.specialists else None
+            if missing is not None and not missing.is_file():
+                how = (f"python -m experiments.generalist specialist --suite {args.suite} --out {args.specialists}"
+                       if regime.split else f"python -m experiments.train ppo --scenario {regime.path} --out "
+                                            f"{args.specialists / regime.name}")
+                raise ValueError(f"{missing}: no specialist for {regime.name} ({how})")
+    except ValueError as e:
+        p.error(str(e))
+    set_threads(1)
+    rows: list[dict[str, Any]] = []
+    progress = progress_bar() if args.progress else None
+    with progress or nullcontext():
+        runs = sum(len(args.modes) if e.baseline is None else 1 for e in todo) * len(regimes) * len(seeds)
+        bar = progress.add_task("evaluate", total=runs, info="") if progress else None
+        for entry in todo:
+            for regime in regimes:
+                policy = entry.policy(regime, args.device)
+                try:
+                    env = entry.env(policy, regime, args.max_steps, args.congestion_price)
+                except (ValueError, ScenarioError) as e:
+                    p.error(f"{regime.path}: {str(e).splitlines()[0]}")
+                for mode in args.modes if isinstance(policy, Learner) else [None]:
+                    label = entry.label
+                    if mode is not None:  # a learner: its sampled policy, or its most likely action
+                        policy.config.sample_eval = mode == "sampled"
+                        label += "" if mode == "sampled" else "_greedy"
+                    trained = policy.config.seed if isinstance(policy, Learner) else None
+                    start = time.perf_counter()
+                    for k, seed in enumerate(seeds):
+                        episode = {"episode": k, **run_episode(env, policy, seed)}
+                        rows.append(raw.row(label, trained, regime.path, regime.name, episode))
+                        if progress is not None:
+                            progress.update(bar, advance=1, info=f"{label} {regime.name}")
+                    if progress is None:
+                        print(f"{label} on {regime.name}: {len(seeds)} episodes in {time.perf_counter() - start:.1f} s")
+                env.close()
+    write_csv(args.csv, rows)
+    print(f"wrote {len(rows)} rows to {args.csv} ({split} episodes {seeds[0]}..{seeds[-1]}; learners: "
+          f"{', '.join(args.modes)})")
+
+
+def add_price_argument(parser: argparse.ArgumentParser, what: str) -> None:
+    price = RewardSettings().congestion_price
+    parser.add_argument("--price", dest="congestion_price", type=congestion_price, default=price,
+                        help=f"congestion price of the marginal reward{what} (default {price:g}; docs/reward.md)")
+
+
+def main(argv: Sequence[str] | None = None) -> None:
+    p = Parser(prog="python -m experiments.generalist", description=__doc__.splitlines()[0])
+    sub = p.add_subparsers(dest="command", required=True, parser_class=Parser)
+    t = sub.add_parser("train", help="train one generalist across the training suite")
+    t.add_argument("--suite", type=Path, required=True, help="the training suite (a folder of experiments.suite)")
+    t.add_argument("--validation", type=Path, default=None,
+                   help="the validation suite: scores every checkpoint, the best is best.pt")
+    t.add_argument("--episodes", type=positive_int, default=200, help="training episodes (default 200)")
+    t.add_argument("--checkpoint-every", type=positive_int, default=25, help="episodes between checkpoints (25)")
+    t.add_argument("--validation-episodes", type=positive_int, default=1,
+                   help="validation episodes per regime and checkpoint (default 1)")
+    t.add_argument("--out", type=Path, default=Path("runs/generalist"), help="output folder (runs/generalist)")
+    s = sub.add_parser("specialist", help="train one PPO per regime of a suite (experiments.train ppo on each)")
+    s.add_argument("--suite", type=Path, required=True, help="a suite folder: one specialist per regime")
+    s.add_argument("--episodes", type=positive_int, default=100, help="training episodes per regime (default 100)")
+    s.add_argument("--out", type=Path, default=Path("runs/specialists"), help="<out>/<regime>/ppo.pt")
+    t.add_argument("--slots", type=positive_int, default=SLOTS,
+                   help=f"neighbour slots: at least the largest degree of any regime it will meet (default {SLOTS})")
+    for q in (t, s):
+        q.add_argument("--max-steps", type=positive_int, default=None, help="steps per episode (default: the regime's)")
+        add_price_argument(q, "")
+        add_learner_arguments(q)
+    e = sub.add_parser("evaluate", help="evaluate generalists, specialists and baselines on a suite: one CSV")
+    e.add_argument("checkpoints", type=Path, nargs="*", help="generalist checkpoints (best.pt of each seed)")
+    e.add_argument("--suite", type=Path, default=None, help="the suite to evaluate on (the test suite, once)")
+    e.add_argument("--scenarios", nargs="*", default=[], metavar="SCENARIO",
+                   help="scenarios of no suite to evaluate on too: bundled names (aot1 ...) or files")
+    e.add_argument("--split", choices=SPLITS, default=None,
+                   help="episode seeds of this set (default: the suite's; test without a suite)")
+    e.add_argument("--specialists", type=Path, default=None, help="a folder of `specialist`: <regime>/ppo.pt")
+    e.add_argument("--baselines", nargs="*", default=None, metavar="NAME",
+                   help=f"baselines to run too, of {', '.join(BASELINES)} (--baselines alone: all of them)")
+    e.add_argument("--tuned", type=Path, default=None,
+                   help="a chosen.json of python -m experiments.tune_baselines: its baselines run too, as <name>_tuned")
+    e.add_argument("--episodes", type=positive_int, default=5, help="episodes per regime (default 5)")
+    e.add_argument("--max-steps", type=positive_int, default=None, help="steps per episode (default: the regime's)")
+    e.add_argument("--modes", nargs="+", choices=MODES, default=["sampled"],
+                   help="how learners act: sampled (default: a sample of the learnt policy) and/or greedy (its most "
+                        "likely action, as <policy>_greedy); the default is chosen on validation")
+    add_price_argument(e, ", for the return column")
+    e.add_argument("--csv", type=Path, required=True, help="one row per policy, regime and episode")
+    e.add_argument("--device", default="cpu", help="cpu (default) or cuda")
+    e.add_argument("--no-progress", dest="progress", action="store_false", help="no progress bar")
+    args = p.parse_args(argv)
+    {"train": train, "specialist": specialist, "evaluate": evaluate}[args.command](args, p)
+
+
+if __name__ == "__main__":
+    main()
