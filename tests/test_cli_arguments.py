@@ -152,8 +152,9 @@ def test_launch_takes_a_policy_of_your_own_by_import_path(tmp_path, monkeypatch,
                  "--out", "run", "--json"]) == 0
     summary = json.loads((tmp_path / "run" / "summary.json").read_text())
     assert summary["policy"] == "mypolicies:Last" and summary["totals"]["offloaded"] > 0
-    for policy, error in (("lowest_queue", "expected one of greedy, greedy_backlog, least_queue, local, local_first, "
-                                           "random, round_robin or an import path 'module:Class' (got 'lowest_queue')"),
+    for policy, error in (("lowest_queue", "expected one of drift_plus_penalty, greedy, greedy_backlog, least_queue, "
+                                           "local, local_first, random, round_robin, threshold or an import path "
+                                           "'module:Class' (got 'lowest_queue')"),
                           ("mypolicies:VALUE", "mypolicies:VALUE is not a subclass of "
                                                "node_runtime.model.policies.Policy")):
         with pytest.raises(SystemExit) as e:

@@ -188,8 +188,8 @@ def test_evaluate_adds_its_runs_to_a_marl_eval_file(tmp_path):
                                            "bundled: aot1, aot1_compute, aot1_reference, aot1_urgent, "),
     (rq2, ["--scenarios", "aot1", "nowhere.yaml"], "nowhere.yaml: no such file or bundled scenario"),
     (rq1, ["--agents", "ppo", "best"], "argument --agents: expected one of ddqn, a2c, ppo, local, random, round_robin, "
-                                       "least_queue, greedy, greedy_backlog, local_first or an import path "
-                                       "'module:Class' (got 'best')"),
+                                       "least_queue, greedy, greedy_backlog, local_first, threshold, "
+                                       "drift_plus_penalty or an import path 'module:Class' (got 'best')"),
     (rq2, ["--agents", "agents.baselines:Nothing"], "argument --agents: module 'agents.baselines' has no 'Nothing'"),
     (evaluate, ["greedy", "--scenario", "aot5"], "aot5: no such file or bundled scenario"),
     (evaluate, ["nothing.pt"], "'nothing.pt' is neither a baseline (local, random,"),
