@@ -139,3 +139,8 @@ def hosts():
             pytest.skip(f"cannot create network namespaces here: {made.stderr.strip()}")
         yield ["zedge-host1", "zedge-host2"]
         subprocess.run([NETNS, "down"], check=True, capture_output=True)
+
+
+def pytest_addoption(parser: pytest.Parser) -> None:
+    parser.addoption("--all", action="store_true", default=False,
+                     help="also run the full sets of the long differential tests (tests/test_array_backend.py)")
