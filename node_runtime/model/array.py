@@ -100,13 +100,17 @@ def arrivals(sc: Scenario, seed: int, ticks: int) -> list[tuple[int, int, TaskSi
     """(tick, client node index, size) of every task the clients create in ``ticks`` ticks with ``seed``, in
     the order they are created: drawn by the model's ``Client`` from its own random streams, so it is the
     in-process run's workload, task for task."""
-    clients = [Client(n, sc) for n in sc.nodes if n.has("client")]
-    for c in clients:
-        c.reset(seed)
     out = []
-    for t in range(ticks):
-        for c in clients:
-            out.extend((t, c.index, TaskSize(*s)) for s in c.source.draws(t))
+    for n in sc.nodes:
+        if not n.has("client"):
+            continue
+        client = Client(n, sc)
+        client.reset(seed)
+        source, t = client.source, 0
+        while t < ticks:  # only the ticks with tasks: the others draw nothing, so skipping them changes no draw
+            out.extend((t, client.index, TaskSize(*s)) for s in source.draws(t))
+            t = source.next_arrival(t)
+    out.sort(key=lambda task: (task[0], task[1]))  # stable: each client's tasks of a tick in the order drawn
     return out
 
 
@@ -192,14 +196,20 @@ class ArraySim:
         self.expires = np.zeros(shape, dtype=np.int64)
         self.latest = np.zeros(shape)  # the last tick (a float) a transmission of it may start
         self.urgency = np.zeros(shape)
+        expiry: dict[tuple[int, TaskSize], int] = {}
         for c, tasks in enumerate(drawn):
-            for i, (t, node, size) in enumerate(tasks):
-                self.created[c, i], self.origin[c, i] = t, node
-                self.cycles[c, i] = size.cycles
-                self.in_bits[c, i], self.out_bits[c, i] = size.input_bytes * 8.0, size.output_bytes * 8.0
-                self.expires[c, i] = expiry_tick(t, size, sc.dt)
-                self.latest[c, i] = t + size.deadline / sc.dt
-                self.urgency[c, i] = 1.0 / max(size.deadline, sc.dt)
+            if not tasks:
+                continue
+            n = len(tasks)
+            self.created[c, :n] = [t for t, _, _ in tasks]
+            self.origin[c, :n] = [node for _, node, _ in tasks]
+            sizes = np.array([size for _, _, size in tasks], dtype=float)
+            self.cycles[c, :n] = [size.cycles for _, _, size in tasks]
+            self.in_bits[c, :n], self.out_bits[c, :n] = sizes[:, 1] * 8.0, sizes[:, 2] * 8.0
+            self.expires[c, :n] = [expiry[key] if (key := (t, size)) in expiry
+                                   else expiry.setdefault(key, expiry_tick(t, size, sc.dt)) for t, _, size in tasks]
+            self.latest[c, :n] = [t + size.deadline / sc.dt for t, _, size in tasks]
+            self.urgency[c, :n] = [1.0 / max(size.deadline, sc.dt) for _, _, size in tasks]
         self.state = np.zeros(shape, dtype=np.int8)
         self.node = np.zeros(shape, dtype=np.int64)  # where it is held, or where its message goes
         self.arrive = np.zeros(shape, dtype=np.int64)
@@ -227,6 +237,11 @@ class ArraySim:
         self.counters = np.zeros((k, len(self.roles), len(FIELDS)))
         self.t = 0
         self.ticks = ticks
+        # the live window of the task arrays: before ``lo`` every task is gone in every copy, from ``hi_at[t]`` on
+        # none is created by tick t in any copy
+        self.lo = 0
+        self.hi_at = np.array([np.searchsorted(row, np.arange(ticks), side="right") for row in self.created]).max(
+            axis=0)
         self._counter = 0
         self._calls = 0
 
@@ -235,14 +250,22 @@ class ArraySim:
         if self.t >= self.ticks:
             raise ValueError(f"the episode has {self.ticks} ticks")
         t = self.t
+        self.win = slice(self.lo, self.hi_at[t])
         self._controllers(t)
         self._clients(t)
         self._workers(t)
         self._levels(t)
+        gone = (self.state[:, self.win] == GONE).all(axis=0)  # tasks before the window are gone in every copy
+        self.lo += len(gone) if gone.all() else int(np.argmin(gone))
         self.t += 1
         return self.counters
 
     # ----- helpers -----
+
+    def _find(self, mask: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(copies, task indices) where ``mask``, a mask over the live window of tasks, holds."""
+        c, i = np.nonzero(mask)
+        return c, i + self.win.start
 
     def _add(self, c: np.ndarray, roles: np.ndarray, field: str, values: np.ndarray | float = 1.0) -> None:
         """Add to a counter of roles (``c``: copies), one addition at a time in the order given."""
@@ -271,7 +294,7 @@ class ArraySim:
     def _controllers(self, t: int) -> None:
         k = self.k
         # the answer to the last observation is placed: it reaches the worker next tick
-        c, i = np.nonzero(self.asked)
+        c, i = self._find(self.asked[:, self.win])
         if len(c):
             self.dec_arrive[c, i] = t + 1
             self.dec_action[c, i] = self.ask_action[c, i]
@@ -280,7 +303,8 @@ class ArraySim:
         if t % self.sc.decision_interval:
             return
         # observe: the oldest undecided tasks, as the worker reported them at the end of the last tick
-        c, i = np.nonzero((self.state == UNDECIDED) & (self.dec_arrive < 0))
+        w = self.win
+        c, i = self._find((self.state[:, w] == UNDECIDED) & (self.dec_arrive[:, w] < 0))
         if not len(c):
             return
         nd = self.node[c, i]
@@ -315,7 +339,8 @@ class ArraySim:
 
     def _clients(self, t: int) -> None:
         # results in, in canonical mail order
-        c, i = np.nonzero((self.state == TO_CLIENT) & (self.arrive == t))
+        w = self.win
+        c, i = self._find((self.state[:, w] == TO_CLIENT) & (self.arrive[:, w] == t))
         if len(c):
             nd = self.node[c, i]
             by = np.lexsort((self.seq[c, i], self.src_rank[c, i], nd, c))
@@ -331,7 +356,7 @@ class ArraySim:
             np.add.at(times, (c[ok], roles[ok]), (t - self.created[c[ok], i[ok]]) * self.dt)
             self.counters[:, :, F["response_time_sum"]] += times
         # new tasks, handed to the node's own worker next tick
-        c, i = np.nonzero(self.created == t)
+        c, i = self._find(self.created[:, w] == t)
         if len(c):
             nd = self.origin[c, i]
             self._add(c, self.client[nd], "generated")
@@ -347,8 +372,8 @@ class ArraySim:
         cnt[:, :, F["overloaded"]][:, self.worker[w]] = full[:, w]
         cnt[:, :, F["overloaded_ticks"]][:, self.worker[w]] += full[:, w]
         # expiry of held tasks
-        held = (self.state == UNDECIDED) | (self.state == QUEUED)
-        c, i = np.nonzero(held & (t >= self.expires))
+        state = self.state[:, self.win]
+        c, i = self._find(((state == UNDECIDED) | (state == QUEUED)) & (t >= self.expires[:, self.win]))
         if len(c):
             nd = self.node[c, i]
             np.subtract.at(self.queued, (c, nd), self.state[c, i] == QUEUED)
@@ -361,7 +386,7 @@ class ArraySim:
             cnt[:, :, F["energy_idle"]][:, self.worker[w]] += self.idle[w]
 
     def _decisions(self, t: int) -> None:
-        c, i = np.nonzero(self.dec_arrive == t)
+        c, i = self._find(self.dec_arrive[:, self.win] == t)
         if not len(c):
             return
         nd = self.node[c, i]
@@ -403,7 +428,9 @@ class ArraySim:
         self._add(c, roles, "energy_transmit", self.watts[src] * seconds)
         link = src * self.n + dst
         # the charged offloads still on the link, in the order they were sent: each charged what this one waits
-        s, j = np.nonzero((self.olink[c] == link[:, None]) & (self.ofinish[c] > t))
+        w = self.win
+        s, j = np.nonzero((self.olink[c, w] == link[:, None]) & (self.ofinish[c, w] > t))
+        j += w.start
         if len(s):
             cs = c[s]
             by = np.lexsort((self.ostart[cs, j], s))
@@ -416,7 +443,8 @@ class ArraySim:
         self._send(c, i, kind, dst, arrive, roles, self.worker_rank[src])
 
     def _admit(self, t: int) -> None:
-        c, i = np.nonzero((self.state == TO_WORKER) & (self.arrive == t))
+        w = self.win
+        c, i = self._find((self.state[:, w] == TO_WORKER) & (self.arrive[:, w] == t))
         if not len(c):
             return
         nd = self.node[c, i]
@@ -444,7 +472,7 @@ class ArraySim:
         used = np.zeros((self.k, self.n))
         active = (self.queued > 0) & (budget > 0.0)
         while active.any():
-            c, i = np.nonzero(self.state == QUEUED)
+            c, i = self._find(self.state[:, self.win] == QUEUED)
             nd = self.node[c, i]
             keep = active[c, nd]
             c, i, nd = c[keep], i[keep], nd[keep]
@@ -498,8 +526,8 @@ class ArraySim:
         cnt = self.counters
         cnt[:, :, F["queue"]][:, self.worker[w]] = self.queued[:, w]
         cnt[:, :, F["undecided"]][:, self.worker[w]] = self.undecided[:, w]
-        flying = (self.state == TO_WORKER) | (self.state == TO_CLIENT)
-        c, i = np.nonzero(flying)
+        state = self.state[:, self.win]
+        c, i = self._find((state == TO_WORKER) | (state == TO_CLIENT))
         in_flight = np.zeros(cnt.shape[:2])
         np.add.at(in_flight, (c, self.sender[c, i]), 1.0)
         cnt[:, :, F["in_flight"]] = in_flight
