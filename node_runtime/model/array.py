@@ -471,13 +471,13 @@ class ArraySim:
         budget = np.where(self.has_worker, self.budget, 0.0)[None, :].repeat(self.k, axis=0)
         used = np.zeros((self.k, self.n))
         active = (self.queued > 0) & (budget > 0.0)
+        qc, qi = self._find(self.state[:, self.win] == QUEUED)  # no task joins a queue while the CPU runs
+        qn = self.node[qc, qi]
+        by = np.lexsort((self.order[qc, qi], qn, qc))
+        qc, qi, qn = qc[by], qi[by], qn[by]
         while active.any():
-            c, i = self._find(self.state[:, self.win] == QUEUED)
-            nd = self.node[c, i]
-            keep = active[c, nd]
-            c, i, nd = c[keep], i[keep], nd[keep]
-            by = np.lexsort((self.order[c, i], nd, c))
-            c, i, nd = c[by], i[by], nd[by]
+            keep = active[qc, qn] & (self.state[qc, qi] == QUEUED)
+            c, i, nd = qc[keep], qi[keep], qn[keep]
             first = np.r_[True, (c[1:] != c[:-1]) | (nd[1:] != nd[:-1])]
             behind = np.zeros((self.k, self.n))  # urgency of the tasks queued behind each head
             np.add.at(behind, (c[~first], nd[~first]), self.urgency[c[~first], i[~first]])
@@ -528,8 +528,8 @@ class ArraySim:
         cnt[:, :, F["undecided"]][:, self.worker[w]] = self.undecided[:, w]
         state = self.state[:, self.win]
         c, i = self._find((state == TO_WORKER) | (state == TO_CLIENT))
-        in_flight = np.zeros(cnt.shape[:2])
-        np.add.at(in_flight, (c, self.sender[c, i]), 1.0)
-        cnt[:, :, F["in_flight"]] = in_flight
+        roles = len(self.roles)
+        cnt[:, :, F["in_flight"]] = np.bincount(c * roles + self.sender[c, i], minlength=self.k * roles).reshape(
+            self.k, roles)
         if t % self.sc.state_interval == 0:
             self.heard[:] = self.queued
