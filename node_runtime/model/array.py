@@ -23,6 +23,7 @@ tasks out), then workers (overload, expiry, decisions, admission, CPU, results b
 from __future__ import annotations
 
 from collections.abc import Sequence
+from itertools import pairwise
 
 import numpy as np
 
@@ -112,6 +113,18 @@ def arrivals(sc: Scenario, seed: int, ticks: int) -> list[tuple[int, int, TaskSi
             t = source.next_arrival(t)
     out.sort(key=lambda task: (task[0], task[1]))  # stable: each client's tasks of a tick in the order drawn
     return out
+
+
+NONE = np.zeros(0, dtype=np.int64)
+
+
+def by_tick(ticks_of: np.ndarray, ticks: int) -> list[tuple[np.ndarray, np.ndarray]]:
+    """For each tick below ``ticks``, the (copies, task indices) whose entry in ``ticks_of`` is that tick."""
+    c, i = np.nonzero(ticks_of < ticks)
+    order = np.argsort(ticks_of[c, i], kind="stable")
+    c, i = c[order], i[order]
+    bounds = np.searchsorted(ticks_of[c, i], np.arange(ticks + 1))
+    return [(c[a:b], i[a:b]) for a, b in pairwise(bounds)]
 
 
 def group_rank(c: np.ndarray, nd: np.ndarray) -> np.ndarray:
@@ -244,6 +257,13 @@ class ArraySim:
             axis=0)
         self._counter = 0
         self._calls = 0
+        # what happens at each tick, found without a pass over the tasks: mail arriving (tasks and results),
+        # decisions reaching workers, tasks created, tasks whose deadline passes
+        self.mail: dict[int, list[tuple[np.ndarray, np.ndarray]]] = {}
+        self.decided: dict[int, tuple[np.ndarray, np.ndarray]] = {}
+        self.born = by_tick(self.created, ticks)
+        self.dies = by_tick(self.expires, ticks)
+        self.flying = np.zeros((k, len(self.roles)), dtype=np.int64)  # messages in flight, by sending role
 
     def step(self) -> np.ndarray:
         """Run tick ``t`` of every copy; the counters at its end."""
@@ -251,6 +271,11 @@ class ArraySim:
             raise ValueError(f"the episode has {self.ticks} ticks")
         t = self.t
         self.win = slice(self.lo, self.hi_at[t])
+        mail = self.mail.pop(t, [])
+        self.arriving = tuple(np.concatenate(a) for a in zip(*mail, strict=True)) if mail else (NONE, NONE)
+        c, i = self.arriving
+        self.flying -= np.bincount(c * len(self.roles) + self.sender[c, i], minlength=self.flying.size).reshape(
+            self.flying.shape)
         self._controllers(t)
         self._clients(t)
         self._workers(t)
@@ -278,6 +303,11 @@ class ArraySim:
         self.state[c, i], self.node[c, i], self.arrive[c, i] = state, dst, arrive
         self.sender[c, i], self.src_rank[c, i] = sender, rank
         self.seq[c, i] = self._calls * SEQ_STRIDE + np.arange(len(c))
+        for tick in np.unique(arrive):
+            at = arrive == tick
+            self.mail.setdefault(int(tick), []).append((c[at], i[at]))
+        self.flying += np.bincount(c * len(self.roles) + sender, minlength=self.flying.size).reshape(
+            self.flying.shape)
 
     def _drop(self, c: np.ndarray, i: np.ndarray, roles: np.ndarray, cause: str) -> None:
         """Tasks leave the system, counted under ``cause`` by ``roles`` (a drop cause, or "completed")."""
@@ -297,6 +327,7 @@ class ArraySim:
         c, i = self._find(self.asked[:, self.win])
         if len(c):
             self.dec_arrive[c, i] = t + 1
+            self.decided[t + 1] = (c, i)
             self.dec_action[c, i] = self.ask_action[c, i]
             self.asked[c, i] = False
             self._add(c, self.controller[self.node[c, i]], "decisions")
@@ -339,8 +370,9 @@ class ArraySim:
 
     def _clients(self, t: int) -> None:
         # results in, in canonical mail order
-        w = self.win
-        c, i = self._find((self.state[:, w] == TO_CLIENT) & (self.arrive[:, w] == t))
+        c, i = self.arriving
+        here = self.state[c, i] == TO_CLIENT
+        c, i = c[here], i[here]
         if len(c):
             nd = self.node[c, i]
             by = np.lexsort((self.seq[c, i], self.src_rank[c, i], nd, c))
@@ -356,7 +388,7 @@ class ArraySim:
             np.add.at(times, (c[ok], roles[ok]), (t - self.created[c[ok], i[ok]]) * self.dt)
             self.counters[:, :, F["response_time_sum"]] += times
         # new tasks, handed to the node's own worker next tick
-        c, i = self._find(self.created[:, w] == t)
+        c, i = self.born[t]
         if len(c):
             nd = self.origin[c, i]
             self._add(c, self.client[nd], "generated")
@@ -372,8 +404,10 @@ class ArraySim:
         cnt[:, :, F["overloaded"]][:, self.worker[w]] = full[:, w]
         cnt[:, :, F["overloaded_ticks"]][:, self.worker[w]] += full[:, w]
         # expiry of held tasks
-        state = self.state[:, self.win]
-        c, i = self._find(((state == UNDECIDED) | (state == QUEUED)) & (t >= self.expires[:, self.win]))
+        c, i = self.dies[t]  # a held task expires at its expiry tick: it was admitted before, and not expired then
+        state = self.state[c, i]
+        held = (state == UNDECIDED) | (state == QUEUED)
+        c, i = c[held], i[held]
         if len(c):
             nd = self.node[c, i]
             np.subtract.at(self.queued, (c, nd), self.state[c, i] == QUEUED)
@@ -386,7 +420,7 @@ class ArraySim:
             cnt[:, :, F["energy_idle"]][:, self.worker[w]] += self.idle[w]
 
     def _decisions(self, t: int) -> None:
-        c, i = self._find(self.dec_arrive[:, self.win] == t)
+        c, i = self.decided.pop(t, (NONE, NONE))
         if not len(c):
             return
         nd = self.node[c, i]
@@ -443,8 +477,9 @@ class ArraySim:
         self._send(c, i, kind, dst, arrive, roles, self.worker_rank[src])
 
     def _admit(self, t: int) -> None:
-        w = self.win
-        c, i = self._find((self.state[:, w] == TO_WORKER) & (self.arrive[:, w] == t))
+        c, i = self.arriving
+        here = self.state[c, i] == TO_WORKER
+        c, i = c[here], i[here]
         if not len(c):
             return
         nd = self.node[c, i]
@@ -526,10 +561,6 @@ class ArraySim:
         cnt = self.counters
         cnt[:, :, F["queue"]][:, self.worker[w]] = self.queued[:, w]
         cnt[:, :, F["undecided"]][:, self.worker[w]] = self.undecided[:, w]
-        state = self.state[:, self.win]
-        c, i = self._find((state == TO_WORKER) | (state == TO_CLIENT))
-        roles = len(self.roles)
-        cnt[:, :, F["in_flight"]] = np.bincount(c * roles + self.sender[c, i], minlength=self.k * roles).reshape(
-            self.k, roles)
+        cnt[:, :, F["in_flight"]] = self.flying
         if t % self.sc.state_interval == 0:
             self.heard[:] = self.queued
