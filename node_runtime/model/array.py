@@ -339,7 +339,7 @@ class ArraySim:
         if not len(c):
             return
         nd = self.node[c, i]
-        by = np.lexsort((self.order[c, i], nd, c))
+        by = np.argsort(((c * self.n + nd) << 32) + self.order[c, i], kind="stable")  # by copy, node, order
         c, i, nd = c[by], i[by], nd[by]
         rank = group_rank(c, nd)
         extra = np.zeros((k, self.n, self.target.shape[1]), dtype=np.int64)
@@ -508,7 +508,7 @@ class ArraySim:
         active = (self.queued > 0) & (budget > 0.0)
         qc, qi = self._find(self.state[:, self.win] == QUEUED)  # no task joins a queue while the CPU runs
         qn = self.node[qc, qi]
-        by = np.lexsort((self.order[qc, qi], qn, qc))
+        by = np.argsort(((qc * self.n + qn) << 32) + self.order[qc, qi], kind="stable")  # by copy, node, order
         qc, qi, qn = qc[by], qi[by], qn[by]
         while active.any():
             keep = active[qc, qn] & (self.state[qc, qi] == QUEUED)
