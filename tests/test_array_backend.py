@@ -15,6 +15,7 @@ import pytest
 
 from node_runtime.model import array
 from node_runtime.model.array import FIELDS, POLICIES, ArraySim, Unsupported, refusal
+from node_runtime.model.spec import Scenario
 from orchestrator.metrics import COMPLETED, GENERATED, PENALISED, RT_SUM
 from orchestrator.metrics import FIELDS as METRIC_FIELDS
 from orchestrator.scenario import load_scenario
@@ -25,10 +26,10 @@ SMALL = [("aot1", "local", 300, 3), ("aot2", "least_queue", 250, 7), ("aot4", "r
          ("aot3_compute", "least_queue", 200, 2), ("aot1_urgent", "round_robin", 200, 4)]
 
 
-def first_difference(name: str, policy: str, ticks: int, seed: int) -> str | None:
+def first_difference(scenario: str | Scenario, policy: str, ticks: int, seed: int) -> str | None:
     """Run two copies (seeds ``seed`` and ``seed + 1``) beside two in-process simulations; the first tick,
     copy, role and field where they differ, or None."""
-    sc = load_scenario(name)
+    sc = load_scenario(scenario) if isinstance(scenario, str) else scenario
     seeds = [seed, seed + 1]
     arr = ArraySim(sc, len(seeds), policy=policy)
     arr.reset(seeds, ticks)
@@ -60,6 +61,20 @@ def first_difference(name: str, policy: str, ticks: int, seed: int) -> str | Non
 @pytest.mark.parametrize(("name", "policy", "ticks", "seed"), SMALL)
 def test_array_backend_gives_the_emulators_counters_tick_for_tick(name, policy, ticks, seed):
     assert first_difference(name, policy, ticks, seed) is None
+
+
+# the settings the backend takes beyond the bundled scenarios' own, on aot2 (the first two in CI)
+SETTINGS = [{"mode": "batch", "batch_size": 3}, {"decision_interval": 3, "state_interval": 2},
+            {"mode": "batch", "batch_size": 2, "decision_interval": 2, "state_interval": 3}, {"max_hops": 0},
+            {"dt": 0.5}]
+
+
+@pytest.mark.parametrize("changes", SETTINGS, ids=lambda c: ",".join(f"{k}={v}" for k, v in c.items()))
+@pytest.mark.parametrize("policy", ["least_queue", "round_robin"])
+def test_batch_mode_and_intervals(changes, policy, request):
+    if SETTINGS.index(changes) >= 2 and not request.config.getoption("--all"):
+        pytest.skip("the full set runs with --all")
+    assert first_difference(load_scenario("aot2").replace(**changes), policy, 250, 3) is None
 
 
 def full_set() -> list[tuple[str, str]]:
