@@ -23,7 +23,8 @@ from orchestrator.session import Simulation
 from topologies import bundled_scenarios
 
 SMALL = [("aot1", "local", 300, 3), ("aot2", "least_queue", 250, 7), ("aot4", "round_robin", 150, 5),
-         ("aot3_compute", "least_queue", 200, 2), ("aot1_urgent", "round_robin", 200, 4)]
+         ("aot3_compute", "least_queue", 200, 2), ("aot1_urgent", "round_robin", 200, 4),
+         ("aot3_compute", "greedy", 200, 6)]
 
 
 def first_difference(scenario: str | Scenario, policy: str, ticks: int, seed: int) -> str | None:
@@ -116,5 +117,5 @@ def test_what_it_does_not_model_is_refused_in_one_line(name, feature):
 
 
 def test_a_policy_it_does_not_run_is_refused():
-    assert "'greedy'" in refusal(load_scenario("aot2"), "greedy")
+    assert "'greedy_backlog'" in refusal(load_scenario("aot2"), "greedy_backlog")
     assert refusal(load_scenario("aot2"), "least_queue") is None

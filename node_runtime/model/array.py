@@ -10,10 +10,10 @@ emulator's counters tick for tick.
 
 Covered today (``refusal`` names the first thing a scenario needs beyond it, in one line): decide-first
 admission with the default control latency of 2 ticks, binary or batch mode, any decision or state
-interval, node-side policies ``local``, ``round_robin`` and ``least_queue``, ``max_hops`` 0 or 1, clients on
-worker nodes, every arrival schedule and task mix of the built-in task source, FIFO links without loss,
-energy. Not yet: failures, link loss, payloads, ``queue_first``, ``control_latency: 0``, multi-hop
-results, clients without a worker, the random policies, and user-defined roles, policies or task sources.
+interval, node-side policies ``local``, ``round_robin``, ``least_queue`` and ``greedy``, ``max_hops`` 0 or 1,
+clients on worker nodes, every arrival schedule and task mix of the built-in task source, FIFO links without
+loss, energy. Not yet: failures, link loss, payloads, ``queue_first``, ``control_latency: 0``, multi-hop
+results, clients without a worker, the other policies, and user-defined roles, policies or task sources.
 
 One tick runs the roles in an order that their one-tick message delay makes equivalent to the emulator's:
 controllers (they read the worker's state at the end of the previous tick), clients (results in, new
@@ -35,7 +35,7 @@ from node_runtime.model.role import STAT_FIELDS, role_id
 from node_runtime.model.spec import Scenario
 from node_runtime.model.worker import EPS_CYCLES
 
-POLICIES = ("local", "round_robin", "least_queue")  # the node-side policies it runs, vectorised
+POLICIES = ("local", "round_robin", "least_queue", "greedy")  # the node-side policies it runs, vectorised
 BUILTIN = {"worker": "node_runtime.model.worker:Worker", "client": "node_runtime.model.client:Client",
            "controller": "node_runtime.model.controller:Controller"}
 FIELDS = (*STAT_FIELDS, "in_flight", "response_time_sum")  # per role, as the orchestrator's metrics keep them
@@ -205,6 +205,7 @@ class ArraySim:
         self.origin = np.zeros(shape, dtype=np.int64)
         self.cycles = np.zeros(shape)
         self.in_bits = np.zeros(shape)
+        self.io_bytes = np.zeros(shape)  # input and output bytes, as greedy prices a transfer
         self.out_bits = np.zeros(shape)
         self.expires = np.zeros(shape, dtype=np.int64)
         self.latest = np.zeros(shape)  # the last tick (a float) a transmission of it may start
@@ -219,6 +220,7 @@ class ArraySim:
             sizes = np.array([size for _, _, size in tasks], dtype=float)
             self.cycles[c, :n] = [size.cycles for _, _, size in tasks]
             self.in_bits[c, :n], self.out_bits[c, :n] = sizes[:, 1] * 8.0, sizes[:, 2] * 8.0
+            self.io_bytes[c, :n] = sizes[:, 1] + sizes[:, 2]
             self.expires[c, :n] = [expiry[key] if (key := (t, size)) in expiry
                                    else expiry.setdefault(key, expiry_tick(t, size, sc.dt)) for t, _, size in tasks]
             self.latest[c, :n] = [t + size.deadline / sc.dt for t, _, size in tasks]
@@ -242,7 +244,8 @@ class ArraySim:
         self.ostart = np.zeros(shape)  # ... and when it occupied it, in ticks
         self.ofinish = np.zeros(shape)
         self.busy = np.zeros((k, self.n, self.n))  # when each directed link frees up, in ticks
-        self.heard = np.zeros((k, self.n), dtype=np.int64)  # queue lengths as last broadcast
+        self.heard = np.zeros((k, self.n), dtype=np.int64)  # queue lengths as last broadcast ...
+        self.heard_occupancy = np.zeros((k, self.n), dtype=np.int64)  # ... and occupancies
         self.rr = np.zeros((k, self.n), dtype=np.int64)  # round robin's next
         self.queued = np.zeros((k, self.n), dtype=np.int64)
         self.undecided = np.zeros((k, self.n), dtype=np.int64)
@@ -361,10 +364,28 @@ class ArraySim:
                 key = np.where(self.valid[nl], self.heard[cl[:, None], self.target[nl]] + extra[cl, nl], np.iinfo(
                     np.int64).max)
                 action[lq] = np.argmin(key, axis=1)  # ties: the lowest action, so local first
+            gr = pol == POLICIES.index("greedy")
+            if gr.any():
+                action[gr] = self._greedy(cb[gr], ib[gr], nb[gr], extra)
             extra[cb, nb, action] += 1
             self.asked[cb, ib] = True
             self.ask_action[cb, ib] = action
             self.ask_rank[cb, ib] = b
+
+    def _greedy(self, c: np.ndarray, i: np.ndarray, nd: np.ndarray, extra: np.ndarray) -> np.ndarray:
+        """``policies.Greedy``: the least estimated completion time, in its float operations, over the valid
+        actions (ties: the lowest action)."""
+        to = self.target[nd]
+        more = extra[c, nd]
+        cycles = self.cycles[c, i][:, None]
+        capacity = self.capacity[to]
+        wait = (self.heard[c[:, None], to] + more) * cycles / capacity
+        run = cycles / capacity
+        transfer = self.io_bytes[c, i][:, None] * 8.0 / self.rate[nd[:, None], to]
+        full = self.heard_occupancy[c[:, None], to] + more >= self.buffer[to]
+        estimate = np.where(full, np.inf, transfer + wait + run)
+        estimate[:, 0] = (wait + run)[:, 0]
+        return np.argmin(np.where(self.valid[nd], estimate, np.inf), axis=1)
 
     # ----- clients -----
 
@@ -564,3 +585,4 @@ class ArraySim:
         cnt[:, :, F["in_flight"]] = self.flying
         if t % self.sc.state_interval == 0:
             self.heard[:] = self.queued
+            self.heard_occupancy[:] = self.queued + self.undecided
