@@ -235,7 +235,7 @@ class ArraySim:
         self.rem = self.cycles.copy()
         self.hops = np.zeros(shape, dtype=np.int64)
         self.imposed = np.zeros(shape)
-        self.asked = np.zeros(shape, dtype=bool)  # in the last observation of its controller
+        self.asking = (NONE, NONE)  # (copies, tasks) of the controllers' last observations, to place next tick
         self.ask_action = np.zeros(shape, dtype=np.int64)
         self.ask_rank = np.zeros(shape, dtype=np.int64)
         self.dec_arrive = np.full(shape, -1, dtype=np.int64)  # tick its decision reaches the worker
@@ -327,12 +327,12 @@ class ArraySim:
     def _controllers(self, t: int) -> None:
         k = self.k
         # the answer to the last observation is placed: it reaches the worker next tick
-        c, i = self._find(self.asked[:, self.win])
+        c, i = self.asking
+        self.asking = (NONE, NONE)
         if len(c):
             self.dec_arrive[c, i] = t + 1
             self.decided[t + 1] = (c, i)
             self.dec_action[c, i] = self.ask_action[c, i]
-            self.asked[c, i] = False
             self._add(c, self.controller[self.node[c, i]], "decisions")
         if t % self.sc.decision_interval:
             return
@@ -346,6 +346,7 @@ class ArraySim:
         c, i, nd = c[by], i[by], nd[by]
         rank = group_rank(c, nd)
         extra = np.zeros((k, self.n, self.target.shape[1]), dtype=np.int64)
+        self.asking = (c[rank < self.per_epoch], i[rank < self.per_epoch])
         for b in range(self.per_epoch):
             sel = rank == b
             cb, ib, nb = c[sel], i[sel], nd[sel]
@@ -368,7 +369,6 @@ class ArraySim:
             if gr.any():
                 action[gr] = self._greedy(cb[gr], ib[gr], nb[gr], extra)
             extra[cb, nb, action] += 1
-            self.asked[cb, ib] = True
             self.ask_action[cb, ib] = action
             self.ask_rank[cb, ib] = b
 
