@@ -15,6 +15,7 @@ import pytest
 
 from node_runtime.model import array
 from node_runtime.model.array import FIELDS, POLICIES, ArraySim, Unsupported, refusal
+from node_runtime.model.arrival import Constant, Linear, Uniform, Zigzag
 from node_runtime.model.spec import Scenario
 from orchestrator.metrics import COMPLETED, GENERATED, PENALISED, RT_SUM
 from orchestrator.metrics import FIELDS as METRIC_FIELDS
@@ -76,6 +77,21 @@ def test_batch_mode_and_intervals(changes, policy, request):
     if SETTINGS.index(changes) >= 2 and not request.config.getoption("--all"):
         pytest.skip("the full set runs with --all")
     assert first_difference(load_scenario("aot2").replace(**changes), policy, 250, 3) is None
+
+
+# arrival schedules and processes beyond the bundled aot ones (the first in CI)
+ARRIVALS = [Zigzag(low=0.0, high=0.3, period=40, process="exponential_gaps"), Linear(start=0.05, end=0.4),
+            Zigzag(low=0.1, high=0.4, period=50), Uniform(low=0.1, high=0.3),
+            Constant(rate=0.2, process="exponential_gaps")]
+
+
+@pytest.mark.parametrize("arrival", ARRIVALS, ids=lambda a: f"{a.kind}-{a.process}")
+def test_arrival_schedules_and_processes(arrival, request):
+    if ARRIVALS.index(arrival) and not request.config.getoption("--all"):
+        pytest.skip("the full set runs with --all")
+    sc = load_scenario("aot2")
+    sc = sc.replace(workload=sc.workload.model_copy(update={"arrival": arrival}))
+    assert first_difference(sc, "least_queue", 200, 5) is None
 
 
 def full_set() -> list[tuple[str, str]]:
