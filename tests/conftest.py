@@ -34,6 +34,11 @@ if signal.getsignal(signal.SIGINT) is signal.SIG_IGN:
     signal.signal(signal.SIGINT, signal.default_int_handler)
 
 
+def pytest_addoption(parser: pytest.Parser) -> None:
+    parser.addoption("--all", action="store_true", default=False,
+                     help="also run the full sets of the long differential tests (tests/test_array_backend.py)")
+
+
 @pytest.fixture(autouse=True, scope="session")
 def own_runtime_dir(tmp_path_factory: pytest.TempPathFactory) -> Any:
     """The simulations the tests launch are listed for `orchestrator monitor` (orchestrator.local_sims) in

@@ -1,0 +1,588 @@
+"""The array backend: K copies of one scenario stepped together, every state a numpy array.
+
+The same model as the roles of ``worker.py``, ``client.py`` and ``controller.py`` (docs/model.md), held as
+arrays over (copy, task) and (copy, node) instead of objects, so that one tick of K simulations costs a few
+numpy calls rather than K of everything. It has no rule of its own: each number comes from the model's own
+functions (``Task.expires_at`` for a task's expiry tick, the link rates of the scenario, ``dbm_to_watts`` and
+``compute_energy`` for energy, ``EPS_CYCLES`` for a finishing task), the arrivals are drawn by the model's
+``Client`` with its own random streams, and ``tests/test_array_backend.py`` proves it gives the in-process
+emulator's counters tick for tick.
+
+Covered today (``refusal`` names the first thing a scenario needs beyond it, in one line): decide-first
+admission with the default control latency of 2 ticks, binary or batch mode, any decision or state
+interval, node-side policies ``local``, ``round_robin``, ``least_queue`` and ``greedy``, ``max_hops`` 0 or 1,
+clients on worker nodes, every arrival schedule and task mix of the built-in task source, FIFO links without
+loss, energy. Not yet: failures, link loss, payloads, ``queue_first``, ``control_latency: 0``, multi-hop
+results, clients without a worker, the other policies, and user-defined roles, policies or task sources.
+
+One tick runs the roles in an order that their one-tick message delay makes equivalent to the emulator's:
+controllers (they read the worker's state at the end of the previous tick), clients (results in, new
+tasks out), then workers (overload, expiry, decisions, admission, CPU, results back).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from itertools import pairwise
+
+import numpy as np
+
+from node_runtime.model.client import Client
+from node_runtime.model.energy import compute_energy, idle_energy
+from node_runtime.model.messages import Task, TaskSize
+from node_runtime.model.radio import dbm_to_watts
+from node_runtime.model.role import STAT_FIELDS, role_id
+from node_runtime.model.spec import Scenario
+from node_runtime.model.worker import EPS_CYCLES
+
+POLICIES = ("local", "round_robin", "least_queue", "greedy")  # the node-side policies it runs, vectorised
+BUILTIN = {"worker": "node_runtime.model.worker:Worker", "client": "node_runtime.model.client:Client",
+           "controller": "node_runtime.model.controller:Controller"}
+FIELDS = (*STAT_FIELDS, "in_flight", "response_time_sum")  # per role, as the orchestrator's metrics keep them
+F = {name: i for i, name in enumerate(FIELDS)}
+# where a task is: not created yet; a task message on its way to a worker; held undecided or queued by a
+# worker; its result on its way to its client; gone (completed or dropped)
+NEW, TO_WORKER, UNDECIDED, QUEUED, TO_CLIENT, GONE = range(6)
+SEQ_STRIDE = 1 << 20  # message numbers: send call * stride + position in the call (per sender, in send order)
+
+
+class Unsupported(ValueError):
+    """A scenario needs what the array backend does not model (yet)."""
+
+
+def refusal(sc: Scenario, policy: str | None = None) -> str | None:
+    """Why the array backend cannot run ``sc`` (one line naming the feature and the backend to use), or None."""
+    def why() -> str | None:
+        kinds = dict(sc.kinds)
+        for name, path in kinds.items():
+            if BUILTIN.get(name) != path:
+                return f"role kind {name!r} ({path}) is user-defined"
+        for n in sc.nodes:
+            if n.impls:
+                return f"node {n.id} has a user-defined role class ({', '.join(p for _, p in n.impls)})"
+            if n.has("controller") and (policy or n.policy) not in POLICIES:
+                return (f"node-side policy {policy or n.policy!r} (node {n.id}); the array backend runs "
+                        f"{', '.join(POLICIES)}")
+            if n.has("client") and not n.has("worker"):
+                return f"client {n.id} has no worker of its own (its tasks would cross the radio)"
+            if n.has("client") and sc.targets[n.id] != (n.id,):
+                return f"client {n.id} hands its tasks to other workers ({', '.join(sc.targets[n.id])})"
+        if sc.workload.source:
+            return f"user task source {sc.workload.source}"
+        if sc.failures:
+            return "failures"
+        if any(lk.loss > 0 for lk in sc.links):
+            return "link loss"
+        if any(t.payload is not None for t in sc.workload.task_types):
+            return "payloads"
+        if sc.admission != "decide_first":
+            return f"admission {sc.admission!r}"
+        if sc.control_latency != 2:
+            return f"control_latency {sc.control_latency}"
+        if sc.max_hops > 1:
+            return f"max_hops {sc.max_hops} (results forwarded along a path)"
+        for n in sc.nodes:  # an offloaded task's result goes straight back to its origin over the link
+            for j in sc.neighbours[n.id] if n.has("controller") and sc.max_hops else ():
+                if sc.node[j].has("worker") and (j, n.id) not in sc.link:
+                    return f"link {j} -> {n.id} is missing (a result could not come back directly)"
+        return None
+
+    reason = why()
+    return None if reason is None else (f"scenario {sc.name}: the array backend does not support {reason}; "
+                                        "run it with the in-process or Zenoh backend (Simulation.inproc / .over_zenoh)")
+
+
+def expiry_tick(created: int, size: TaskSize, dt: float) -> int:
+    """The first tick at which the task is expired: the model's own ``Task.expires_at``."""
+    return Task(0, "", created, size).expires_at(dt)
+
+
+def arrivals(sc: Scenario, seed: int, ticks: int) -> list[tuple[int, int, TaskSize]]:
+    """(tick, client node index, size) of every task the clients create in ``ticks`` ticks with ``seed``, in
+    the order they are created: drawn by the model's ``Client`` from its own random streams, so it is the
+    in-process run's workload, task for task."""
+    out = []
+    for n in sc.nodes:
+        if not n.has("client"):
+            continue
+        client = Client(n, sc)
+        client.reset(seed)
+        source, t = client.source, 0
+        while t < ticks:  # only the ticks with tasks: the others draw nothing, so skipping them changes no draw
+            out.extend((t, client.index, TaskSize(*s)) for s in source.draws(t))
+            t = source.next_arrival(t)
+    out.sort(key=lambda task: (task[0], task[1]))  # stable: each client's tasks of a tick in the order drawn
+    return out
+
+
+NONE = np.zeros(0, dtype=np.int64)
+
+
+def by_tick(ticks_of: np.ndarray, ticks: int) -> list[tuple[np.ndarray, np.ndarray]]:
+    """For each tick below ``ticks``, the (copies, task indices) whose entry in ``ticks_of`` is that tick."""
+    c, i = np.nonzero(ticks_of < ticks)
+    order = np.argsort(ticks_of[c, i], kind="stable")
+    c, i = c[order], i[order]
+    bounds = np.searchsorted(ticks_of[c, i], np.arange(ticks + 1))
+    return [(c[a:b], i[a:b]) for a, b in pairwise(bounds)]
+
+
+def group_rank(c: np.ndarray, nd: np.ndarray) -> np.ndarray:
+    """Each entry's position within its run of equal (copy, node), for entries sorted by them."""
+    first = np.r_[True, (c[1:] != c[:-1]) | (nd[1:] != nd[:-1])]
+    return np.arange(len(c)) - np.maximum.accumulate(np.where(first, np.arange(len(c)), 0))
+
+
+class ArraySim:
+    """K copies of ``scenario``, each with its own seed, stepped one tick at a time by ``step``.
+
+    ``counters`` is the (K, roles, FIELDS) array of every role's cumulative counters at the end of the last
+    tick, roles in canonical order (``roles``): what the orchestrator's metrics sum into ticks.csv and
+    nodes.csv (penalised seconds aside, which derive from these)."""
+
+    def __init__(self, scenario: Scenario, k: int, policy: str | None = None) -> None:
+        reason = refusal(scenario, policy)
+        if reason is not None:
+            raise Unsupported(reason)
+        sc = self.sc = scenario
+        self.k = k
+        nodes = sc.nodes
+        n = self.n = len(nodes)
+        self.dt = sc.dt
+        self.roles = tuple(role_id(kind, nd.id) for nd in nodes for kind in nd.roles)
+        index = {r: i for i, r in enumerate(self.roles)}
+        rank = {r: i for i, r in enumerate(sorted(self.roles))}  # canonical mail order compares sender ids
+
+        def of(kind: str) -> np.ndarray:
+            return np.array([index.get(role_id(kind, nd.id), -1) for nd in nodes])
+
+        self.worker, self.client, self.controller = of("worker"), of("client"), of("controller")
+        self.worker_rank = np.array([rank.get(role_id("worker", nd.id), -1) for nd in nodes])
+        self.client_rank = np.array([rank.get(role_id("client", nd.id), -1) for nd in nodes])
+        self.has_worker = self.worker >= 0
+        self.buffer = np.array([nd.buffer for nd in nodes])
+        self.capacity = np.array([nd.capacity for nd in nodes], dtype=float)
+        self.budget = np.array([nd.capacity * sc.dt for nd in nodes])
+        self.kappa = np.array([nd.kappa for nd in nodes], dtype=float)
+        self.freq = np.array([nd.frequency for nd in nodes], dtype=float)
+        self.idle = np.array([idle_energy(nd.idle_power_w, sc.dt) if nd.idle_power_w else 0.0 for nd in nodes])
+        self.watts = np.array([dbm_to_watts(nd.tx_power_dbm) for nd in nodes])
+        self.rate = np.ones((n, n))
+        for (a, b), lk in sc.link.items():
+            self.rate[sc.index[a], sc.index[b]] = lk.rate_bps
+        self.decides = np.array([nd.has("controller") and sc.max_hops > 0 for nd in nodes])
+        # the actions of each controller: 0 keeps a task, a >= 1 sends it to neighbour a - 1 (-1: no such action)
+        width = 1 + max((len(sc.neighbours[nd.id]) for nd in nodes), default=0)
+        self.target = np.full((n, width), -1)
+        self.valid = np.zeros((n, width), dtype=bool)
+        for i, nd in enumerate(nodes):
+            self.target[i, 0], self.valid[i, 0] = i, True
+            for a, j in enumerate(sc.neighbours[nd.id], 1):
+                self.target[i, a] = sc.index[j]
+                self.valid[i, a] = sc.node[j].has("worker")
+        self.valid_list = np.full((n, width), -1)  # the valid actions of each node, in order
+        self.n_valid = self.valid.sum(axis=1)
+        for i in range(n):
+            acts = np.flatnonzero(self.valid[i])
+            self.valid_list[i, :len(acts)] = acts
+        self.policy_of = np.array([POLICIES.index(policy or nd.policy) if nd.has("controller") else -1
+                                   for nd in nodes])
+        self.per_epoch = 1 if sc.mode == "binary" else sc.batch_size
+
+    # ----- episode -----
+
+    def reset(self, seeds: Sequence[int], ticks: int | None = None) -> None:
+        """Start an episode of ``ticks`` ticks (the scenario's by default) in every copy, copy i with seeds[i]."""
+        if len(seeds) != self.k:
+            raise ValueError(f"{len(seeds)} seeds for {self.k} copies")
+        sc, k = self.sc, self.k
+        ticks = sc.episode_ticks if ticks is None else ticks
+        drawn = [arrivals(sc, int(s), ticks) for s in seeds]
+        m = max(1, max(len(d) for d in drawn))
+        self.m = m
+        shape = (k, m)
+        self.created = np.full(shape, ticks, dtype=np.int64)  # padding: never created
+        self.origin = np.zeros(shape, dtype=np.int64)
+        self.cycles = np.zeros(shape)
+        self.in_bits = np.zeros(shape)
+        self.io_bytes = np.zeros(shape)  # input and output bytes, as greedy prices a transfer
+        self.out_bits = np.zeros(shape)
+        self.expires = np.zeros(shape, dtype=np.int64)
+        self.latest = np.zeros(shape)  # the last tick (a float) a transmission of it may start
+        self.urgency = np.zeros(shape)
+        expiry: dict[tuple[int, TaskSize], int] = {}
+        for c, tasks in enumerate(drawn):
+            if not tasks:
+                continue
+            n = len(tasks)
+            self.created[c, :n] = [t for t, _, _ in tasks]
+            self.origin[c, :n] = [node for _, node, _ in tasks]
+            sizes = np.array([size for _, _, size in tasks], dtype=float)
+            self.cycles[c, :n] = [size.cycles for _, _, size in tasks]
+            self.in_bits[c, :n], self.out_bits[c, :n] = sizes[:, 1] * 8.0, sizes[:, 2] * 8.0
+            self.io_bytes[c, :n] = sizes[:, 1] + sizes[:, 2]
+            self.expires[c, :n] = [expiry[key] if (key := (t, size)) in expiry
+                                   else expiry.setdefault(key, expiry_tick(t, size, sc.dt)) for t, _, size in tasks]
+            self.latest[c, :n] = [t + size.deadline / sc.dt for t, _, size in tasks]
+            self.urgency[c, :n] = [1.0 / max(size.deadline, sc.dt) for _, _, size in tasks]
+        self.state = np.zeros(shape, dtype=np.int8)
+        self.node = np.zeros(shape, dtype=np.int64)  # where it is held, or where its message goes
+        self.arrive = np.zeros(shape, dtype=np.int64)
+        self.sender = np.zeros(shape, dtype=np.int64)  # role of the message carrying it (in flight)
+        self.src_rank = np.zeros(shape, dtype=np.int64)
+        self.seq = np.zeros(shape, dtype=np.int64)
+        self.order = np.zeros(shape, dtype=np.int64)  # admission order: undecided order, then queue order
+        self.rem = self.cycles.copy()
+        self.hops = np.zeros(shape, dtype=np.int64)
+        self.imposed = np.zeros(shape)
+        self.asking = (NONE, NONE)  # (copies, tasks) of the controllers' last observations, to place next tick
+        self.ask_action = np.zeros(shape, dtype=np.int64)
+        self.ask_rank = np.zeros(shape, dtype=np.int64)
+        self.dec_arrive = np.full(shape, -1, dtype=np.int64)  # tick its decision reaches the worker
+        self.dec_action = np.zeros(shape, dtype=np.int64)
+        self.olink = np.full(shape, -1, dtype=np.int64)  # the link its offload was charged on ...
+        self.ostart = np.zeros(shape)  # ... and when it occupied it, in ticks
+        self.ofinish = np.zeros(shape)
+        self.busy = np.zeros((k, self.n, self.n))  # when each directed link frees up, in ticks
+        self.heard = np.zeros((k, self.n), dtype=np.int64)  # queue lengths as last broadcast ...
+        self.heard_occupancy = np.zeros((k, self.n), dtype=np.int64)  # ... and occupancies
+        self.rr = np.zeros((k, self.n), dtype=np.int64)  # round robin's next
+        self.queued = np.zeros((k, self.n), dtype=np.int64)
+        self.undecided = np.zeros((k, self.n), dtype=np.int64)
+        self.serving = np.full((k, self.n), -1, dtype=np.int64)
+        self.counters = np.zeros((k, len(self.roles), len(FIELDS)))
+        self.t = 0
+        self.ticks = ticks
+        # the live window of the task arrays: before ``lo`` every task is gone in every copy, from ``hi_at[t]`` on
+        # none is created by tick t in any copy
+        self.lo = 0
+        self.hi_at = np.array([np.searchsorted(row, np.arange(ticks), side="right") for row in self.created]).max(
+            axis=0)
+        self._counter = 0
+        self._calls = 0
+        # what happens at each tick, found without a pass over the tasks: mail arriving (tasks and results),
+        # decisions reaching workers, tasks created, tasks whose deadline passes
+        self.mail: dict[int, list[tuple[np.ndarray, np.ndarray]]] = {}
+        self.decided: dict[int, tuple[np.ndarray, np.ndarray]] = {}
+        self.born = by_tick(self.created, ticks)
+        self.dies = by_tick(self.expires, ticks)
+        self.flying = np.zeros((k, len(self.roles)), dtype=np.int64)  # messages in flight, by sending role
+
+    def step(self) -> np.ndarray:
+        """Run tick ``t`` of every copy; the counters at its end."""
+        if self.t >= self.ticks:
+            raise ValueError(f"the episode has {self.ticks} ticks")
+        t = self.t
+        self.win = slice(self.lo, self.hi_at[t])
+        mail = self.mail.pop(t, [])
+        self.arriving = tuple(np.concatenate(a) for a in zip(*mail, strict=True)) if mail else (NONE, NONE)
+        c, i = self.arriving
+        self.flying -= np.bincount(c * len(self.roles) + self.sender[c, i], minlength=self.flying.size).reshape(
+            self.flying.shape)
+        self._controllers(t)
+        self._clients(t)
+        self._workers(t)
+        self._levels(t)
+        gone = (self.state[:, self.win] == GONE).all(axis=0)  # tasks before the window are gone in every copy
+        self.lo += len(gone) if gone.all() else int(np.argmin(gone))
+        self.t += 1
+        return self.counters
+
+    # ----- helpers -----
+
+    def _find(self, mask: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(copies, task indices) where ``mask``, a mask over the live window of tasks, holds."""
+        c, i = np.nonzero(mask)
+        return c, i + self.win.start
+
+    def _add(self, c: np.ndarray, roles: np.ndarray, field: str, values: np.ndarray | float = 1.0) -> None:
+        """Add to a counter of roles (``c``: copies), one addition at a time in the order given."""
+        np.add.at(self.counters[:, :, F[field]], (c, roles), values)
+
+    def _send(self, c: np.ndarray, i: np.ndarray, state: int, dst: np.ndarray, arrive: np.ndarray,
+              sender: np.ndarray, rank: np.ndarray) -> None:
+        """Put tasks (copy ``c``, index ``i``) in messages: numbered in the order given, per sender."""
+        self._calls += 1
+        self.state[c, i], self.node[c, i], self.arrive[c, i] = state, dst, arrive
+        self.sender[c, i], self.src_rank[c, i] = sender, rank
+        self.seq[c, i] = self._calls * SEQ_STRIDE + np.arange(len(c))
+        for tick in np.unique(arrive):
+            at = arrive == tick
+            self.mail.setdefault(int(tick), []).append((c[at], i[at]))
+        self.flying += np.bincount(c * len(self.roles) + sender, minlength=self.flying.size).reshape(
+            self.flying.shape)
+
+    def _drop(self, c: np.ndarray, i: np.ndarray, roles: np.ndarray, cause: str) -> None:
+        """Tasks leave the system, counted under ``cause`` by ``roles`` (a drop cause, or "completed")."""
+        self.state[c, i] = GONE
+        self._add(c, roles, cause)
+
+    def _next_order(self, count: int) -> np.ndarray:
+        first = self._counter
+        self._counter += count
+        return np.arange(first, first + count)
+
+    # ----- controllers -----
+
+    def _controllers(self, t: int) -> None:
+        k = self.k
+        # the answer to the last observation is placed: it reaches the worker next tick
+        c, i = self.asking
+        self.asking = (NONE, NONE)
+        if len(c):
+            self.dec_arrive[c, i] = t + 1
+            self.decided[t + 1] = (c, i)
+            self.dec_action[c, i] = self.ask_action[c, i]
+            self._add(c, self.controller[self.node[c, i]], "decisions")
+        if t % self.sc.decision_interval:
+            return
+        # observe: the oldest undecided tasks, as the worker reported them at the end of the last tick
+        w = self.win
+        c, i = self._find((self.state[:, w] == UNDECIDED) & (self.dec_arrive[:, w] < 0))
+        if not len(c):
+            return
+        nd = self.node[c, i]
+        by = np.argsort(((c * self.n + nd) << 32) + self.order[c, i], kind="stable")  # by copy, node, order
+        c, i, nd = c[by], i[by], nd[by]
+        rank = group_rank(c, nd)
+        extra = np.zeros((k, self.n, self.target.shape[1]), dtype=np.int64)
+        self.asking = (c[rank < self.per_epoch], i[rank < self.per_epoch])
+        for b in range(self.per_epoch):
+            sel = rank == b
+            cb, ib, nb = c[sel], i[sel], nd[sel]
+            if not len(cb):
+                break
+            action = np.zeros(len(cb), dtype=np.int64)
+            pol = self.policy_of[nb]
+            rr = pol == POLICIES.index("round_robin")
+            if rr.any():
+                cr, nr = cb[rr], nb[rr]
+                action[rr] = self.valid_list[nr, self.rr[cr, nr] % self.n_valid[nr]]
+                self.rr[cr, nr] += 1
+            lq = pol == POLICIES.index("least_queue")
+            if lq.any():
+                cl, nl = cb[lq], nb[lq]
+                key = np.where(self.valid[nl], self.heard[cl[:, None], self.target[nl]] + extra[cl, nl], np.iinfo(
+                    np.int64).max)
+                action[lq] = np.argmin(key, axis=1)  # ties: the lowest action, so local first
+            gr = pol == POLICIES.index("greedy")
+            if gr.any():
+                action[gr] = self._greedy(cb[gr], ib[gr], nb[gr], extra)
+            extra[cb, nb, action] += 1
+            self.ask_action[cb, ib] = action
+            self.ask_rank[cb, ib] = b
+
+    def _greedy(self, c: np.ndarray, i: np.ndarray, nd: np.ndarray, extra: np.ndarray) -> np.ndarray:
+        """``policies.Greedy``: the least estimated completion time, in its float operations, over the valid
+        actions (ties: the lowest action)."""
+        to = self.target[nd]
+        more = extra[c, nd]
+        cycles = self.cycles[c, i][:, None]
+        capacity = self.capacity[to]
+        wait = (self.heard[c[:, None], to] + more) * cycles / capacity
+        run = cycles / capacity
+        transfer = self.io_bytes[c, i][:, None] * 8.0 / self.rate[nd[:, None], to]
+        full = self.heard_occupancy[c[:, None], to] + more >= self.buffer[to]
+        estimate = np.where(full, np.inf, transfer + wait + run)
+        estimate[:, 0] = (wait + run)[:, 0]
+        return np.argmin(np.where(self.valid[nd], estimate, np.inf), axis=1)
+
+    # ----- clients -----
+
+    def _clients(self, t: int) -> None:
+        # results in, in canonical mail order
+        c, i = self.arriving
+        here = self.state[c, i] == TO_CLIENT
+        c, i = c[here], i[here]
+        if len(c):
+            nd = self.node[c, i]
+            by = np.lexsort((self.seq[c, i], self.src_rank[c, i], nd, c))
+            c, i, nd = c[by], i[by], nd[by]
+            roles = self.client[nd]
+            imposed = self.imposed[c, i] != 0.0
+            self._add(c[imposed], roles[imposed], "delay_imposed", self.imposed[c[imposed], i[imposed]])
+            late = t >= self.expires[c, i]
+            self._drop(c[late], i[late], roles[late], "expired")
+            ok = ~late
+            self._drop(c[ok], i[ok], roles[ok], "completed")
+            times = np.zeros(self.counters.shape[:2])
+            np.add.at(times, (c[ok], roles[ok]), (t - self.created[c[ok], i[ok]]) * self.dt)
+            self.counters[:, :, F["response_time_sum"]] += times
+        # new tasks, handed to the node's own worker next tick
+        c, i = self.born[t]
+        if len(c):
+            nd = self.origin[c, i]
+            self._add(c, self.client[nd], "generated")
+            self._send(c, i, TO_WORKER, nd, np.full(len(c), t + 1), self.client[nd], self.client_rank[nd])
+
+    # ----- workers -----
+
+    def _workers(self, t: int) -> None:
+        w = self.has_worker
+        occupancy = self.queued + self.undecided
+        full = (occupancy >= self.buffer) & w
+        cnt = self.counters
+        cnt[:, :, F["overloaded"]][:, self.worker[w]] = full[:, w]
+        cnt[:, :, F["overloaded_ticks"]][:, self.worker[w]] += full[:, w]
+        # expiry of held tasks
+        c, i = self.dies[t]  # a held task expires at its expiry tick: it was admitted before, and not expired then
+        state = self.state[c, i]
+        held = (state == UNDECIDED) | (state == QUEUED)
+        c, i = c[held], i[held]
+        if len(c):
+            nd = self.node[c, i]
+            np.subtract.at(self.queued, (c, nd), self.state[c, i] == QUEUED)
+            np.subtract.at(self.undecided, (c, nd), self.state[c, i] == UNDECIDED)
+            self._drop(c, i, self.worker[nd], "expired")
+        self._decisions(t)
+        self._admit(t)
+        self._serve(t)
+        if self.idle.any():
+            cnt[:, :, F["energy_idle"]][:, self.worker[w]] += self.idle[w]
+
+    def _decisions(self, t: int) -> None:
+        c, i = self.decided.pop(t, (NONE, NONE))
+        if not len(c):
+            return
+        nd = self.node[c, i]
+        stale = self.state[c, i] != UNDECIDED
+        self._add(c[stale], self.worker[nd[stale]], "stale_decisions")
+        c, i, nd = c[~stale], i[~stale], nd[~stale]
+        by = np.lexsort((self.ask_rank[c, i], nd, c))
+        c, i, nd = c[by], i[by], nd[by]
+        rank = self.ask_rank[c, i]
+        for b in np.unique(rank):
+            sel = rank == b
+            cb, ib, nb = c[sel], i[sel], nd[sel]
+            action = self.dec_action[cb, ib]
+            np.subtract.at(self.undecided, (cb, nb), 1)
+            local = action == 0
+            cl, il, nl = cb[local], ib[local], nb[local]
+            self.state[cl, il] = QUEUED
+            self.order[cl, il] = self._next_order(len(cl))
+            np.add.at(self.queued, (cl, nl), 1)
+            co, io, no = cb[~local], ib[~local], nb[~local]
+            if len(co):
+                self.hops[co, io] += 1
+                self._add(co, self.worker[no], "offloaded")
+                self._transmit(t, co, io, no, self.target[no, action[~local]], self.in_bits[co, io], TO_WORKER)
+
+    def _transmit(self, t: int, c: np.ndarray, i: np.ndarray, src: np.ndarray, dst: np.ndarray, bits: np.ndarray,
+                  kind: int) -> None:
+        """Queue messages on links src -> dst (one per link and call), as ``Radio.send`` and ``Role.transmit`` do."""
+        roles = self.worker[src]
+        start = np.maximum(float(t), self.busy[c, src, dst])
+        late = start > self.latest[c, i]  # it could only start after its deadline: never sent
+        self._drop(c[late], i[late], roles[late], "expired")
+        c, i, src, dst, bits, start, roles = (a[~late] for a in (c, i, src, dst, bits, start, roles))
+        if not len(c):
+            return
+        seconds = bits / self.rate[src, dst]
+        finish = start + seconds / self.dt
+        self.busy[c, src, dst] = finish
+        self._add(c, roles, "energy_transmit", self.watts[src] * seconds)
+        link = src * self.n + dst
+        # the charged offloads still on the link, in the order they were sent: each charged what this one waits
+        w = self.win
+        s, j = np.nonzero((self.olink[c, w] == link[:, None]) & (self.ofinish[c, w] > t))
+        j += w.start
+        if len(s):
+            cs = c[s]
+            by = np.lexsort((self.ostart[cs, j], s))
+            s, j, cs = s[by], j[by], cs[by]
+            waited = (self.ofinish[cs, j] - np.maximum(float(t), self.ostart[cs, j])) * self.dt
+            self._add(cs, roles[s], "delay_imposed", waited * self.urgency[cs, i[s]])
+        if kind == TO_WORKER:  # an offload: charged for what it makes later messages wait
+            self.olink[c, i], self.ostart[c, i], self.ofinish[c, i] = link, start, finish
+        arrive = np.maximum(t + 1, np.ceil(finish).astype(np.int64))
+        self._send(c, i, kind, dst, arrive, roles, self.worker_rank[src])
+
+    def _admit(self, t: int) -> None:
+        c, i = self.arriving
+        here = self.state[c, i] == TO_WORKER
+        c, i = c[here], i[here]
+        if not len(c):
+            return
+        nd = self.node[c, i]
+        by = np.lexsort((self.seq[c, i], self.src_rank[c, i], nd, c))
+        c, i, nd = c[by], i[by], nd[by]
+        roles = self.worker[nd]
+        late = t >= self.expires[c, i]
+        self._drop(c[late], i[late], roles[late], "expired")
+        c, i, nd, roles = c[~late], i[~late], nd[~late], roles[~late]
+        if not len(c):
+            return
+        before = group_rank(c, nd)  # admitted ahead of it in this tick
+        room = before < self.buffer[nd] - (self.queued[c, nd] + self.undecided[c, nd])
+        self._drop(c[~room], i[~room], roles[~room], "queue_full")
+        c, i, nd = c[room], i[room], nd[room]
+        self.order[c, i] = self._next_order(len(c))
+        wait = self.decides[nd] & (self.hops[c, i] < self.sc.max_hops)
+        self.state[c, i] = np.where(wait, UNDECIDED, QUEUED)
+        np.add.at(self.undecided, (c[wait], nd[wait]), 1)
+        np.add.at(self.queued, (c[~wait], nd[~wait]), 1)
+
+    def _serve(self, t: int) -> None:
+        """The CPU: the tick's cycles on the FIFO queue, head first, work-conserving (``Worker.serve``)."""
+        budget = np.where(self.has_worker, self.budget, 0.0)[None, :].repeat(self.k, axis=0)
+        used = np.zeros((self.k, self.n))
+        active = (self.queued > 0) & (budget > 0.0)
+        qc, qi = self._find(self.state[:, self.win] == QUEUED)  # no task joins a queue while the CPU runs
+        qn = self.node[qc, qi]
+        by = np.argsort(((qc * self.n + qn) << 32) + self.order[qc, qi], kind="stable")  # by copy, node, order
+        qc, qi, qn = qc[by], qi[by], qn[by]
+        while active.any():
+            keep = active[qc, qn] & (self.state[qc, qi] == QUEUED)
+            c, i, nd = qc[keep], qi[keep], qn[keep]
+            first = np.r_[True, (c[1:] != c[:-1]) | (nd[1:] != nd[:-1])]
+            behind = np.zeros((self.k, self.n))  # urgency of the tasks queued behind each head
+            np.add.at(behind, (c[~first], nd[~first]), self.urgency[c[~first], i[~first]])
+            c, i, nd = c[first], i[first], nd[first]
+            new = self.serving[c, nd] != i
+            self.imposed[c[new], i[new]] = 0.0
+            self.serving[c, nd] = i
+            remaining = self.rem[c, i]
+            left = budget[c, nd]
+            done = remaining <= left + EPS_CYCLES
+            spent = np.where(done, remaining, left)
+            waiting = self.queued[c, nd] > 1
+            self.imposed[c[waiting], i[waiting]] += (spent[waiting] / self.capacity[nd[waiting]]
+                                                     * behind[c[waiting], nd[waiting]])
+            budget[c, nd] = np.where(done, left - remaining, 0.0)
+            used[c, nd] += spent
+            self.rem[c[~done], i[~done]] = remaining[~done] - left[~done]
+            cd, id_, nd_ = c[done], i[done], nd[done]
+            self.queued[cd, nd_] -= 1
+            self._results(t, cd, id_, nd_)
+            active = (self.queued > 0) & (budget > 0.0)
+        c, nd = np.nonzero(used)
+        if len(c):
+            roles = self.worker[nd]
+            self.counters[c, roles, F["busy_cycles"]] += used[c, nd]
+            self.counters[c, roles, F["energy_compute"]] += compute_energy(self.kappa[nd], used[c, nd], self.freq[nd])
+
+    def _results(self, t: int, c: np.ndarray, i: np.ndarray, nd: np.ndarray) -> None:
+        """Finished tasks' results back to their origin (``Worker.route_result``): handed over on its own
+        node, sent over the link to a neighbour."""
+        late = t >= self.expires[c, i]
+        self._drop(c[late], i[late], self.worker[nd[late]], "expired")
+        c, i, nd = c[~late], i[~late], nd[~late]
+        origin = self.origin[c, i]
+        here = origin == nd
+        self._send(c[here], i[here], TO_CLIENT, origin[here], np.full(here.sum(), t + 1), self.worker[nd[here]],
+                   self.worker_rank[nd[here]])
+        away = ~here
+        if away.any():
+            self._transmit(t, c[away], i[away], nd[away], origin[away], self.out_bits[c[away], i[away]], TO_CLIENT)
+
+    # ----- end of the tick -----
+
+    def _levels(self, t: int) -> None:
+        w = self.has_worker
+        cnt = self.counters
+        cnt[:, :, F["queue"]][:, self.worker[w]] = self.queued[:, w]
+        cnt[:, :, F["undecided"]][:, self.worker[w]] = self.undecided[:, w]
+        cnt[:, :, F["in_flight"]] = self.flying
+        if t % self.sc.state_interval == 0:
+            self.heard[:] = self.queued
+            self.heard_occupancy[:] = self.queued + self.undecided

@@ -1,0 +1,137 @@
+"""The array backend (node_runtime/model/array.py) gives the in-process emulator's results, tick for tick.
+
+Both run the same scenario with the same seeds and the same node-side policy; after every tick every role's
+counters (the ``STAT_FIELDS``, in flight, the response times' sum) must be equal, and with them every
+column of ticks.csv and nodes.csv, which the orchestrator sums from them: exactly, floats included (the
+backend adds its floats in the emulator's order). CI runs a small set; ``--all`` runs every bundled
+scenario the backend takes with each of its policies over a whole episode. A deliberately broken rule
+(a deadline one tick late) must make the comparison fail.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from node_runtime.model import array
+from node_runtime.model.array import FIELDS, POLICIES, ArraySim, Unsupported, refusal
+from node_runtime.model.arrival import Constant, Linear, Uniform, Zigzag
+from node_runtime.model.spec import Scenario
+from orchestrator.metrics import COMPLETED, GENERATED, PENALISED, RT_SUM
+from orchestrator.metrics import FIELDS as METRIC_FIELDS
+from orchestrator.scenario import load_scenario
+from orchestrator.session import Simulation
+from topologies import bundled_scenarios
+
+SMALL = [("aot1", "local", 300, 3), ("aot2", "least_queue", 250, 7), ("aot4", "round_robin", 150, 5),
+         ("aot3_compute", "least_queue", 200, 2), ("aot1_urgent", "round_robin", 200, 4),
+         ("aot3_compute", "greedy", 200, 6)]
+
+
+def first_difference(scenario: str | Scenario, policy: str, ticks: int, seed: int) -> str | None:
+    """Run two copies (seeds ``seed`` and ``seed + 1``) beside two in-process simulations; the first tick,
+    copy, role and field where they differ, or None."""
+    sc = load_scenario(scenario) if isinstance(scenario, str) else scenario
+    seeds = [seed, seed + 1]
+    arr = ArraySim(sc, len(seeds), policy=policy)
+    arr.reset(seeds, ticks)
+    sims = [Simulation.inproc(sc) for _ in seeds]
+    try:
+        assert arr.roles == sims[0].plan.roles
+        assert METRIC_FIELDS[:len(FIELDS)] == FIELDS
+        for t in range(ticks):
+            got = arr.step()
+            for copy, (sim, seed_) in enumerate(zip(sims, seeds, strict=True)):
+                report = sim.reset(seed_, policy=policy) if t == 0 else sim.step()
+                m = np.zeros((len(arr.roles), len(METRIC_FIELDS)))
+                m[:, :len(FIELDS)] = got[copy]
+                m[:, PENALISED] = m[:, RT_SUM] + sim.metrics.penalty * (m[:, GENERATED] - m[:, COMPLETED])
+                for what, mine, theirs in (("totals", m.sum(axis=0), report.totals),
+                                           ("nodes", sim.metrics.incidence @ m, report.nodes)):
+                    bad = np.argwhere(np.atleast_2d(mine != theirs))
+                    if len(bad):
+                        row, col = bad[0]
+                        at = "network" if what == "totals" else sc.nodes[row].id
+                        return (f"tick {t}, copy {copy} (seed {seed_}), {at}: {METRIC_FIELDS[col]} "
+                                f"{np.atleast_2d(mine)[row, col]!r} != {np.atleast_2d(theirs)[row, col]!r}")
+        return None
+    finally:
+        for sim in sims:
+            sim.close()
+
+
+@pytest.mark.parametrize(("name", "policy", "ticks", "seed"), SMALL)
+def test_array_backend_gives_the_emulators_counters_tick_for_tick(name, policy, ticks, seed):
+    assert first_difference(name, policy, ticks, seed) is None
+
+
+# the settings the backend takes beyond the bundled scenarios' own, on aot2 (the first two in CI)
+SETTINGS = [{"mode": "batch", "batch_size": 3}, {"decision_interval": 3, "state_interval": 2},
+            {"mode": "batch", "batch_size": 2, "decision_interval": 2, "state_interval": 3}, {"max_hops": 0},
+            {"dt": 0.5}]
+
+
+@pytest.mark.parametrize("changes", SETTINGS, ids=lambda c: ",".join(f"{k}={v}" for k, v in c.items()))
+@pytest.mark.parametrize("policy", ["least_queue", "round_robin"])
+def test_batch_mode_and_intervals(changes, policy, request):
+    if SETTINGS.index(changes) >= 2 and not request.config.getoption("--all"):
+        pytest.skip("the full set runs with --all")
+    assert first_difference(load_scenario("aot2").replace(**changes), policy, 250, 3) is None
+
+
+# arrival schedules and processes beyond the bundled aot ones (the first in CI)
+ARRIVALS = [Zigzag(low=0.0, high=0.3, period=40, process="exponential_gaps"), Linear(start=0.05, end=0.4),
+            Zigzag(low=0.1, high=0.4, period=50), Uniform(low=0.1, high=0.3),
+            Constant(rate=0.2, process="exponential_gaps")]
+
+
+@pytest.mark.parametrize("arrival", ARRIVALS, ids=lambda a: f"{a.kind}-{a.process}")
+def test_arrival_schedules_and_processes(arrival, request):
+    if ARRIVALS.index(arrival) and not request.config.getoption("--all"):
+        pytest.skip("the full set runs with --all")
+    sc = load_scenario("aot2")
+    sc = sc.replace(workload=sc.workload.model_copy(update={"arrival": arrival}))
+    assert first_difference(sc, "least_queue", 200, 5) is None
+
+
+def full_set() -> list[tuple[str, str]]:
+    return [(name, policy) for name in bundled_scenarios() for policy in POLICIES
+            if refusal(load_scenario(name), policy) is None]
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize(("name", "policy"), full_set())
+def test_every_bundled_scenario_the_backend_takes_over_a_whole_episode(name, policy, request):
+    if not request.config.getoption("--all"):
+        pytest.skip("the full set runs with --all")
+    assert first_difference(name, policy, load_scenario(name).episode_ticks, 1) is None
+
+
+def test_a_deadline_one_tick_late_is_caught(monkeypatch):
+    """The comparison can fail: the backend with every task expiring one tick late differs from the emulator."""
+    expiry = array.expiry_tick
+    monkeypatch.setattr(array, "expiry_tick", lambda created, size, dt: expiry(created, size, dt) + 1)
+    found = first_difference("aot1_urgent", "round_robin", 200, 4)
+    assert found is not None and "expired" in found
+
+
+def test_a_lifo_queue_is_caught(monkeypatch):
+    """Serving the newest queued task first (the reference code's accident) is caught as well."""
+    order = ArraySim._next_order
+    monkeypatch.setattr(ArraySim, "_next_order", lambda self, count: -order(self, count))
+    assert first_difference("aot2", "least_queue", 250, 7) is not None
+
+
+@pytest.mark.parametrize(("name", "feature"), [("aot2_reference", "admission 'queue_first'"),
+                                               ("examples/failures", "failures"),
+                                               ("examples/aot2_overrides", "link loss")])
+def test_what_it_does_not_model_is_refused_in_one_line(name, feature):
+    with pytest.raises(Unsupported) as info:
+        ArraySim(load_scenario(name), 2)
+    message = str(info.value)
+    assert "\n" not in message and feature in message and "in-process or Zenoh backend" in message
+
+
+def test_a_policy_it_does_not_run_is_refused():
+    assert "'greedy_backlog'" in refusal(load_scenario("aot2"), "greedy_backlog")
+    assert refusal(load_scenario("aot2"), "least_queue") is None
