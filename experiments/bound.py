@@ -45,7 +45,7 @@ from agents.training import progress_bar, write_csv
 from experiments import raw, tune_baselines
 from experiments.common import Parser, make_env, positive_int, positive_number
 from experiments.protocol import EPISODES, SPLITS
-from node_runtime.model.client import Client
+from node_runtime.model.client import arrivals
 from node_runtime.model.messages import Task, TaskSize
 from node_runtime.model.spec import Scenario
 
@@ -73,15 +73,7 @@ class TraceTask:
 def arrival_trace(sc: Scenario, seed: int, ticks: int) -> list[TraceTask]:
     """Every task the clients of ``sc`` create in ticks 0 .. ``ticks`` - 1 of the episode with ``seed``: the
     clients' own code and random streams, which no policy moves, so a policy's run creates the same tasks."""
-    tasks = []
-    for node in sc.nodes:
-        if not node.has("client"):
-            continue
-        client = Client(node, sc)
-        client.reset(seed)
-        tasks += [TraceTask(node.id, t, TaskSize(*size)) for t in range(ticks) if not client.down(t)
-                  for size in client.source.draws(t)]
-    return sorted(tasks, key=lambda task: (task.created, sc.index[task.origin]))
+    return [TraceTask(sc.nodes[node].id, t, size) for t, node, size in arrivals(sc, seed, ticks)]
 
 
 @dataclass(frozen=True)

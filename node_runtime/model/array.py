@@ -27,7 +27,7 @@ from itertools import pairwise
 
 import numpy as np
 
-from node_runtime.model.client import Client
+from node_runtime.model.client import arrivals
 from node_runtime.model.energy import compute_energy, idle_energy
 from node_runtime.model.messages import Task, TaskSize
 from node_runtime.model.radio import dbm_to_watts
@@ -95,24 +95,6 @@ def refusal(sc: Scenario, policy: str | None = None) -> str | None:
 def expiry_tick(created: int, size: TaskSize, dt: float) -> int:
     """The first tick at which the task is expired: the model's own ``Task.expires_at``."""
     return Task(0, "", created, size).expires_at(dt)
-
-
-def arrivals(sc: Scenario, seed: int, ticks: int) -> list[tuple[int, int, TaskSize]]:
-    """(tick, client node index, size) of every task the clients create in ``ticks`` ticks with ``seed``, in
-    the order they are created: drawn by the model's ``Client`` from its own random streams, so it is the
-    in-process run's workload, task for task."""
-    out = []
-    for n in sc.nodes:
-        if not n.has("client"):
-            continue
-        client = Client(n, sc)
-        client.reset(seed)
-        source, t = client.source, 0
-        while t < ticks:  # only the ticks with tasks: the others draw nothing, so skipping them changes no draw
-            out.extend((t, client.index, TaskSize(*s)) for s in source.draws(t))
-            t = source.next_arrival(t)
-    out.sort(key=lambda task: (task[0], task[1]))  # stable: each client's tasks of a tick in the order drawn
-    return out
 
 
 NONE = np.zeros(0, dtype=np.int64)

@@ -91,3 +91,23 @@ class Client(Role):
 
 
 CLIENT = register(RoleKind(Client, order=1, stream=1))
+
+
+def arrivals(sc: Scenario, seed: int, ticks: int) -> list[tuple[int, int, TaskSize]]:
+    """(tick, client node index, size) of every task the clients of ``sc`` create in ticks 0 .. ``ticks`` - 1
+    of the episode with ``seed``, in the order they are created. It is the clients' own code and random
+    streams, which no decision moves, so it is every run's workload task for task: the array backend's, and
+    the arrival trace the clairvoyant bound sees."""
+    out = []
+    for node in sc.nodes:
+        if not node.has("client"):
+            continue
+        client = Client(node, sc)
+        client.reset(seed)
+        t = 0
+        while t < ticks:  # only the ticks it wakes at: the others draw nothing, so skipping them changes no draw
+            if not client.down(t):
+                out.extend((t, client.index, TaskSize(*size)) for size in client.source.draws(t))
+            t = int(client.wake(t))
+    out.sort(key=lambda task: (task[0], task[1]))  # stable: each client's tasks of a tick in the order drawn
+    return out
