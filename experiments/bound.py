@@ -27,7 +27,6 @@ in time either, the tasks that have an option at all ("options"): weaker, still 
 
 from __future__ import annotations
 
-import csv
 import math
 import time
 from collections.abc import Mapping, Sequence
@@ -45,6 +44,7 @@ from agents.training import progress_bar, write_csv
 from experiments import raw, tune_baselines
 from experiments.common import Parser, make_env, positive_int, positive_number
 from experiments.protocol import EPISODES, SPLITS
+from experiments.suite import read_suite
 from node_runtime.model.client import arrivals
 from node_runtime.model.messages import Task, TaskSize
 from node_runtime.model.spec import Scenario
@@ -336,10 +336,9 @@ def main(argv: Sequence[str] | None = None) -> None:
     p.add_argument("--no-progress", dest="progress", action="store_false", help="no progress bar")
     args = p.parse_args(argv)
     try:
-        with open(args.suite / "manifest.csv", newline="") as f:
-            names = [row["name"] for row in csv.DictReader(f)]
-    except FileNotFoundError:
-        p.error(f"{args.suite / 'manifest.csv'}: not found; write a suite with python -m experiments.suite first")
+        suite = read_suite(args.suite)
+    except ValueError as e:
+        p.error(str(e))
     split = args.split or args.suite.name
     if split not in EPISODES:
         p.error(f"{args.suite}: say which episode seeds to use with --split ({', '.join(SPLITS)})")
@@ -350,8 +349,8 @@ def main(argv: Sequence[str] | None = None) -> None:
     rows: list[dict[str, Any]] = []
     progress = progress_bar() if args.progress else None
     with progress or nullcontext():
-        for name in names:
-            rows += measure(args.suite / f"{name}.yaml", seeds, args.max_steps, policies, args.time_limit, progress)
+        for regime in suite:
+            rows += measure(regime.path, seeds, args.max_steps, policies, args.time_limit, progress)
     out = args.out or args.suite / "bound.csv"
     write_csv(out, rows)
     print(f"wrote {len(rows)} rows to {out} ({split} episodes {seeds[0]}..{seeds[-1]})")

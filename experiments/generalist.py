@@ -23,7 +23,6 @@ the validation suite, for model selection only (``best.pt``); the test suite is 
 from __future__ import annotations
 
 import argparse
-import csv
 import json
 import math
 import pickle
@@ -54,7 +53,8 @@ from experiments.common import (
     positive_int,
     set_threads,
 )
-from experiments.protocol import EPISODES, REGIMES, SPLITS, Split
+from experiments.protocol import EPISODES, SPLITS
+from experiments.suite import SuiteRegime, read_suite
 from experiments.tune_baselines import CRITERION
 from orchestrator.scenario import load_scenario
 from orchestrator.scenario.errors import ScenarioError
@@ -64,45 +64,6 @@ SLOTS = 32  # neighbour slots: the largest degree is 18 in the first 100 train, 
 REWARD = "marginal"  # experiments.train's for PPO: each decision learns from its own tasks' credit
 MODES = ("sampled", "greedy")  # how a learner acts when evaluated
 OPEN_ENVS = 8  # regimes whose simulation stays open between the episodes that draw them
-
-
-@dataclass(frozen=True)
-class SuiteRegime:
-    """One regime of a suite folder, as its manifest lists it."""
-
-    name: str
-    path: Path  # or a bundled scenario's name (aot1 ...)
-    split: Split | None  # None: a scenario of no suite
-    seed: int | None
-
-
-def read_suite(folder: Path, split: Split | None = None) -> list[SuiteRegime]:
-    """The regimes of a folder written by ``experiments.suite``; with ``split``, every one must belong to it
-    (its manifest's split and its regime seed): a ValueError names the first that does not."""
-    manifest = folder / "manifest.csv"
-    try:
-        with open(manifest, newline="") as f:
-            rows = list(csv.DictReader(f))
-    except FileNotFoundError:
-        raise ValueError(f"{manifest}: not found; write a suite with python -m experiments.suite first") from None
-    regimes = []
-    for row in rows:
-        try:
-            regime = SuiteRegime(row["name"], folder / f"{row['name']}.yaml", row["split"], int(row["seed"]))
-        except (KeyError, ValueError):
-            raise ValueError(f"{manifest}: a row without a name, split and integer seed: {row}") from None
-        if regime.split not in SPLITS or regime.seed not in REGIMES[regime.split]:
-            raise ValueError(f"{manifest}: {regime.name}: regime seed {regime.seed} is not of the {regime.split!r} "
-                             "regime seeds (experiments.protocol.REGIMES)")
-        if split is not None and regime.split != split:
-            raise ValueError(f"{manifest}: {regime.name} is a {regime.split} regime (seed {regime.seed}); "
-                             f"this takes {split} regimes only: the seed sets never mix")
-        if not regime.path.is_file():
-            raise ValueError(f"{regime.path}: not found (listed in {manifest})")
-        regimes.append(regime)
-    if not regimes:
-        raise ValueError(f"{manifest}: no regimes")
-    return regimes
 
 
 def scenarios(names: Sequence[str]) -> list[SuiteRegime]:

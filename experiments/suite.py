@@ -269,6 +269,45 @@ def family_of(regime: Regime, path: Path) -> regimes.Family:
     return regimes.Family(regime.name, str(path), (None,), about)
 
 
+@dataclass(frozen=True)
+class SuiteRegime:
+    """One regime of a suite folder, as its manifest lists it."""
+
+    name: str
+    path: Path  # or a bundled scenario's name (aot1 ...)
+    split: Split | None  # None: a scenario of no suite
+    seed: int | None
+
+
+def read_suite(folder: Path, split: Split | None = None) -> list[SuiteRegime]:
+    """The regimes of a folder written by ``experiments.suite``; with ``split``, every one must belong to it
+    (its manifest's split and its regime seed): a ValueError names the first that does not."""
+    manifest = folder / "manifest.csv"
+    try:
+        with open(manifest, newline="") as f:
+            rows = list(csv.DictReader(f))
+    except FileNotFoundError:
+        raise ValueError(f"{manifest}: not found; write a suite with python -m experiments.suite first") from None
+    regimes = []
+    for row in rows:
+        try:
+            regime = SuiteRegime(row["name"], folder / f"{row['name']}.yaml", row["split"], int(row["seed"]))
+        except (KeyError, ValueError):
+            raise ValueError(f"{manifest}: a row without a name, split and integer seed: {row}") from None
+        if regime.split not in SPLITS or regime.seed not in REGIMES[regime.split]:
+            raise ValueError(f"{manifest}: {regime.name}: regime seed {regime.seed} is not of the {regime.split!r} "
+                             "regime seeds (experiments.protocol.REGIMES)")
+        if split is not None and regime.split != split:
+            raise ValueError(f"{manifest}: {regime.name} is a {regime.split} regime (seed {regime.seed}); "
+                             f"this takes {split} regimes only: the seed sets never mix")
+        if not regime.path.is_file():
+            raise ValueError(f"{regime.path}: not found (listed in {manifest})")
+        regimes.append(regime)
+    if not regimes:
+        raise ValueError(f"{manifest}: no regimes")
+    return regimes
+
+
 def main(argv: Sequence[str] | None = None) -> None:
     p = Parser(prog="python -m experiments.suite", description=__doc__.splitlines()[0])
     p.add_argument("--suites", nargs="+", choices=SPLITS, default=list(SPLITS), metavar="SPLIT",
