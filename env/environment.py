@@ -217,7 +217,8 @@ class ZenohEdgeEnv(ParallelEnv):
         self.credit.reset()
         self.sim.open_next()
         self._observe()
-        nodes = _by_node(output_values(Out.ENV, report.nodes, report.node_delta, self.sim.metrics.capacity))
+        nodes = _by_node(output_values(Out.ENV, report.nodes, report.node_delta, self.sim.metrics.capacity,
+                                            jobs=self.sim.metrics.jobs))
         infos = {a: self._info(a, nodes, ()) for a in self.agents}
         self.step_details = infos
         return dict(self._obs), self._numbers(infos) if self.flat else infos
@@ -259,9 +260,11 @@ class ZenohEdgeEnv(ParallelEnv):
 
         node_delta = reports[0].node_delta if len(reports) == 1 else sum(r.node_delta for r in reports)
         capacity = self.sim.metrics.capacity * len(reports)  # the step's cycles, for a share
-        deltas = _by_node(output_values(Out.ENV_DELTA, reports[-1].nodes, node_delta, capacity))
-        network_delta = output_values(Out.ENV_DELTA, reports[-1].totals, sum(r.delta for r in reports), capacity.sum())
-        nodes = _by_node(output_values(Out.ENV, reports[-1].nodes, node_delta, capacity))
+        jobs = self.sim.metrics.jobs
+        deltas = _by_node(output_values(Out.ENV_DELTA, reports[-1].nodes, node_delta, capacity, jobs=jobs))
+        network_delta = output_values(Out.ENV_DELTA, reports[-1].totals, sum(r.delta for r in reports), capacity.sum(),
+                                      jobs=jobs)
+        nodes = _by_node(output_values(Out.ENV, reports[-1].nodes, node_delta, capacity, jobs=jobs))
         rewards, infos = {}, {}
         for agent in self.agents:
             row = self._row[agent]
