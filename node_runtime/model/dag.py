@@ -117,11 +117,12 @@ class LayeredDag(Strict):
     """``workload.jobs.generator``: random layered DAGs, the shape of the DAG-offloading literature's
     synthetic jobs (a number of layers, each of a random width; every task after the first layer depends on
     1..``fan_in`` tasks of the layer before it, and every task before the last layer feeds at least one
-    task of the next, so the fan-out follows). The draw, from the client's task-type stream, per job:
-    the number of layers, then each layer's width, then each task's instructions, then for each task of
-    each layer after the first (in order) its number of predecessors and which (without replacement),
-    then for every task left without a successor the task of the next layer it feeds, then each edge's
-    bytes in (from, to) order."""
+    task of the next, so the fan-out follows; edges join consecutive layers only). The draw, from the
+    client's task-type stream, per job: the number of layers, then each layer's width, then each task's
+    instructions, then for each task of each layer after the first (in order) its number of predecessors
+    and which (without replacement), then for every task left without a successor (in order) the task of
+    the next layer it feeds, uniformly among those with fewer than ``fan_in`` predecessors (among all when
+    none has: a layer wider than ``fan_in`` times the next), then each edge's bytes in (from, to) order."""
 
     layers: CountSpan = CountSpan(low=3, high=5)
     width: CountSpan = CountSpan(low=1, high=3)
@@ -147,10 +148,17 @@ class LayeredDag(Strict):
                 for p in sorted(rng.choice(before, size=m, replace=False).tolist()):
                     edges.add((starts[k - 1] + p, starts[k] + j))
         fed = {a for a, _ in edges}
+        fan_in = [0] * n
+        for _, b in edges:
+            fan_in[b] += 1
         for k in range(n_layers - 1):
             for i in range(starts[k], starts[k + 1]):
-                if i not in fed:
-                    edges.add((i, starts[k + 1] + int(rng.integers(widths[k + 1]))))
+                if i not in fed:  # it feeds a task of the next layer with room under fan_in (if none has: any)
+                    nxt = range(starts[k + 1], starts[k + 2])
+                    room = [j for j in nxt if fan_in[j] < self.fan_in] or list(nxt)
+                    j = room[int(rng.integers(len(room)))]
+                    edges.add((i, j))
+                    fan_in[j] += 1
         ordered = sorted(edges)
         sizes = rng.uniform(self.edge_bytes.low, self.edge_bytes.high, size=len(ordered)).tolist()
         has_pred = {b for _, b in ordered}
