@@ -238,3 +238,30 @@ def test_the_array_backend_and_the_arrival_trace_refuse_jobs(tmp_path):
 def test_a_scenario_without_jobs_shows_no_job_metric(aot1):
     s = run_summary(aot1, ticks=20)
     assert "jobs" not in s and "jobs" not in s["nodes"][aot1.nodes[0].id]
+
+
+def test_agents_observe_each_tasks_critical_path_and_successor_data(tmp_path):
+    """In a scenario of jobs the Dict observation has a ``job`` block beside ``task`` (and the flat one those
+    3 numbers after the task's 7): the diamond's task 0 is in a job, its remaining critical path is
+    2e6 + max(4e6 + 1e6, 2e6 + 1e6) = 7e6 cycles and its successors need 2 x 2e5 bytes of its output."""
+    from env import ZenohEdgeEnv
+    from env.observations import JobField
+
+    sc = load_scenario(diamond(tmp_path))
+    env = ZenohEdgeEnv(sc, transport="inproc", max_steps=20)
+    flat = ZenohEdgeEnv(sc, transport="inproc", observation="flat", max_steps=20)
+    try:
+        obs, _ = env.reset(seed=SEED)
+        flat_obs, _ = flat.reset(seed=SEED)
+        agent = env.agents[0]
+        while not obs[agent]["task"][0]:
+            obs, *_ = env.step({agent: 0})
+            flat_obs, *_ = flat.step({agent: 0})
+        job = obs[agent]["job"]
+        assert job[JobField.IN_JOB] == 1.0
+        assert (job[JobField.CRITICAL_GCYCLES], job[JobField.SUCCESSOR_MB]) == pytest.approx((7e-3, 0.4))
+        assert flat_obs[agent]["observation"].shape == (6 + 7 + 3 + 2 * 9 + 1,)
+        assert flat_obs[agent]["observation"][13:16] == pytest.approx(job)
+    finally:
+        env.close()
+        flat.close()
