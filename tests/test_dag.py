@@ -199,7 +199,7 @@ def test_a_scenario_imports_the_sample_and_runs_its_jobs(tmp_path):
         "topology": {"nodes": [{"id": "a", "client": True, "controller": True}, {"id": "b", "controller": True}],
                      "links": [{"between": ["a", "b"], "rate_bps": 1.0e8}]},
         "workload": {"arrival": {"kind": "constant", "rate": 0.05},
-                     "jobs": {"alibaba": {"file": str(SAMPLE), "frequency": 4.0e7}}}})
+                     "jobs": {"alibaba": {"file": "traces/alibaba_dag_sample.csv", "frequency": 4.0e7}}}})
     sc = load_scenario(path)
     assert len(sc.workload.jobs.dags) == 5
     s = run_summary(sc, ticks=200)
@@ -244,8 +244,7 @@ def test_agents_observe_each_tasks_critical_path_and_successor_data(tmp_path):
     """In a scenario of jobs the Dict observation has a ``job`` block beside ``task`` (and the flat one those
     3 numbers after the task's 7): the diamond's task 0 is in a job, its remaining critical path is
     2e6 + max(4e6 + 1e6, 2e6 + 1e6) = 7e6 cycles and its successors need 2 x 2e5 bytes of its output."""
-    from env import ZenohEdgeEnv
-    from env.observations import JobField
+    from env import JobField, ZenohEdgeEnv
 
     sc = load_scenario(diamond(tmp_path))
     env = ZenohEdgeEnv(sc, transport="inproc", max_steps=20)
