@@ -20,7 +20,8 @@ from node_runtime.model.client import CLIENT, COUNTS, TYPES, arrivals
 from node_runtime.model.dag import JobSpec, LayeredDag, Shape
 from node_runtime.model.rng import stream
 from node_runtime.model.workload import TaskSource
-from orchestrator.scenario import ScenarioError, load_scenario
+from orchestrator.scenario import ScenarioError, costs, load_scenario
+from orchestrator.viewers.summary import rows
 from tests.conftest import ROOT, model_part, run_summary, write_scenario
 from topologies.alibaba import Conversion, TraceError
 from topologies.alibaba_dag import dependencies, read_dags
@@ -102,7 +103,17 @@ def test_one_job_arrives_in_the_hand_trace(tmp_path):
 
 
 def test_hand_trace_of_a_diamond_on_three_nodes(tmp_path):
-    check_hand_trace(*run(load_scenario(diamond(tmp_path)), tmp_path, "inproc"))
+    s, ticks = run(load_scenario(diamond(tmp_path)), tmp_path, "inproc")
+    check_hand_trace(s, ticks)
+    labels = [label for label, _ in rows(s)]  # the launch table
+    assert labels[-6:] == ["jobs", "jobs completed", "jobs missed", "job completion ratio", "makespan (mean)",
+                           "penalised makespan"]
+
+
+def test_validate_describes_a_jobs_workload(tmp_path):
+    assert costs.report(load_scenario(diamond(tmp_path))) == [
+        "jobs workload: every arrival is a job, one of 1 listed DAG(s), 4 tasks in all, due in at most 40 s "
+        "(no task types to cost)"]
 
 
 @pytest.mark.zenoh
@@ -264,3 +275,14 @@ def test_agents_observe_each_tasks_critical_path_and_successor_data(tmp_path):
     finally:
         env.close()
         flat.close()
+
+
+def test_generated_jobs_give_the_same_run_in_every_in_process_layout():
+    """The example (aot2 with generated jobs) under random placements: tasks and jobs conserved at every tick
+    (the run checks both), and the same results whatever the layout."""
+    sc = load_scenario("examples/dag_jobs")
+    runs = [model_part(run_summary(sc, ticks=300, seed=3, policy="random", layout=layout))
+            for layout in ("single", "per-node", "groups:3")]
+    assert runs[0]["jobs"]["generated"] > 10 and runs[0]["jobs"]["completed"] > 0
+    assert runs[0]["totals"]["offloaded"] > 0
+    assert runs[1] == runs[0] and runs[2] == runs[0]
