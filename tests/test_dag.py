@@ -19,7 +19,7 @@ from node_runtime.model.array import refusal
 from node_runtime.model.client import CLIENT, COUNTS, TYPES, arrivals
 from node_runtime.model.dag import JobSpec, LayeredDag, Shape
 from node_runtime.model.rng import stream
-from node_runtime.model.workload import TaskSource
+from node_runtime.model.workload import TaskSource, nominal_arrivals
 from orchestrator.scenario import ScenarioError, costs, load_scenario
 from orchestrator.viewers.summary import rows
 from tests.conftest import ROOT, model_part, run_summary, write_scenario
@@ -167,6 +167,14 @@ def test_generated_jobs_are_deterministic_layered_dags():
         assert 2 <= len(job.tasks) <= 18 and job.deadline == 50.0
 
 
+def test_a_jobs_mean_task_count_sets_the_nominal_arrivals(tmp_path):
+    """What a worker expects to receive (rewards and validate read it): jobs/s x tasks per job on average."""
+    sc = load_scenario(diamond(tmp_path))
+    assert nominal_arrivals(sc) == {"a": pytest.approx(0.05 * 4)}
+    gen = LayeredDag(layers={"low": 3, "high": 5}, width={"low": 1, "high": 3})
+    assert sc.workload.jobs.model_copy(update={"dags": (), "generator": gen}).mean_tasks == 4 * 2
+
+
 def test_critical_path_and_sizes_of_a_job():
     shape = Shape.of(JobSpec.model_validate(DIAMOND))
     assert shape.preds == ((), (0,), (0,), (1, 2)) and shape.succs == ((1, 2), (3,), (3,), ())
@@ -228,6 +236,8 @@ def test_a_scenario_imports_the_sample_and_runs_its_jobs(tmp_path):
     ({"generator": {"layers": {"low": 4, "high": 2}}}, {}, "workload.jobs.generator.layers: high must be >= low"),
     ({"alibaba": {"file": "none.csv"}}, {}, "workload.jobs.alibaba.file: "),
     ({"dags": [DIAMOND]}, {"source": "x.y:Z"}, "jobs come from the arrival process: remove trace and source, or jobs"),
+    ({"dags": [DIAMOND]}, {"tasks": [{"payload": {"call": "x.y:f"}}]},
+     "the tasks of jobs run no payload: remove the payload of tasks, or jobs"),
 ])
 def test_bad_job_settings_name_the_key(tmp_path, jobs, extra, message):
     path = write_scenario(tmp_path, {"workload": {"jobs": jobs, **extra},

@@ -189,6 +189,14 @@ class Jobs(Strict):
             return self.generator.deadline
         return max(d.deadline for d in self.dags)
 
+    @property
+    def mean_tasks(self) -> float:
+        """Tasks in a job on average: of the listed jobs by weight, or E[layers] x E[width] of the generator."""
+        if self.generator is not None:
+            g = self.generator
+            return (g.layers.low + g.layers.high) / 2 * (g.width.low + g.width.high) / 2
+        return sum(d.weight * len(d.tasks) for d in self.dags) / sum(d.weight for d in self.dags)
+
     def draw(self, rng: np.random.Generator, probs: np.ndarray | None) -> JobSpec:
         """One job's DAG: generated, or listed (drawn by weight when there are several; ``probs``)."""
         if self.generator is not None:

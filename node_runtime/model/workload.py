@@ -23,7 +23,8 @@ LOOKAHEAD = BLOCK  # ticks ``next_arrival`` searches ahead before giving up
 
 def nominal_arrivals(sc: Scenario) -> dict[str, float]:
     """Tasks per second each worker receives from clients on average: a client's mean rate (its own
-    constant, the schedule's mean, or its trace rows over the episode), split evenly over its targets."""
+    constant, the schedule's mean, or its trace rows over the episode), split evenly over its targets; with
+    jobs, that rate of jobs times the tasks of a job on average."""
     mean = sc.workload.arrival.mean
     fixed = dict(sc.workload.client_rates)
     rows: dict[str, int] = {}
@@ -33,6 +34,8 @@ def nominal_arrivals(sc: Scenario) -> dict[str, float]:
     out: dict[str, float] = {}
     for client, targets in sc.targets.items():
         rate = rows.get(client, 0) / horizon if sc.workload.trace is not None else fixed.get(client, mean)
+        if sc.workload.jobs is not None:
+            rate *= sc.workload.jobs.mean_tasks
         for node in targets:
             out[node] = out.get(node, 0.0) + rate / len(targets)
     return out
