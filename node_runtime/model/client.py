@@ -73,7 +73,7 @@ class Client(Role):
                 st.ledger.append((task.id, COMPLETED, response))
                 out.emit("completed", self.node.id, task=task.id, response_time=response,
                          executor=env.body.executor)
-                if task.job is not None:
+                if book is not None and task.job is not None:
                     ready.extend(book.finished(task.job, t, st))
         if book is not None:
             book.expire(t, st)
