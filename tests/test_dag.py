@@ -234,6 +234,8 @@ def test_a_scenario_imports_the_sample_and_runs_its_jobs(tmp_path):
     ({"dags": [DIAMOND], "generator": {}}, {},
      "expected exactly one of dags, generator, alibaba (got dags, generator)"),
     ({"generator": {"layers": {"low": 4, "high": 2}}}, {}, "workload.jobs.generator.layers: high must be >= low"),
+    ({"generator": {"instructions": {"low": 0, "high": 5}}}, {},
+     "workload.jobs.generator: instructions: expected low > 0 (every task has work to do)"),
     ({"alibaba": {"file": "none.csv"}}, {}, "workload.jobs.alibaba.file: "),
     ({"dags": [DIAMOND]}, {"source": "x.y:Z"}, "jobs come from the arrival process: remove trace and source, or jobs"),
     ({"dags": [DIAMOND]}, {"tasks": [{"payload": {"call": "x.y:f"}}]},

@@ -134,6 +134,12 @@ class LayeredDag(Strict):
     output_bytes: NonNeg = 1.0e4  # of each exit task, to the origin
     deadline: Pos = 100.0
 
+    @model_validator(mode="after")
+    def _some_work(self) -> LayeredDag:
+        if self.instructions.low <= 0:
+            raise ValueError("instructions: expected low > 0 (every task has work to do)")
+        return self
+
     def draw(self, rng: np.random.Generator) -> JobSpec:
         n_layers = int(rng.integers(self.layers.low, self.layers.high + 1))
         widths = [int(rng.integers(self.width.low, self.width.high + 1)) for _ in range(n_layers)]
