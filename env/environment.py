@@ -158,7 +158,8 @@ class ZenohEdgeEnv(ParallelEnv):
         builder = self.observing.builder(sc)
         self.flat = builder == FLAT
         padded = self.observing.uniform_spaces or self.flat or fixed is not None
-        self.layouts = {a: ObservationLayout(d, slots if padded else d, batch) for a, d in degrees.items()}
+        jobs = sc.workload.jobs is not None  # a scenario of jobs: its tasks' DAG features too
+        self.layouts = {a: ObservationLayout(d, slots if padded else d, batch, jobs) for a, d in degrees.items()}
         if self.flat:
             n = len(self.possible_agents)
             self.builders = {a: FlatObservation(lay, i, n) for i, (a, lay) in enumerate(self.layouts.items())}
@@ -217,7 +218,8 @@ class ZenohEdgeEnv(ParallelEnv):
         self.credit.reset()
         self.sim.open_next()
         self._observe()
-        nodes = _by_node(output_values(Out.ENV, report.nodes, report.node_delta, self.sim.metrics.capacity))
+        nodes = _by_node(output_values(Out.ENV, report.nodes, report.node_delta, self.sim.metrics.capacity,
+                                            jobs=self.sim.metrics.jobs))
         infos = {a: self._info(a, nodes, ()) for a in self.agents}
         self.step_details = infos
         return dict(self._obs), self._numbers(infos) if self.flat else infos
@@ -259,9 +261,11 @@ class ZenohEdgeEnv(ParallelEnv):
 
         node_delta = reports[0].node_delta if len(reports) == 1 else sum(r.node_delta for r in reports)
         capacity = self.sim.metrics.capacity * len(reports)  # the step's cycles, for a share
-        deltas = _by_node(output_values(Out.ENV_DELTA, reports[-1].nodes, node_delta, capacity))
-        network_delta = output_values(Out.ENV_DELTA, reports[-1].totals, sum(r.delta for r in reports), capacity.sum())
-        nodes = _by_node(output_values(Out.ENV, reports[-1].nodes, node_delta, capacity))
+        jobs = self.sim.metrics.jobs
+        deltas = _by_node(output_values(Out.ENV_DELTA, reports[-1].nodes, node_delta, capacity, jobs=jobs))
+        network_delta = output_values(Out.ENV_DELTA, reports[-1].totals, sum(r.delta for r in reports), capacity.sum(),
+                                      jobs=jobs)
+        nodes = _by_node(output_values(Out.ENV, reports[-1].nodes, node_delta, capacity, jobs=jobs))
         rewards, infos = {}, {}
         for agent in self.agents:
             row = self._row[agent]

@@ -69,6 +69,8 @@ def refusal(sc: Scenario, policy: str | None = None) -> str | None:
                 return f"client {n.id} hands its tasks to other workers ({', '.join(sc.targets[n.id])})"
         if sc.workload.source:
             return f"user task source {sc.workload.source}"
+        if sc.workload.jobs is not None:
+            return "jobs (workload.jobs: DAGs of tasks)"
         if sc.failures:
             return "failures"
         if any(lk.loss > 0 for lk in sc.links):

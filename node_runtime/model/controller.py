@@ -213,7 +213,7 @@ class Controller(Role):
             if p.id in self.decided:
                 continue
             age = (t - p.created) * dt
-            tasks.append(TaskView(p.id, p.size, p.size.deadline - age, t - p.arrived, p.origin))
+            tasks.append(TaskView(p.id, p.size, p.size.deadline - age, t - p.arrived, p.origin, p.job))
             if len(tasks) == self.per_epoch:
                 break
         return Observation(

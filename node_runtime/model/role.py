@@ -73,6 +73,14 @@ class Counters:
     queue: int = 0
     undecided: int = 0
     overloaded: int = 0  # 1 if the buffer was full at the start of this tick
+    # jobs (docs/model.md, "Jobs as DAGs"), counted by the client that created them: created, completed (every
+    # task's result back in time), missed (past the deadline first), the sum of the completed ones' makespans
+    # in seconds, and the level of those still running
+    jobs: int = 0
+    jobs_completed: int = 0
+    jobs_missed: int = 0
+    makespan_sum: float = 0.0
+    jobs_active: int = 0
     # this tick's entries per task, (task id, COMPLETED | LOST | CHARGED, value), drained by the host every
     # tick: the response times of the tick's completions, and what follows a task to the decision that placed
     # it (the environment's per-task credit)

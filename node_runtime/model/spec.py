@@ -20,6 +20,7 @@ import numpy as np
 from pydantic import Discriminator, Field, Tag, field_validator, model_validator
 
 from node_runtime.model.arrival import Arrival, Constant
+from node_runtime.model.dag import Jobs
 from node_runtime.model.messages import TaskSize
 from node_runtime.model.plugins import is_import_path
 from node_runtime.model.policies import POLICIES
@@ -210,6 +211,7 @@ class Workload(Strict):
     client_targets: tuple[tuple[str, tuple[str, ...]], ...] = ()  # client node -> worker nodes
     trace: tuple[TraceRow, ...] | None = None
     source: str = ""  # import path of a user TaskSource subclass ("" = Poisson / trace)
+    jobs: Jobs | None = None  # every arrival is a job, a DAG of tasks (None: a task, of ``task_types``)
 
 
 class Failure(Strict):
@@ -393,6 +395,7 @@ def _hashed(sc: Scenario) -> dict[str, Any]:
             "trace": None if wl.trace is None else [{"time": r.time, "client": r.client, **r.size._asdict()}
                                                     for r in wl.trace],
             "source": wl.source,
+            **({} if wl.jobs is None else {"jobs": wl.jobs.model_dump(mode="json")}),
         },
         "failures": [{"node": f.node, "start": f.at, "end": f.end} for f in sc.failures],
         "admission": sc.admission, "control_latency": sc.control_latency,

@@ -17,6 +17,7 @@ from typing import Any
 import networkx as nx
 from pydantic import ConfigDict, ValidationError, validate_call
 
+from node_runtime.model.dag import Jobs
 from node_runtime.model.messages import LONGEST_DEADLINE_TICKS, TaskSize
 from node_runtime.model.payload import size_key
 from node_runtime.model.plugins import PluginError, extend_path, is_import_path, load
@@ -34,6 +35,8 @@ from orchestrator.scenario.schema import (
     file_format,
 )
 from topologies import bundled_file
+from topologies.alibaba import Conversion, TraceError
+from topologies.alibaba_dag import read_dags
 from topologies.draft import Draft, DraftLink, DraftNode
 from topologies.ether import DEVICE_TYPES, EtherError, load_ether
 from topologies.generators import GENERATORS, GeneratorError
@@ -426,7 +429,27 @@ class _Resolver:
             client_targets=tuple((c, tuple(ts)) for c, ts in sorted(wl.targets.items())),
             trace=trace,
             source=wl.source or "",
+            jobs=self.jobs(wl),
         )
+
+    def jobs(self, wl: WorkloadCfg) -> Jobs | None:
+        """``workload.jobs``: the listed DAGs, those of an Alibaba trace, or the generator."""
+        cfg = wl.jobs
+        if cfg is None:
+            return None
+        if cfg.alibaba is not None:
+            where = "workload.jobs.alibaba.file"
+            try:
+                dags = read_dags(self.file(cfg.alibaba.file), Conversion(**cfg.alibaba.model_dump(exclude={"file"})))
+            except TraceError as exc:
+                self.error(where, f"{exc} (expected a batch_task.csv of the Alibaba trace v2018)")
+                return None
+            jobs = Jobs(dags=tuple(dags))
+        else:
+            jobs = Jobs(dags=tuple(cfg.dags or ()), generator=cfg.generator)
+        if why := self.too_long(jobs.longest_deadline):
+            self.error("workload.jobs", why)
+        return jobs
 
     def check_payload_sizes(self, wl: WorkloadCfg) -> None:
         """A task carries its size, not its type: a type with a payload needs a size no other type has."""

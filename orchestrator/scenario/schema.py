@@ -17,6 +17,7 @@ from typing import Annotated, Any, Literal
 from pydantic import BaseModel, ConfigDict, Field, create_model, field_validator, model_validator
 
 from node_runtime.model.arrival import Arrival, Constant
+from node_runtime.model.dag import JobSpec, LayeredDag
 from node_runtime.model.spec import Failure, Hardware, SimulationSettings, TaskType, known_policy
 from node_runtime.model.values import Decibels, NonNeg, Pos, Prob, Strict, optional
 from node_runtime.runtime.keys import CHUNK
@@ -45,6 +46,39 @@ class NetworkCfg(Strict):
     loss: Prob = 0.0
 
 
+class AlibabaJobsCfg(Strict):
+    """``workload.jobs.alibaba``: the DAGs of the jobs of an Alibaba v2018 ``batch_task.csv``
+    (``topologies.alibaba_dag``; each value as ``topologies.alibaba.Conversion`` documents it)."""
+
+    file: str
+    limit: Annotated[int, Field(ge=1)] | None = None  # the earliest jobs only
+    frequency: Pos = 4.0e6
+    memory_bytes: Pos = 1.0e9
+    output_ratio: Pos = 1.0
+    deadline_factor: Pos = 3.0
+    min_deadline: Pos = 10.0
+    time_scale: Pos = 1.0
+    cpi: Pos = 1.0
+
+
+class JobsCfg(Strict):
+    """``workload.jobs``: every arrival is a job, a DAG of tasks: one of ``dags`` (drawn by weight), of the
+    DAGs imported from ``alibaba``, or drawn by ``generator``."""
+
+    dags: list[JobSpec] | None = None
+    generator: LayeredDag | None = None
+    alibaba: AlibabaJobsCfg | None = None
+
+    @model_validator(mode="after")
+    def one_source(self) -> JobsCfg:
+        given = [k for k in ("dags", "generator", "alibaba") if getattr(self, k) is not None]
+        if len(given) != 1:
+            raise ValueError(f"expected exactly one of dags, generator, alibaba (got {', '.join(given) or 'none'})")
+        if self.dags is not None and not self.dags:
+            raise ValueError("dags: expected at least one job")
+        return self
+
+
 class WorkloadCfg(Strict):
     arrival: Arrival = Constant()
     rates: dict[str, NonNeg] = Field(default_factory=dict)
@@ -52,9 +86,14 @@ class WorkloadCfg(Strict):
     tasks: Annotated[list[TaskType], Field(min_length=1)] = Field(default_factory=lambda: [TaskType()])
     trace: str | None = None
     source: str | None = None  # import path of a TaskSource subclass
+    jobs: JobsCfg | None = None  # every arrival is a job (a DAG of tasks) rather than a task of ``tasks``
 
     @model_validator(mode="after")
     def one_workload(self) -> WorkloadCfg:
+        if self.jobs is not None and (self.trace is not None or self.source is not None):
+            raise ValueError("jobs come from the arrival process: remove trace and source, or jobs")
+        if self.jobs is not None and any(t.payload is not None for t in self.tasks):
+            raise ValueError("the tasks of jobs run no payload: remove the payload of tasks, or jobs")
         if self.trace is not None:
             ignored = sorted({"arrival", "rates", "source"} & self.model_fields_set)
             if ignored:

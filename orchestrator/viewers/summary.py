@@ -26,9 +26,9 @@ def at(summary: dict[str, Any], path: str) -> Any:
 
 
 def rows(summary: dict[str, Any]) -> list[tuple[str, str]]:
-    """(label, value) rows of the catalogue's TABLE metrics."""
+    """(label, value) rows of the catalogue's TABLE metrics (the job metrics where the summary has jobs)."""
     out = []
-    for m in shown(Out.TABLE):
+    for m in shown(Out.TABLE, jobs="jobs" in summary):
         value = at(summary, m.key(Out.SUMMARY))
         if value is MISSING:
             continue
