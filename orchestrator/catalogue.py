@@ -71,6 +71,7 @@ class Part:
     key: str  # its name in outputs
     field: str  # the counter it reads
     label: str  # for people
+    moving: bool = False  # shown only for a scenario whose nodes move (elsewhere it is always 0)
 
 
 @dataclass(frozen=True, slots=True, eq=False)
@@ -121,17 +122,18 @@ class Metric:
         return self.forms.get(out, Form.TOTAL)
 
     def columns(self, out: Out) -> list[str]:
-        """The column names (or flat keys) it takes in ``out``: its own, then its parts' if FLAT."""
+        """The column names (or flat keys) it takes in ``out``: its own, then its parts' if FLAT (those that
+        every scenario shows)."""
         key = self.key(out)
         if self.form(out) is Form.FLAT:
-            return [key, *(f"{key}_{p.key}" for p in self.parts)]
+            return [key, *(f"{key}_{p.key}" for p in self.parts if not p.moving)]
         return [key]
 
     def summary_section(self) -> str:
         return self.key(Out.SUMMARY).partition(".")[0]
 
 
-DROP_PARTS = tuple(Part(c, c, c.replace("_", " ")) for c in DROP_CAUSES)
+DROP_PARTS = tuple(Part(c, c, c.replace("_", " "), moving=c == "link_broken") for c in DROP_CAUSES)
 ENERGY_PARTS = (Part("compute", "energy_compute", "compute"), Part("idle", "energy_idle", "idle"),
                 Part("transmit", "energy_transmit", "radio"))
 
