@@ -110,6 +110,10 @@ class Metric:
         if problems:
             raise ValueError(f"metric {self.name}: {'; '.join(problems)}")
 
+    def parts_of(self, moving: bool) -> tuple[Part, ...]:
+        """The parts a scenario's outputs show: those of moving nodes only where nodes move."""
+        return tuple(p for p in self.parts if moving or not p.moving)
+
     def key(self, out: Out) -> str:
         """Its name in ``out``; in the summary a dotted path (task counts are under "totals")."""
         if out in self.names:
@@ -126,7 +130,7 @@ class Metric:
         every scenario shows)."""
         key = self.key(out)
         if self.form(out) is Form.FLAT:
-            return [key, *(f"{key}_{p.key}" for p in self.parts if not p.moving)]
+            return [key, *(f"{key}_{p.key}" for p in self.parts_of(moving=False))]
         return [key]
 
     def summary_section(self) -> str:

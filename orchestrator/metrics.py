@@ -136,7 +136,7 @@ def put(into: dict[str, Any], key: str, m: Metric, form: Form, row: np.ndarray, 
     if form is Form.TOTAL:
         into[key] = _plain(m, total(m, row))
         return
-    parts = {p.key: row[..., F[p.field]] for p in m.parts if moving or not p.moving}
+    parts = {p.key: row[..., F[p.field]] for p in m.parts_of(moving)}
     if form is Form.PARTS:
         into[key] = {k: _plain(m, v) for k, v in parts.items()}
     elif form is Form.PARTS_TOTAL:

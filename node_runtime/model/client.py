@@ -26,7 +26,8 @@ class Client(Role):
         super().__init__(node, scenario)
         self.targets = scenario.targets[node.id]
         self.local = node.has("worker")  # hands tasks to its own worker
-        self.radio = None if self.local else Radio.for_node(scenario, node.id, self.targets, self.positions)
+        self.radio = None if self.local else Radio.for_node(scenario, node.id, self.targets,
+                                                                 self.positions and self.positions.rate)
         self.reset(scenario.seed)
 
     def reset(self, seed: int) -> None:

@@ -12,7 +12,6 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 if TYPE_CHECKING:
-    from node_runtime.model.mobility import Positions
     from node_runtime.model.spec import Scenario
 
 HIGH_SNR_DB = 3000.0  # beyond it 1 + 10^(snr/10) is 10^(snr/10) in double precision, and soon overflows
@@ -154,13 +153,14 @@ class Radio:
 
     @classmethod
     def for_node(cls, scenario: Scenario, node: str, dsts: tuple[str, ...],
-                 positions: Positions | None = None) -> Radio:
-        """``positions``: where the nodes are, in a scenario with moving nodes (their links are ``MovingLink``s)."""
+                 rate: Callable[[str, str, int], float] | None = None) -> Radio:
+        """``rate(src, dst, tick)``: the rate of a link with a moving end in a tick (``Positions.rate``), in a
+        scenario where nodes move (those links are ``MovingLink``s)."""
         radio = cls({j: (scenario.link[(node, j)].rate_bps, scenario.link[(node, j)].loss) for j in dsts},
                     scenario.dt)
         for j in dsts:
             if scenario.moving_link(node, j):
-                radio.links[j] = MovingLink(partial(positions.rate, node, j), scenario.dt,
+                radio.links[j] = MovingLink(partial(rate, node, j), scenario.dt,
                                             scenario.radio.on_break == "retry", scenario.episode_ticks - 1)
         return radio
 

@@ -12,7 +12,7 @@ from typing import ClassVar
 
 from node_runtime.model.energy import transmit_energy
 from node_runtime.model.messages import Body, Envelope, Kind, Task
-from node_runtime.model.mobility import Positions
+from node_runtime.model.positions import Positions
 from node_runtime.model.radio import Radio
 from node_runtime.model.spec import NodeSpec, Scenario
 

@@ -51,7 +51,8 @@ class Worker(Role):
         super().__init__(node, scenario)
         self.dt = scenario.dt
         self.neighbours = scenario.neighbours[node.id]
-        self.radio = Radio.for_node(scenario, node.id, self.neighbours, self.positions)
+        self.radio = Radio.for_node(scenario, node.id, self.neighbours,
+                                    self.positions and self.positions.rate)
         # neighbours whose link to this node follows positions: a state is re-sent to one that comes into range
         self.moving = tuple(j for j in self.neighbours if scenario.moving_link(node.id, j))
         self.decides = node.has("controller") and scenario.max_hops > 0

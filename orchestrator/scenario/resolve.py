@@ -18,9 +18,10 @@ import networkx as nx
 from pydantic import ConfigDict, ValidationError, validate_call
 
 from node_runtime.model.messages import LONGEST_DEADLINE_TICKS, TaskSize
-from node_runtime.model.mobility import RadioRange, Trace, bounds, box_distance
+from node_runtime.model.mobility import RadioRange, Trace
 from node_runtime.model.payload import size_key
 from node_runtime.model.plugins import PluginError, extend_path, is_import_path, load
+from node_runtime.model.positions import bounds, box_distance, link_rate
 from node_runtime.model.radio import free_space_loss_db, log_distance_gain_db, shannon_rate
 from node_runtime.model.registry import ROLE_KINDS
 from node_runtime.model.role import Role
@@ -399,8 +400,8 @@ class _Resolver:
                 if (a.mobility is None and b.mobility is None) or frozenset((a.id, b.id)) in listed:
                     continue
                 if box_distance(bounds(a.mobility, a.position), bounds(b.mobility, b.position)) <= radio.range_m:
-                    out.append(LinkSpec(a.id, b.id, radio.rate(a.tx_power_dbm, radio.range_m), loss))
-                    out.append(LinkSpec(b.id, a.id, radio.rate(b.tx_power_dbm, radio.range_m), loss))
+                    out.append(LinkSpec(a.id, b.id, link_rate(radio, a.tx_power_dbm, radio.range_m), loss))
+                    out.append(LinkSpec(b.id, a.id, link_rate(radio, b.tx_power_dbm, radio.range_m), loss))
         return out
 
     def noise_dbm(self) -> float:
