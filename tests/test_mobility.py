@@ -331,3 +331,22 @@ def test_validate_says_so_in_one_line_with_status_2(tmp_path):
     assert proc.returncode == 2 and "Traceback" not in proc.stderr
     assert proc.stderr.strip().splitlines() == [
         f"{path}: topology.nodes[1].mobility.alpha: expected a number <= 1 (got 2)"]
+
+
+# ----- the topology's frames -----
+
+def test_the_topology_draws_positions_over_time_as_a_strip_of_frames(tmp_path):
+    from orchestrator.viewers.draw import draw_frames, frame_ticks
+
+    sc = load_scenario(ROOT / "topologies" / "examples" / "mobile.yaml")
+    assert frame_ticks(sc, 4) == [0, 199, 398, 597] and frame_ticks(sc, 3, every=400) == [0, 400, 599]
+    png = draw_frames(sc, tmp_path / "f" / "frames.png", [0, 30, 60, 90])
+    assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    run = [sys.executable, "-m", "orchestrator.cli", "topology"]
+    strip = ["examples/mobile", "--frames", "2", "--every", "10", "--png", str(tmp_path / "cli.png")]
+    proc = subprocess.run([*run, *strip], cwd=ROOT, capture_output=True, text=True, timeout=TIMEOUT)
+    assert proc.returncode == 0 and (tmp_path / "cli.png").stat().st_size > 10_000, proc.stderr
+    proc = subprocess.run([*run, "examples/minimal", "--frames", "2", "--png", str(tmp_path / "x.png")], cwd=ROOT,
+                          capture_output=True, text=True, timeout=TIMEOUT)
+    assert proc.returncode == 2
+    assert proc.stderr.strip() == "orchestrator topology: --frames: no node of minimal moves (frames show moving nodes)"
