@@ -103,6 +103,7 @@ class Controller(Role):
         self._always_fresh = always_fresh(sc, self.states)
         # neighbours over a link that follows positions: heard only in range, seen at the rate of the moment
         self._moving = frozenset(n for n in self.neighbours if sc.moving_link(me, n))
+        self._heard: dict[str, tuple[int, int]] = {}  # moving neighbour -> (last instant searched, heard_at then)
 
     # ----- the tick -----
 
@@ -144,6 +145,24 @@ class Controller(Role):
         """Whether a state ``node`` broadcast in ``tick`` reaches this controller: always, unless their link
         follows positions and they were out of range then."""
         return node not in self._moving or self.positions.in_range(self.node.id, node, tick)
+
+    def heard_at(self, node: str, t: int) -> int:
+        """``heard_at`` of ``node``, for a moving neighbour searched back only to where the last search of this
+        episode began (observations come at growing ticks, and what was heard by then stays heard)."""
+        if node not in self._moving:
+            return heard_at(self.scenario, node, t)
+        interval = self.scenario.state_interval
+        top = t - 1 - (t - 1) % interval
+        searched, found = self._heard.get(node, (-interval, -interval))
+        if top < searched:  # an earlier tick than the last asked: search it all
+            return heard_at(self.scenario, node, t, self.hears)
+        s = top
+        while s > searched and (self.scenario.is_failed(node, s) or not self.hears(node, s)):
+            s -= interval
+        if s > searched:
+            found = s
+        self._heard[node] = (top, found)
+        return found
 
     def reads_later(self, env: Envelope) -> bool:
         """A state, and a report whose tasks it has all placed already: that brings nothing to place, it only
@@ -205,7 +224,7 @@ class Controller(Role):
         state = self.states[node]
         if node in self._moving:
             rate = self.positions.rate(self.node.id, node, t)
-        age = 1 if self._always_fresh else t - heard_at(self.scenario, node, t, self.hears)
+        age = 1 if self._always_fresh else t - self.heard_at(node, t)
         return NodeView(node, state.queue, state.occupancy, buffer, capacity, tier, rate, age, worker, backlog)
 
     def own_view(self, t: int) -> NodeView:

@@ -80,15 +80,16 @@ class Walk:
 
     def reset(self, rng: np.random.Generator) -> None:
         self.rng = rng
-        self.xs, self.ys = [self.start[0]], [self.start[1]]
+        self.points = [self.start]
         self.begin()
 
     def at(self, tick: int) -> Point:
-        while len(self.xs) <= tick:
-            x, y = self.step(self.xs[-1], self.ys[-1])
-            self.xs.append(x)
-            self.ys.append(y)
-        return (self.xs[tick], self.ys[tick])
+        points = self.points
+        if tick < len(points):
+            return points[tick]
+        while len(points) <= tick:
+            points.append(self.step(*points[-1]))
+        return points[tick]
 
     def begin(self) -> None:
         """Draw what the walk needs before its first step."""
@@ -208,6 +209,7 @@ class Positions:
 
     def __init__(self, scenario: Scenario) -> None:
         self.radio = scenario.radio
+        self.range_m = scenario.radio.range_m
         self.index = scenario.index
         self.power = {n.id: n.tx_power_dbm for n in scenario.nodes}
         self.tracks = {n.id: track(n.mobility, n.position, scenario.dt) for n in scenario.nodes}
@@ -220,11 +222,13 @@ class Positions:
         return self.tracks[node].at(tick)
 
     def distance(self, a: str, b: str, tick: int) -> float:
-        return math.dist(self.at(a, tick), self.at(b, tick))
+        tracks = self.tracks
+        return math.dist(tracks[a].at(tick), tracks[b].at(tick))
 
     def in_range(self, a: str, b: str, tick: int) -> bool:
         """Whether the link between ``a`` and ``b`` exists in ``tick``."""
-        return self.distance(a, b, tick) <= self.radio.range_m
+        tracks = self.tracks
+        return math.dist(tracks[a].at(tick), tracks[b].at(tick)) <= self.range_m
 
     def rate(self, src: str, dst: str, tick: int) -> float:
         """The rate of the radio link src -> dst during ``tick``: 0 while they are out of range."""
