@@ -188,8 +188,9 @@ class Controller(Role):
         """Next tick while an answer is to be placed; at the next decision epoch while undecided tasks
         wait, or when an agent drives it and it ran since it last observed; otherwise only mail (a report,
         a state) wakes it. A driven controller that sleeps through an epoch would observe exactly its last
-        observation re-timed (``observation_at``): the environment does that instead of waking it."""
-        if self.asked or self.outages or (self.external and (not self.retimed or self._moving)):
+        observation re-timed (``observation_at``): the environment does that instead of waking it, except where
+        nodes move (links change with every tick: it observes every epoch)."""
+        if self.asked or self.outages or (self.external and (not self.retimed or self.scenario.radio is not None)):
             return t + 1
         if self.has_candidates() or self.stale:
             interval = self.scenario.decision_interval
