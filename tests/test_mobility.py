@@ -350,3 +350,35 @@ def test_the_topology_draws_positions_over_time_as_a_strip_of_frames(tmp_path):
                           capture_output=True, text=True, timeout=TIMEOUT)
     assert proc.returncode == 2
     assert proc.stderr.strip() == "orchestrator topology: --frames: no node of minimal moves (frames show moving nodes)"
+
+
+# ----- a moving link, tick by tick -----
+
+def carry(rates: dict[int, float], bits: float, retry: bool = False, latest: float = math.inf, horizon: int = 99,
+          tick: int = 0, link=None):
+    from node_runtime.model.radio import MovingLink
+
+    link = link or MovingLink(lambda k: rates.get(k, 0.0), 1.0, retry, horizon)
+    return link, link.carry(tick, bits, latest)
+
+
+def test_a_transfer_advances_at_each_ticks_rate():
+    """1, 2, then 4 Mbit/s in ticks 0, 1, 2: 3.5e6 bits carry 1e6 in tick 0, 2e6 in tick 1 and the last 0.5e6
+    in an eighth of tick 2: finish 2.125, arrival 3, 2.125 s on air. The next message waits until 2.125."""
+    link, sent = carry({0: 1e6, 1: 2e6, 2: 4e6, 3: 4e6}, 3.5e6)
+    assert sent == (3, pytest.approx(2.125), []) and link.busy_until == pytest.approx(2.125)
+    assert link.carry(2, 1.5e6, math.inf) == (3, pytest.approx(0.375), [])  # 2.125 + 0.375 = 2.5 -> at 3
+
+
+def test_a_transfer_that_meets_a_broken_link_is_lost_or_sent_again_whole():
+    """2 Mbit/s in ticks 0 and 4 on, no link in 1-3. 3e6 bits from 0: 2e6 in tick 0, then the break at 1.
+    Dropped: lost, the link free from 1. Retried: again whole from 4 (4.0 -> 5.5, arrival 6, 1 + 1.5 s on air),
+    unless its deadline (latest start 3) or the episode's end (horizon 3) comes first."""
+    rates = {0: 2e6, 4: 2e6, 5: 2e6, 6: 2e6}
+    link, sent = carry(rates, 3e6)
+    assert sent == "link_broken" and link.busy_until == 1.0
+    link, sent = carry(rates, 3e6, retry=True)
+    assert sent == (6, pytest.approx(2.5), []) and link.busy_until == pytest.approx(5.5)
+    assert carry(rates, 3e6, retry=True, latest=3.0)[1] == "link_broken"
+    assert carry(rates, 3e6, retry=True, horizon=3)[1] == "link_broken"
+    assert carry(rates, 1e6, tick=2)[1] == "link_broken"  # no link when it would start
