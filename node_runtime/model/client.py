@@ -26,8 +26,8 @@ class Client(Role):
         super().__init__(node, scenario)
         self.targets = scenario.targets[node.id]
         self.local = node.has("worker")  # hands tasks to its own worker
-        self.radio = None if self.local else Radio.for_node(scenario, node.id, self.targets,
-                                                                 self.positions and self.positions.rate)
+        rates = None if self.positions is None else self.positions.rate  # of links with a moving end
+        self.radio = None if self.local else Radio.for_node(scenario, node.id, self.targets, rates)
         self.reset(scenario.seed)
 
     def reset(self, seed: int) -> None:

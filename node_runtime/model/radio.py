@@ -116,8 +116,8 @@ class MovingLink(LinkTransmitter):
             rate = self.rate_at(k)
             if rate <= 0.0:  # out of range in tick k: it breaks here, or cannot start
                 back = self.back(k, latest_start) if self.retry else None
-                if back is None:
-                    self.occupy(tick, start, at, charged)
+                if back is None:  # the link was busy with it until it broke (charged only if it was on air)
+                    self.occupy(tick, start, at, charged if at > start else None)
                     return "link_broken"
                 at, k, left = float(back), back, bits
                 continue

@@ -52,7 +52,7 @@ class Worker(Role):
         self.dt = scenario.dt
         self.neighbours = scenario.neighbours[node.id]
         self.radio = Radio.for_node(scenario, node.id, self.neighbours,
-                                    self.positions and self.positions.rate)
+                                    None if self.positions is None else self.positions.rate)
         # neighbours whose link to this node follows positions: a state is re-sent to one that comes into range
         self.moving = tuple(j for j in self.neighbours if scenario.moving_link(node.id, j))
         self.decides = node.has("controller") and scenario.max_hops > 0
@@ -407,7 +407,6 @@ class Worker(Role):
             busy = self.radio.busy_until() if self._links_changed else None
             self._links_changed = False
             out.send(Kind.REPORT, self.controller, Report(self.pending(), busy))
-
 
     def arrived(self, t: int, interval: int) -> bool:
         """Whether a moving neighbour is in range at this broadcast instant and was not at the last one: it
