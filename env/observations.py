@@ -87,9 +87,10 @@ class NeighbourField(IntEnum):
 # Columns the encoder fills once (static) and at every step (dynamic), as index arrays.
 _OWN_STATIC = np.array([OwnField.BUFFER, OwnField.CAPACITY_GCPS, OwnField.TIER])
 _NEIGHBOUR_STATIC = np.array([NeighbourField.PRESENT, NeighbourField.BUFFER, NeighbourField.CAPACITY_GCPS,
-                              NeighbourField.TIER, NeighbourField.RATE_MBPS])
-_NEIGHBOUR_DYNAMIC = np.array([NeighbourField.QUEUE, NeighbourField.OCCUPANCY, NeighbourField.AGE_TICKS,
-                               NeighbourField.BACKLOG_S])
+                              NeighbourField.TIER])
+# the rate is dynamic: a moving neighbour's follows the distance (0 out of range)
+_NEIGHBOUR_DYNAMIC = np.array([NeighbourField.QUEUE, NeighbourField.OCCUPANCY, NeighbourField.RATE_MBPS,
+                               NeighbourField.AGE_TICKS, NeighbourField.BACKLOG_S])
 
 
 @dataclass(frozen=True)
@@ -148,7 +149,7 @@ class ObservationLayout:
         base[0] = 1
         rows = [base.copy() for _ in range(1 if self.batch is None else self.batch)]
         if obs is not None:
-            worker = [n.worker for n in obs.neighbours]
+            worker = obs.valid_actions()[1:]
             for k in range(len(obs.tasks)):
                 rows[k][1:1 + self.degree] = worker
         return rows[0] if self.batch is None else tuple(rows)
@@ -176,8 +177,8 @@ class ObservationBuilder:
 class DictObservation(ObservationBuilder):
     """The default: the documented Dict of float32 arrays and the action mask.
 
-    Static features (buffers, capacities, tiers, link rates, which neighbours take tasks) are filled
-    once, from the first view; the changing ones (queues, ages, tasks) at every step.
+    Static features (buffers, capacities, tiers, which neighbours take tasks) are filled once, from the
+    first view; the changing ones (queues, link rates, ages, tasks) at every step.
     """
 
     def __init__(self, layout: ObservationLayout) -> None:
@@ -193,7 +194,7 @@ class DictObservation(ObservationBuilder):
         template["own"][_OWN_STATIC] = (own.buffer, own.capacity * 1e-9, own.tier)
         nb = template["neighbours"]
         for i, n in enumerate(first.neighbours):
-            nb[i, _NEIGHBOUR_STATIC] = (1.0, n.buffer, n.capacity * 1e-9, n.tier, n.rate_bps * 1e-6)
+            nb[i, _NEIGHBOUR_STATIC] = (1.0, n.buffer, n.capacity * 1e-9, n.tier)
         return template
 
     def encode(self, obs: Observation | None) -> dict[str, Any]:
@@ -207,8 +208,8 @@ class DictObservation(ObservationBuilder):
         own[OwnField.OCCUPANCY] = obs.own.occupancy
         own[OwnField.UNDECIDED] = obs.undecided
         if obs.neighbours:
-            out["neighbours"][:len(obs.neighbours), _NEIGHBOUR_DYNAMIC] = [(n.queue, n.occupancy, n.age, n.backlog_s)
-                                                                             for n in obs.neighbours]
+            out["neighbours"][:len(obs.neighbours), _NEIGHBOUR_DYNAMIC] = [
+                (n.queue, n.occupancy, n.rate_bps * 1e-6, n.age, n.backlog_s) for n in obs.neighbours]
         if obs.tasks:
             tasks = out["task"] if self.layout.batch is not None else out["task"][None, :]
             for k, task in enumerate(obs.tasks):  # the columns of TaskField, in order

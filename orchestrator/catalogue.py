@@ -75,6 +75,7 @@ class Part:
     key: str  # its name in outputs
     field: str  # the counter it reads
     label: str  # for people
+    moving: bool = False  # shown only for a scenario whose nodes move (elsewhere it is always 0)
 
 
 @dataclass(frozen=True, slots=True, eq=False)
@@ -114,6 +115,10 @@ class Metric:
         if problems:
             raise ValueError(f"metric {self.name}: {'; '.join(problems)}")
 
+    def parts_of(self, moving: bool) -> tuple[Part, ...]:
+        """The parts a scenario's outputs show: those of moving nodes only where nodes move."""
+        return tuple(p for p in self.parts if moving or not p.moving)
+
     def key(self, out: Out) -> str:
         """Its name in ``out``; in the summary a dotted path (task counts are under "totals")."""
         if out in self.names:
@@ -126,17 +131,18 @@ class Metric:
         return self.forms.get(out, Form.TOTAL)
 
     def columns(self, out: Out) -> list[str]:
-        """The column names (or flat keys) it takes in ``out``: its own, then its parts' if FLAT."""
+        """The column names (or flat keys) it takes in ``out``: its own, then its parts' if FLAT (those that
+        every scenario shows)."""
         key = self.key(out)
         if self.form(out) is Form.FLAT:
-            return [key, *(f"{key}_{p.key}" for p in self.parts)]
+            return [key, *(f"{key}_{p.key}" for p in self.parts_of(moving=False))]
         return [key]
 
     def summary_section(self) -> str:
         return self.key(Out.SUMMARY).partition(".")[0]
 
 
-DROP_PARTS = tuple(Part(c, c, c.replace("_", " ")) for c in DROP_CAUSES)
+DROP_PARTS = tuple(Part(c, c, c.replace("_", " "), moving=c == "link_broken") for c in DROP_CAUSES)
 ENERGY_PARTS = (Part("compute", "energy_compute", "compute"), Part("idle", "energy_idle", "idle"),
                 Part("transmit", "energy_transmit", "radio"))
 

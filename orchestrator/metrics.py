@@ -116,13 +116,14 @@ def _plain(m: Metric, values: Any) -> Any:
 
 
 def output_values(out: Out, level: np.ndarray, change: np.ndarray, capacity: Any,
-                  samples: Callable[[Metric], Any] | None = None, jobs: bool = False) -> dict[str, Any]:
+                  samples: Callable[[Metric], Any] | None = None, jobs: bool = False,
+                  moving: bool = False) -> dict[str, Any]:
     """What ``out`` shows of the catalogue, by key: Python numbers for one row, lists for several (the last
     axis of ``level``, the values at the end of the tick, and of ``change``, their change over the tick or
     step, runs over FIELDS; ``capacity``: the cycles available in that tick or step, per row). A count
     shows its change where ``out`` is one of CHANGES, else its cumulative value. ``samples(metric)``
     gives a SAMPLES metric's value; without it they are left out. ``jobs``: with the job metrics (a scenario
-    of jobs)."""
+    of jobs). ``moving``: the scenario's nodes move, so the parts only such scenarios have are shown too."""
     counts = change if out in CHANGES else level
     shown_values: dict[str, Any] = {}
     for m, key, form in shown_as(out, jobs):
@@ -134,17 +135,17 @@ def output_values(out: Out, level: np.ndarray, change: np.ndarray, capacity: Any
         elif m.agg is Agg.RATIO:
             shown_values[key] = ratio(m, level)
         else:
-            put(shown_values, key, m, form, counts if m.agg is Agg.COUNT else level)
+            put(shown_values, key, m, form, counts if m.agg is Agg.COUNT else level, moving)
     return shown_values
 
 
-def put(into: dict[str, Any], key: str, m: Metric, form: Form, row: np.ndarray) -> None:
+def put(into: dict[str, Any], key: str, m: Metric, form: Form, row: np.ndarray, moving: bool = False) -> None:
     """A count or level ``m`` from ``row`` (or rows) of FIELDS, in ``form``, under ``key`` (in the FLAT
-    form, its parts beside it)."""
+    form, its parts beside it; those of moving nodes only if ``moving``)."""
     if form is Form.TOTAL:
         into[key] = _plain(m, total(m, row))
         return
-    parts = {p.key: row[..., F[p.field]] for p in m.parts}
+    parts = {p.key: row[..., F[p.field]] for p in m.parts_of(moving)}
     if form is Form.PARTS:
         into[key] = {k: _plain(m, v) for k, v in parts.items()}
     elif form is Form.PARTS_TOTAL:
@@ -180,8 +181,9 @@ def bus_record(report: TickReport, metrics: Metrics, sim_id: str, episode: int) 
     record = {
         "type": "metrics", "sim": sim_id, "episode": episode, "tick": report.tick,
         "time_s": report.tick * metrics.scenario.dt,
-        "totals": output_values(Out.BUS, t, d, metrics.capacity.sum(), jobs=metrics.jobs),
-        "delta": output_values(Out.BUS_DELTA, t, d, metrics.capacity.sum(), jobs=metrics.jobs),
+        "totals": output_values(Out.BUS, t, d, metrics.capacity.sum(), jobs=metrics.jobs, moving=metrics.moving),
+        "delta": output_values(Out.BUS_DELTA, t, d, metrics.capacity.sum(), jobs=metrics.jobs,
+                               moving=metrics.moving),
     }
     record.update((m.key(Out.BUS), report.response_times) for m in shown(Out.BUS) if m.agg is Agg.SAMPLES)
     record["nodes"] = {"id": list(metrics.node_ids), "buffer": [n.buffer for n in metrics.scenario.nodes],
@@ -316,6 +318,7 @@ class Metrics:
     def __init__(self, plan: ProcessLayout, history: bool = True) -> None:
         sc = plan.scenario
         self.scenario = sc
+        self.moving = sc.radio is not None  # its outputs show the drops of broken links
         self.roles = plan.roles
         self.node_ids = tuple(n.id for n in sc.nodes)
         incidence = np.zeros((len(self.node_ids), len(self.roles)))
@@ -492,7 +495,7 @@ class Metrics:
             section, _, key = m.key(Out.SUMMARY).rpartition(".")
             where = out.setdefault(section, {}) if section else out
             self._episode(where, key, m, Out.SUMMARY, self.last_totals, self.n_ticks, means.get(m.name),
-                          self.capacity.sum(), self.response_times)
+                          self.capacity.sum(), self.response_times, self.moving)
         out["nodes"] = {}
         for i, nid in enumerate(self.node_ids):
             where = out["nodes"][nid] = {}
@@ -504,7 +507,7 @@ class Metrics:
 
     @staticmethod
     def _episode(into: dict[str, Any], key: str, m: Metric, out: Out, end: np.ndarray, ticks: int,
-                 mean: float | None, capacity: float, times: list[float]) -> None:
+                 mean: float | None, capacity: float, times: list[float], moving: bool = False) -> None:
         """``m`` over the episode, from the row of FIELDS at its ``end`` and, for an episode_mean metric,
         its ``mean`` over the ``ticks``: a count's total, a level at the end (or its mean), the share of the
         episode's capacity; for samples the count, mean, p50, p95 and max, or the mean alone in a node's row."""
@@ -525,12 +528,12 @@ class Metrics:
         elif m.episode_mean:
             into[key] = float(mean)
         else:
-            put(into, key, m, m.form(out), end)
+            put(into, key, m, m.form(out), end, moving)
 
     def tick_header(self) -> list[str]:
         one = self.last_totals[None, :]
         return ["tick", "time_s", *output_values(Out.TICKS, one, one, self.capacity.sum(), samples=lambda m: [],
-                                                 jobs=self.jobs)]
+                                                 jobs=self.jobs, moving=self.moving)]
 
     def node_header(self) -> list[str]:
         one = self.last_nodes[None]
@@ -548,7 +551,7 @@ class Metrics:
         levels = np.array(rows.totals)
         change = levels - np.vstack([rows.before_totals, levels[:-1]])
         table = output_values(Out.TICKS, levels, change, self.capacity.sum(), samples=lambda m: rows.means,
-                              jobs=self.jobs)
+                              jobs=self.jobs, moving=self.moving)
         dt = self.scenario.dt
         return [[tick, tick * dt, *row] for tick, *row in zip(rows.ticks, *table.values(), strict=True)]
 

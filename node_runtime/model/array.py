@@ -77,6 +77,8 @@ def refusal(sc: Scenario, policy: str | None = None) -> str | None:
             return "link loss"
         if any(t.payload is not None for t in sc.workload.task_types):
             return "payloads"
+        if sc.moving:
+            return f"moving nodes ({', '.join(sorted(sc.moving, key=sc.index.__getitem__))})"
         if sc.admission != "decide_first":
             return f"admission {sc.admission!r}"
         if sc.control_latency != 2:

@@ -28,7 +28,8 @@ class Client(Role):
         super().__init__(node, scenario)
         self.targets = scenario.targets[node.id]
         self.local = node.has("worker")  # hands tasks to its own worker
-        self.radio = None if self.local else Radio.for_node(scenario, node.id, self.targets)
+        rates = None if self.positions is None else self.positions.rate  # of links with a moving end
+        self.radio = None if self.local else Radio.for_node(scenario, node.id, self.targets, rates)
         self.reset(scenario.seed)
 
     def reset(self, seed: int) -> None:
@@ -91,16 +92,25 @@ class Client(Role):
             self.send(t, Task(self.task_id(), me, t, TaskSize(*size)), out)
 
     def send(self, t: int, task: Task, out: Outbox) -> None:
-        """A new task: to the own worker, or over the radio to a target worker."""
+        """A new task: to the own worker, or over the radio to a target worker in range."""
         self.stats.generated += 1
         out.emit("created", self.node.id, task=task.id, **task.size._asdict())
         if self.local:
             out.send(Kind.TASK, role_id("worker", self.node.id), task)
             return
-        target = self.targets[0]
-        if len(self.targets) > 1:
-            target = self.targets[int(self.target_rng.integers(len(self.targets)))]
+        targets = self.reachable(t)
+        target = targets[0]
+        if len(targets) > 1:
+            target = targets[int(self.target_rng.integers(len(targets)))]
         self.transmit(t, Kind.TASK, target, role_id("worker", target), task, task.size.input_bytes * 8.0, out)
+
+    def reachable(self, t: int) -> tuple[str, ...]:
+        """Its targets in range in tick ``t`` (all of them if none is, or if no node moves)."""
+        if self.positions is None:
+            return self.targets
+        me, near = self.node.id, self.positions.in_range
+        return tuple(j for j in self.targets if not self.scenario.moving_link(me, j) or near(me, j, t)) \
+            or self.targets
 
     def wake(self, t: int) -> float:
         """At its next arrival: results come by mail, and nothing else happens in between."""

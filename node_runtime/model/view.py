@@ -33,7 +33,7 @@ class NodeView:
     buffer: int
     capacity: float  # cycles per second
     tier: int
-    rate_bps: float  # link rate from the observing node (0 for itself)
+    rate_bps: float  # link rate from the observing node now (0 for itself, and for a moving neighbour out of range)
     age: int  # ticks since the state it reports was current
     worker: bool  # can take tasks
     backlog_s: float = 0.0  # seconds of transfer already queued on the link from the observing node to it
@@ -50,8 +50,9 @@ class Observation:
     busy_until: list[float] = field(default_factory=list)  # per neighbour link: the tick its queue empties at
 
     def valid_actions(self) -> list[bool]:
-        """Action 0 keeps a task locally; action i sends it to neighbour i - 1 if that one is a worker."""
-        return [True, *(n.worker for n in self.neighbours)]
+        """Action 0 keeps a task locally; action i sends it to neighbour i - 1 if that one is a worker and
+        their link exists now (a moving neighbour out of range has rate 0)."""
+        return [True, *(n.worker and n.rate_bps > 0.0 for n in self.neighbours)]
 
     def to_wire(self) -> list[Any]:
         """Compact arrays (field order of the dataclasses), documented in docs/bus.md."""

@@ -14,10 +14,11 @@ from __future__ import annotations
 from functools import cache
 from typing import Annotated, Any, Literal
 
-from pydantic import BaseModel, ConfigDict, Field, create_model, field_validator, model_validator
+from pydantic import BaseModel, ConfigDict, Discriminator, Field, Tag, create_model, field_validator, model_validator
 
 from node_runtime.model.arrival import Arrival, Constant
 from node_runtime.model.dag import JobSpec, LayeredDag
+from node_runtime.model.mobility import MODEL_ERROR, GaussMarkov, RandomWaypoint, model_of
 from node_runtime.model.spec import Failure, Hardware, SimulationSettings, TaskType, known_policy
 from node_runtime.model.values import Decibels, NonNeg, Pos, Prob, Strict, optional
 from node_runtime.runtime.keys import CHUNK
@@ -44,6 +45,35 @@ class NetworkCfg(Strict):
     noise_dbm: Decibels | None = None  # default: thermal noise over the bandwidth, -174 + 10 log10(B) dBm
     path_loss: PathLossCfg = PathLossCfg()
     loss: Prob = 0.0
+    range_m: Pos | None = None  # the radio range of moving nodes' links (needed when a node moves)
+    on_break: Literal["drop", "retry"] = "drop"  # a transfer on a link that breaks: lost, or sent again
+
+
+class TraceCfg(Strict):
+    """``mobility: {model: trace, file: …}``: the node's rows of a CSV ``t,node,x,y`` (those of ``node``, by
+    default the node's own id)."""
+
+    model: Literal["trace"] = "trace"
+    file: str
+    node: str | None = None
+
+
+class FcdCfg(Strict):
+    """``mobility: {model: fcd, file: …}``: a vehicle of SUMO FCD output (``vehicle``, by default the node's id)."""
+
+    model: Literal["fcd"] = "fcd"
+    file: str
+    vehicle: str | None = None
+
+
+FILE_MODELS = ("random_waypoint", "gauss_markov", "trace", "fcd")
+# A node's or profile's ``mobility``: the model names the class; a trace or FCD file is read when resolved.
+MobilityCfg = Annotated[
+    Annotated[RandomWaypoint, Tag("<random_waypoint>")] | Annotated[GaussMarkov, Tag("<gauss_markov>")]
+    | Annotated[TraceCfg, Tag("<trace>")] | Annotated[FcdCfg, Tag("<fcd>")],
+    Discriminator(model_of, custom_error_type=MODEL_ERROR,
+                  custom_error_message=f"expected a model among {', '.join(map(repr, FILE_MODELS))}"),
+]
 
 
 class AlibabaJobsCfg(Strict):
@@ -123,6 +153,7 @@ class ProfileCfg(HardwareCfg):
     policy: str | None = None
     roles: RolesCfg | None = None
     params: dict[str, float | int | bool | str] | None = None  # free parameters for user extensions
+    mobility: MobilityCfg | None = None  # how the node moves (docs/scenario.md, "Moving nodes")
 
     @field_validator("policy")
     @classmethod

@@ -43,7 +43,7 @@ def rows(summary: dict[str, Any]) -> list[tuple[str, str]]:
             text += f"  ({100 * whole / max(base, 1):.1f} %)"
         out.append((f"{m.label} (mean)" if m.episode_mean else m.label, text))
         if isinstance(value, dict):
-            out.extend((f"  {p.label}", quantity(value.get(p.key), m.unit)) for p in m.parts)
+            out.extend((f"  {p.label}", quantity(value[p.key], m.unit)) for p in m.parts if p.key in value)
     return out
 
 
