@@ -15,6 +15,7 @@ from typing import Any
 
 import numpy as np
 import pytest
+import torch
 from pettingzoo.test import parallel_api_test
 
 from env import ZenohEdgeEnv
@@ -124,3 +125,38 @@ def test_what_it_does_not_model_is_refused_in_one_line():
 def test_a_backend_it_does_not_know_is_refused():
     with pytest.raises(ValueError, match="backend must be 'emulator'"):
         ZenohEdgeEnv("aot2", backend="jax")
+
+
+def vector_difference(name: str, k: int, steps: int, max_steps: int, **kwargs: Any) -> str | None:
+    """``ZenohEdgeVectorEnv`` over the array backend against K in-process simulations, through episode ends
+    (each resets when done): where their tensors first differ, or None."""
+    from env.vector import GROUP, ZenohEdgeVectorEnv
+
+    envs = [ZenohEdgeVectorEnv(name, num_envs=k, seed=11, backend=backend, max_steps=max_steps, **kwargs)
+            for backend in ("emulator", "array")]
+    rng = np.random.default_rng(0)
+    try:
+        tds = [env.reset() for env in envs]
+        for step in range(steps):
+            for key in tds[0].keys(include_nested=True, leaves_only=True):
+                if not torch.equal(tds[0].get(key), tds[1].get(key)):
+                    return f"step {step}: {key}"
+            mask = tds[0].get((GROUP, "action_mask")).numpy()
+            action = torch.from_numpy(np.apply_along_axis(lambda m: rng.choice(np.flatnonzero(m)), -1, mask))
+            outs = []
+            for env, td in zip(envs, tds, strict=True):
+                td.set((GROUP, "action"), action.clone())
+                out, td = env.step_and_maybe_reset(td)
+                outs.append(out.get("next"))
+            for key in outs[0].keys(include_nested=True, leaves_only=True):
+                if not torch.equal(outs[0].get(key), outs[1].get(key)):
+                    return f"step {step}: next {key}"
+        return None
+    finally:
+        for env in envs:
+            env.close()
+
+
+def test_the_array_vector_env_steps_as_k_inprocess_envs():
+    pytest.importorskip("torchrl")
+    assert vector_difference("aot2", 3, 50, 20) is None
