@@ -172,6 +172,12 @@ class ArraySim:
             acts = np.flatnonzero(self.valid[i])
             self.valid_list[i, :len(acts)] = acts
         self.driven = np.zeros(n, dtype=bool)  # controllers whose actions come from ``act`` (an agent's)
+        # what a controller's view takes from the scenario: each node's static facts, each controller's links
+        # (neighbour indices, rates) and whether all it hears is always one tick old
+        self._static = [(nd.id, nd.buffer, nd.capacity, nd.tier, nd.has("worker")) for nd in nodes]
+        self._links = [([sc.index[j] for j in sc.neighbours[nd.id]],
+                        [sc.link[(nd.id, j)].rate_bps for j in sc.neighbours[nd.id]]) for nd in nodes]
+        self._fresh = [always_fresh(sc, (nd.id, *sc.neighbours[nd.id])) for nd in nodes]
         self.recording = False  # keep the per-task ledger and the driven controllers' observations (``drive``)
         self.use_policy(policy)
         self.per_epoch = 1 if sc.mode == "binary" else sc.batch_size
@@ -313,6 +319,7 @@ class ArraySim:
         self.bumped = np.zeros((k, n), dtype=bool)  # the worker reports to its controller at the end of this tick
         self.told_busy = np.zeros((k, n, n))  # the links' busy-until ticks, as the controllers were last told
         self.seen = -1  # the last decision epoch, and what the driven controllers knew at it
+        self._known = None
         self.slots = np.full((k, n, self.per_epoch), -1)  # the tasks each was shown, by task slot
         self.ledger: list[list[tuple[int, int, float]]] = [[] for _ in range(k)]  # each copy's, the last tick
         self.completions: list[list[tuple[int, float]]] = [[] for _ in range(k)]  # (client role, response time)
@@ -320,6 +327,7 @@ class ArraySim:
     def _remember_view(self, t: int) -> None:
         """What the driven controllers know at epoch ``t``: all of it was heard by the end of tick t - 1."""
         self.seen = t
+        self._known = None
         self.seen_heard, self.seen_occupancy = self.heard.copy(), self.heard_occupancy.copy()
         self.seen_undecided, self.seen_busy = self.undecided.copy(), self.told_busy.copy()
         self.slots[:] = -1
@@ -328,29 +336,30 @@ class ArraySim:
         """What the driven controller of node index ``node`` observed at the last decision epoch in copy
         ``copy``: the ``Observation`` that ``Controller.observe`` builds, from the same facts."""
         sc, t, dt = self.sc, self.seen, self.dt
-        me = sc.nodes[node]
-        neighbours = sc.neighbours[me.id]
-        fresh = always_fresh(sc, (me.id, *neighbours))
+        if self._known is None:  # once per epoch: what every copy knew, as Python numbers
+            self._known = (self.seen_heard.tolist(), self.seen_occupancy.tolist(), self.seen_undecided.tolist(),
+                           [[1 if fresh else t - heard_at(sc, sc.nodes[j].id, t) for j in range(self.n)]
+                            for fresh in (False, True)])
+        heard, occupancy, undecided, ages = self._known
+        queue, occupied, age = heard[copy], occupancy[copy], ages[self._fresh[node]]
 
         def view(j: int, rate: float, queued: float) -> NodeView:
-            nd = sc.nodes[j]
-            age = 1 if fresh else t - heard_at(sc, nd.id, t)
-            return NodeView(nd.id, int(self.seen_heard[copy, j]), int(self.seen_occupancy[copy, j]), nd.buffer,
-                            nd.capacity, nd.tier, rate, age, nd.has("worker"), queued)
+            nid, buffer, capacity, tier, worker = self._static[j]
+            return NodeView(nid, queue[j], occupied[j], buffer, capacity, tier, rate, age[j], worker, queued)
 
-        to = self.target[node, 1:1 + len(neighbours)]
+        to, rates = self._links[node]
         busy = self.seen_busy[copy, node, to].tolist()
         tasks = []
-        for i in self.slots[copy, node]:
+        for i in self.slots[copy, node].tolist():
             if i < 0:
                 break
             size = self.sizes[copy][i]
             left = size.deadline - (t - int(self.created[copy, i])) * dt
             tasks.append(TaskView(int(self.task_id[copy, i]), size, left, t - int(self.arrived[copy, i]),
-                                  sc.nodes[self.origin[copy, i]].id))
-        return Observation(t, me.id, view(node, 0.0, 0.0), int(self.seen_undecided[copy, node]), tasks,
-                           [view(int(j), sc.link[(me.id, sc.nodes[j].id)].rate_bps, backlog(b, t, dt))
-                            for j, b in zip(to, busy, strict=True)], busy)
+                                  self._static[self.origin[copy, i]][0]))
+        return Observation(t, self._static[node][0], view(node, 0.0, 0.0), undecided[copy][node], tasks,
+                           [view(j, rate, backlog(b, t, dt)) for j, rate, b in zip(to, rates, busy, strict=True)],
+                           busy)
 
     def act(self, copy: int, node: int, actions: Sequence[int]) -> None:
         """The agent's answer for the driven controller of node index ``node`` in copy ``copy``: one action per
