@@ -39,13 +39,15 @@ def draw(rng: np.random.Generator, obs: dict[str, Any]) -> dict[str, Any]:
     return actions
 
 
-def first_difference(scenario: Any, seed: int, steps: int, actions_seed: int = 0, **kwargs: Any) -> str | None:
-    """Step both environments; where they first differ (step, what, agent), or None."""
+def first_difference(scenario: Any, seed: int, steps: int, actions_seed: int = 0, policy: str | None = None,
+                     **kwargs: Any) -> str | None:
+    """Step both environments (``policy``: the node-side policy of the controllers no agent drives); where they
+    first differ (step, what, agent), or None."""
     envs = [ZenohEdgeEnv(scenario, seed=seed, backend=backend, transport="inproc", max_steps=steps, **kwargs)
             for backend in ("emulator", "array")]
     rng = np.random.default_rng(actions_seed)
     try:
-        results = [env.reset() for env in envs]
+        results = [env.reset(options={"policy": policy} if policy else None) for env in envs]
         for step in range(steps + 1):
             names = ("observations", "rewards", "terminations", "truncations", "infos")[-len(results[0]):]
             for what, mine, theirs in zip(names, results[1], results[0], strict=True):
@@ -61,11 +63,15 @@ def first_difference(scenario: Any, seed: int, steps: int, actions_seed: int = 0
             env.close()
 
 
-# (scenario, seed, steps, environment arguments): aot1-aot4 and settings beyond the bundled ones; CI runs the first
+# (scenario, seed, steps, environment arguments): aot1-aot4, then settings beyond the bundled ones and agents
+# driving some controllers only (the others with a node-side policy); CI runs the first four
 SMALL = [("aot1", 3, 120, {}), ("aot2", 7, 100, {}), ("aot3", 2, 80, {}), ("aot4", 5, 60, {}),
          ("aot1_urgent", 4, 100, {"reward": "marginal"}),
          ("aot2", 1, 60, {"overrides": ScenarioOverrides(mode="batch", batch_size=3), "observation": "flat"}),
-         ("aot2", 2, 60, {"overrides": ScenarioOverrides(decision_interval=3), "reward": "team"})]
+         ("aot2", 2, 60, {"overrides": ScenarioOverrides(decision_interval=3), "reward": "team"}),
+         ("aot3", 3, 80, {"agents": ["rpi3_0", "rpi3_2", "rpi3_4"], "policy": "least_queue"}),
+         ("aot2", 4, 60, {"overrides": ScenarioOverrides(mode="batch", batch_size=2, decision_interval=2),
+                          "reward": "marginal", "neighbour_slots": 20})]
 CI = 4
 
 
