@@ -317,7 +317,9 @@ class ArraySim:
         self.arrived = np.zeros_like(self.created)  # tick it entered its worker's buffer
         self.given = np.zeros(self.created.shape, dtype=bool)  # an agent answered for it (``act``)
         self.bumped = np.zeros((k, n), dtype=bool)  # the worker reports to its controller at the end of this tick
-        self.told_busy = np.zeros((k, n, n))  # the links' busy-until ticks, as the controllers were last told
+        # each worker's links' busy-until ticks (by neighbour, as the actions: action a is link a - 1), as its
+        # controller was last told
+        self.told_busy = np.zeros((k, n, self.target.shape[1] - 1))
         self.seen = -1  # the last decision epoch, and what the driven controllers knew at it
         self._known = None
         self.slots = np.full((k, n, self.per_epoch), -1)  # the tasks each was shown, by task slot
@@ -348,7 +350,7 @@ class ArraySim:
             return NodeView(nid, queue[j], occupied[j], buffer, capacity, tier, rate, age[j], worker, queued)
 
         to, rates = self._links[node]
-        busy = self.seen_busy[copy, node, to].tolist()
+        busy = self.seen_busy[copy, node, :len(to)].tolist()
         tasks = []
         for i in self.slots[copy, node].tolist():
             if i < 0:
@@ -735,8 +737,10 @@ class ArraySim:
         cnt[:, :, F["undecided"]][:, self.worker[w]] = self.undecided[:, w]
         cnt[:, :, F["in_flight"]] = self.flying
         if self.recording:  # a worker's report tells its controller how long its links stay busy
-            told = self.bumped & (self.controller >= 0)
-            self.told_busy[told] = self.busy[told]
+            c, nd = np.nonzero(self.bumped & (self.controller >= 0))
+            if len(c):
+                to = np.maximum(self.target[nd, 1:], 0)  # (a missing neighbour's column is never read)
+                self.told_busy[c, nd] = self.busy[c[:, None], nd[:, None], to]
         if t % self.sc.state_interval == 0:
             self.heard[:] = self.queued
             self.heard_occupancy[:] = self.queued + self.undecided
