@@ -15,6 +15,10 @@ clients on worker nodes, every arrival schedule and task mix of the built-in tas
 loss, energy. Not yet: failures, link loss, payloads, ``queue_first``, ``control_latency: 0``, multi-hop
 results, clients without a worker, the other policies, and user-defined roles, policies or task sources.
 
+Controllers an agent drives (``drive``) observe every decision epoch (``observation``: the ``Observation`` a
+``Controller`` builds) and place what ``act`` gives them; every tick then keeps the roles' per-task ledger in
+their own order, from which the environment's credits and metrics come (docs/array.md, "The environments on it").
+
 One tick runs the roles in an order that their one-tick message delay makes equivalent to the emulator's:
 controllers (they read the worker's state at the end of the previous tick), clients (results in, new
 tasks out), then workers (overload, expiry, decisions, admission, CPU, results back).
@@ -194,7 +198,7 @@ class ArraySim:
     def drive(self, nodes: Sequence[str]) -> None:
         """From the next ``reset`` on, the controllers of ``nodes`` observe every decision epoch and place what
         ``act`` gives them, as an externally driven ``Controller`` does, and every tick keeps the roles' ledger
-        (``ledger``, ``response_times``): what the environment reads."""
+        (``ledger``, ``completions``): what the environment reads (orchestrator/array_session.py)."""
         self.driven = np.isin(np.arange(self.n), [self.sc.index[n] for n in nodes])
         self.recording = True
         self.use_policy(self.policy)
@@ -527,7 +531,7 @@ class ArraySim:
             imposed = self.imposed[c, i] != 0.0
             self._add(c[imposed], roles[imposed], "delay_imposed", self.imposed[c[imposed], i[imposed]])
             # the ledger, result by result: its charge, then what became of it
-            self._enter(0)
+            self._enter(0)  # a client's tick has one part
             key = 2 * np.arange(len(c))
             if self.recording:
                 self._record(c[imposed], roles[imposed], key[imposed], i[imposed], CHARGED,
