@@ -8,6 +8,14 @@ An agent-step is one controller's tick: ticks x controllers x K over the wall ti
     the model's clients, per copy, in Python) is reported apart, as is the memory of its arrays.
 Both run node-side policies, not an agent: this measures the simulation, not an RL loop. Numbers from a
 shared machine are noisy; the load average is printed with the table.
+
+    python benchmarks/array_env.py --scenario aot2 --env-steps 200 --env-ks 64 256 1024
+
+``--env-steps N`` adds the environments, every agent driven with uniformly random allowed actions (an
+agent-step is one agent's step: steps x agents x K over the wall time of the steps, the actions' drawing
+included, episodes of ``--env-max-steps`` crossing resets): ``ZenohEdgeEnv`` in-process and with
+``backend="array"`` (flat observations), and ``ZenohEdgeVectorEnv`` with K in-process simulations
+(``--env-inproc-k``) and with ``backend="array"`` at each K of ``--env-ks``.
 """
 
 from __future__ import annotations
@@ -48,12 +56,67 @@ def array_rate(name: str, policy: str, ticks: int, k: int) -> tuple[float, float
     return ticks * len(sc.controllers) * k / wall, setup, mib
 
 
+# ----- the environments -----
+
+def env_rate(backend: str, name: str, steps: int, max_steps: int) -> float:
+    """Agent-steps/s of one ``ZenohEdgeEnv`` (flat observations) with random allowed actions."""
+    from env import ZenohEdgeEnv
+
+    env = ZenohEdgeEnv(name, backend=backend, transport="inproc", observation="flat", max_steps=max_steps)
+    rng = np.random.default_rng(0)
+    obs, _ = env.reset(seed=1)
+    start = time.perf_counter()
+    for _ in range(steps):
+        obs, *_ = env.step({a: int(rng.choice(np.flatnonzero(o["action_mask"]))) for a, o in obs.items()})
+        if not env.agents:
+            obs, _ = env.reset()
+    wall = time.perf_counter() - start
+    env.close()
+    return steps * len(env.possible_agents) / wall
+
+
+def vector_rate(backend: str, name: str, steps: int, max_steps: int, k: int) -> float:
+    """Agent-steps/s of ``ZenohEdgeVectorEnv`` with K simulations, random allowed actions, resets as episodes end."""
+    import torch
+
+    from env.vector import GROUP, ZenohEdgeVectorEnv
+
+    def policy(td):
+        mask = td[GROUP, "action_mask"]
+        td[GROUP, "action"] = torch.multinomial(mask.flatten(0, -2).float(), 1).view(mask.shape[:-1])
+        return td
+
+    env = ZenohEdgeVectorEnv(name, num_envs=k, seed=1, backend=backend, max_steps=max_steps)
+    start = time.perf_counter()
+    td = env.rollout(steps, policy, break_when_any_done=False)
+    wall = time.perf_counter() - start
+    env.close()
+    return td[GROUP, "action"].numel() / wall
+
+
+def env_table(args: argparse.Namespace) -> None:
+    print(f"\nenvironments: {args.scenario}, {args.env_steps} steps, episodes of {args.env_max_steps}, random allowed "
+          f"actions, load average {os.getloadavg()[0]:.1f}")
+    print(f"{'env':>22} {'agent-steps/s':>14}")
+    run = (args.scenario, args.env_steps, args.env_max_steps)
+    rows = [("ZenohEdgeEnv inproc", lambda: env_rate("emulator", *run)),
+            ("ZenohEdgeEnv array", lambda: env_rate("array", *run)),
+            (f"vector inproc {args.env_inproc_k}", lambda: vector_rate("emulator", *run, args.env_inproc_k))]
+    rows += [(f"vector array {k}", lambda k=k: vector_rate("array", *run, k)) for k in args.env_ks]
+    for label, measure in rows:
+        print(f"{label:>22} {measure():>14,.0f}", flush=True)
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--scenario", default="aot2")
     ap.add_argument("--policy", default="least_queue")
     ap.add_argument("--ticks", type=int, default=300)
     ap.add_argument("--ks", type=int, nargs="+", default=[1, 16, 256, 1024])
+    ap.add_argument("--env-steps", type=int, default=0, help="also measure the environments, this many steps (0: not)")
+    ap.add_argument("--env-max-steps", type=int, default=100)
+    ap.add_argument("--env-ks", type=int, nargs="+", default=[64, 256, 1024])
+    ap.add_argument("--env-inproc-k", type=int, default=4)
     args = ap.parse_args()
     print(version_line())
     print(f"{args.scenario}, policy {args.policy}, {args.ticks} ticks, load average {os.getloadavg()[0]:.1f} "
@@ -63,6 +126,8 @@ def main() -> None:
     for k in args.ks:
         rate, setup, mib = array_rate(args.scenario, args.policy, args.ticks, k)
         print(f"{'array ' + str(k):>12} {rate:>14,.0f} {setup:>9.2f} {mib:>8.1f}", flush=True)
+    if args.env_steps:
+        env_table(args)
 
 
 if __name__ == "__main__":

@@ -421,13 +421,31 @@ class Metrics:
                 m[role, RT_SUM] += sum(times)
                 rts_by_node.setdefault(role_node(self.roles[role]), []).extend(times)
             ledgers.update(d.ledger)
+        ledger = [entry for role in sorted(ledgers) for entry in ledgers[role]] if ledgers else []
+        return self._record(tick, rts, rts_by_node, ledger)
+
+    def add_counters(self, tick: int, counters: np.ndarray, completions: list[tuple[int, float]],
+                     ledger: list[tuple[int, int, float]]) -> TickReport:
+        """Tick ``tick`` from every role's cumulative counters (roles by canonical index; the columns of FIELDS
+        up to the response times' sum), the response times of its completions (role index, seconds; in canonical
+        role order) and its ledger: what ``add`` makes of the processes' reports, from the array backend."""
+        self._matrix[:, :RT_SUM + 1] = counters
+        rts = [time for _, time in completions]
+        rts_by_node: dict[str, list[float]] = {}
+        for role, time in completions:
+            rts_by_node.setdefault(role_node(self.roles[role]), []).append(time)
+        return self._record(tick, rts, rts_by_node, ledger)
+
+    def _record(self, tick: int, rts: list[float], rts_by_node: dict[str, list[float]],
+                ledger: list[tuple[int, int, float]]) -> TickReport:
+        """The tick's sums, checked, reported and recorded, from the counters in the matrix."""
+        m = self._matrix
         m[:, PENALISED] = m[:, RT_SUM] + self.penalty * (m[:, GENERATED] - m[:, COMPLETED])
         if self.jobs:
             m[:, JOB_PENALISED] = m[:, MAKESPAN_SUM] + self.penalty * (m[:, JOBS] - m[:, JOBS_COMPLETED])
         totals = m.sum(axis=0)
         nodes = self.incidence @ m
         self.check(tick, totals)
-        ledger = [entry for role in sorted(ledgers) for entry in ledgers[role]] if ledgers else []
         report = TickReport(tick, totals, totals - self.last_totals, nodes, nodes - self.last_nodes, rts, ledger)
         means = {}
         for metric in EPISODE_MEANS:

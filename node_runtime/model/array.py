@@ -15,6 +15,10 @@ clients on worker nodes, every arrival schedule and task mix of the built-in tas
 loss, energy. Not yet: failures, link loss, payloads, ``queue_first``, ``control_latency: 0``, multi-hop
 results, clients without a worker, the other policies, and user-defined roles, policies or task sources.
 
+Controllers an agent drives (``drive``) observe every decision epoch (``observation``: the ``Observation`` a
+``Controller`` builds) and place what ``act`` gives them; every tick then keeps the roles' per-task ledger in
+their own order, from which the environment's credits and metrics come (docs/array.md, "The environments on it").
+
 One tick runs the roles in an order that their one-tick message delay makes equivalent to the emulator's:
 controllers (they read the worker's state at the end of the previous tick), clients (results in, new
 tasks out), then workers (overload, expiry, decisions, admission, CPU, results back).
@@ -28,11 +32,13 @@ from itertools import pairwise
 import numpy as np
 
 from node_runtime.model.client import arrivals
+from node_runtime.model.controller import always_fresh, backlog, heard_at
 from node_runtime.model.energy import compute_energy, idle_energy
 from node_runtime.model.messages import Task, TaskSize
 from node_runtime.model.radio import dbm_to_watts
-from node_runtime.model.role import STAT_FIELDS, role_id
+from node_runtime.model.role import CHARGED, COMPLETED, LOST, STAT_FIELDS, role_id
 from node_runtime.model.spec import Scenario
+from node_runtime.model.view import NodeView, Observation, TaskView
 from node_runtime.model.worker import EPS_CYCLES
 
 POLICIES = ("local", "round_robin", "least_queue", "greedy")  # the node-side policies it runs, vectorised
@@ -44,6 +50,8 @@ F = {name: i for i, name in enumerate(FIELDS)}
 # worker; its result on its way to its client; gone (completed or dropped)
 NEW, TO_WORKER, UNDECIDED, QUEUED, TO_CLIENT, GONE = range(6)
 SEQ_STRIDE = 1 << 20  # message numbers: send call * stride + position in the call (per sender, in send order)
+# the parts of a worker's tick that write its ledger, in the order the worker runs them (``Worker.tick``)
+EXPIRY, DECISIONS, ADMISSION, SERVICE = range(4)
 
 
 class Unsupported(ValueError):
@@ -171,9 +179,33 @@ class ArraySim:
         for i in range(n):
             acts = np.flatnonzero(self.valid[i])
             self.valid_list[i, :len(acts)] = acts
-        self.policy_of = np.array([POLICIES.index(policy or nd.policy) if nd.has("controller") else -1
-                                   for nd in nodes])
+        self.driven = np.zeros(n, dtype=bool)  # controllers whose actions come from ``act`` (an agent's)
+        # what a controller's view takes from the scenario: each node's static facts, each controller's links
+        # (neighbour indices, rates) and whether all it hears is always one tick old
+        self._static = [(nd.id, nd.buffer, nd.capacity, nd.tier, nd.has("worker")) for nd in nodes]
+        self._links = [([sc.index[j] for j in sc.neighbours[nd.id]],
+                        [sc.link[(nd.id, j)].rate_bps for j in sc.neighbours[nd.id]]) for nd in nodes]
+        self._fresh = [always_fresh(sc, (nd.id, *sc.neighbours[nd.id])) for nd in nodes]
+        self.recording = False  # keep the per-task ledger and the driven controllers' observations (``drive``)
+        self.use_policy(policy)
         self.per_epoch = 1 if sc.mode == "binary" else sc.batch_size
+
+    def use_policy(self, policy: str | None) -> None:
+        """The node-side policy of the controllers no agent drives: ``policy`` for all, or each node's own."""
+        reason = refusal(self.sc, policy)
+        if reason is not None:
+            raise Unsupported(reason)
+        self.policy = policy
+        self.policy_of = np.array([POLICIES.index(policy or nd.policy) if nd.has("controller") and not driven else -1
+                                   for nd, driven in zip(self.sc.nodes, self.driven, strict=True)])
+
+    def drive(self, nodes: Sequence[str]) -> None:
+        """From the next ``reset`` on, the controllers of ``nodes`` observe every decision epoch and place what
+        ``act`` gives them, as an externally driven ``Controller`` does, and every tick keeps the roles' ledger
+        (``ledger``, ``completions``): what the environment reads (orchestrator/array_session.py)."""
+        self.driven = np.isin(np.arange(self.n), [self.sc.index[n] for n in nodes])
+        self.recording = True
+        self.use_policy(self.policy)
 
     # ----- episode -----
 
@@ -184,6 +216,7 @@ class ArraySim:
         sc, k = self.sc, self.k
         ticks = sc.episode_ticks if ticks is None else ticks
         drawn = [arrivals(sc, int(s), ticks) for s in seeds]
+        self.sizes = [[size for _, _, size in tasks] for tasks in drawn]
         m = max(1, max(len(d) for d in drawn))
         self.m = m
         shape = (k, m)
@@ -196,6 +229,7 @@ class ArraySim:
         self.expires = np.zeros(shape, dtype=np.int64)
         self.latest = np.zeros(shape)  # the last tick (a float) a transmission of it may start
         self.urgency = np.zeros(shape)
+        self.task_id = np.zeros(shape, dtype=np.int64)  # the client's id of it (``Client.task_id``)
         expiry: dict[tuple[int, TaskSize], int] = {}
         for c, tasks in enumerate(drawn):
             if not tasks:
@@ -211,6 +245,10 @@ class ArraySim:
                                    else expiry.setdefault(key, expiry_tick(t, size, sc.dt)) for t, _, size in tasks]
             self.latest[c, :n] = [t + size.deadline / sc.dt for t, _, size in tasks]
             self.urgency[c, :n] = [1.0 / max(size.deadline, sc.dt) for _, _, size in tasks]
+            made = [0] * self.n  # tasks each client made so far
+            for j, (_, node, _) in enumerate(tasks):
+                made[node] += 1
+                self.task_id[c, j] = (node << 32) | made[node]
         self.state = np.zeros(shape, dtype=np.int8)
         self.node = np.zeros(shape, dtype=np.int64)  # where it is held, or where its message goes
         self.arrive = np.zeros(shape, dtype=np.int64)
@@ -237,6 +275,7 @@ class ArraySim:
         self.undecided = np.zeros((k, self.n), dtype=np.int64)
         self.serving = np.full((k, self.n), -1, dtype=np.int64)
         self.counters = np.zeros((k, len(self.roles), len(FIELDS)))
+        self._reset_driven()
         self.t = 0
         self.ticks = ticks
         # the live window of the task arrays: before ``lo`` every task is gone in every copy, from ``hi_at[t]`` on
@@ -265,14 +304,110 @@ class ArraySim:
         c, i = self.arriving
         self.flying -= np.bincount(c * len(self.roles) + self.sender[c, i], minlength=self.flying.size).reshape(
             self.flying.shape)
+        self._entries: list[tuple[np.ndarray, ...]] = []
+        if self.recording:
+            self.bumped[:] = False
         self._controllers(t)
         self._clients(t)
         self._workers(t)
         self._levels(t)
+        if self.recording:
+            self._settle_ledger()
         gone = (self.state[:, self.win] == GONE).all(axis=0)  # tasks before the window are gone in every copy
         self.lo += len(gone) if gone.all() else int(np.argmin(gone))
         self.t += 1
         return self.counters
+
+    # ----- what the environment reads and gives: driven controllers, the ledger -----
+
+    def _reset_driven(self) -> None:
+        k, n = self.k, self.n
+        self.arrived = np.zeros_like(self.created)  # tick it entered its worker's buffer
+        self.given = np.zeros(self.created.shape, dtype=bool)  # an agent answered for it (``act``)
+        self.bumped = np.zeros((k, n), dtype=bool)  # the worker reports to its controller at the end of this tick
+        # each worker's links' busy-until ticks (by neighbour, as the actions: action a is link a - 1), as its
+        # controller was last told
+        self.told_busy = np.zeros((k, n, self.target.shape[1] - 1))
+        self.seen = -1  # the last decision epoch, and what the driven controllers knew at it
+        self._known = None
+        self.slots = np.full((k, n, self.per_epoch), -1)  # the tasks each was shown, by task slot
+        self.ledger: list[list[tuple[int, int, float]]] = [[] for _ in range(k)]  # each copy's, the last tick
+        self.completions: list[list[tuple[int, float]]] = [[] for _ in range(k)]  # (client role, response time)
+
+    def _remember_view(self, t: int) -> None:
+        """What the driven controllers know at epoch ``t``: all of it was heard by the end of tick t - 1."""
+        self.seen = t
+        self._known = None
+        self.seen_heard, self.seen_occupancy = self.heard.copy(), self.heard_occupancy.copy()
+        self.seen_undecided, self.seen_busy = self.undecided.copy(), self.told_busy.copy()
+        self.slots[:] = -1
+
+    def observation(self, copy: int, node: int) -> Observation:
+        """What the driven controller of node index ``node`` observed at the last decision epoch in copy
+        ``copy``: the ``Observation`` that ``Controller.observe`` builds, from the same facts."""
+        sc, t, dt = self.sc, self.seen, self.dt
+        if self._known is None:  # once per epoch: what every copy knew, as Python numbers
+            self._known = (self.seen_heard.tolist(), self.seen_occupancy.tolist(), self.seen_undecided.tolist(),
+                           [[1 if fresh else t - heard_at(sc, sc.nodes[j].id, t) for j in range(self.n)]
+                            for fresh in (False, True)])
+        heard, occupancy, undecided, ages = self._known
+        queue, occupied, age = heard[copy], occupancy[copy], ages[self._fresh[node]]
+
+        def view(j: int, rate: float, queued: float) -> NodeView:
+            nid, buffer, capacity, tier, worker = self._static[j]
+            return NodeView(nid, queue[j], occupied[j], buffer, capacity, tier, rate, age[j], worker, queued)
+
+        to, rates = self._links[node]
+        busy = self.seen_busy[copy, node, :len(to)].tolist()
+        tasks = []
+        for i in self.slots[copy, node].tolist():
+            if i < 0:
+                break
+            size = self.sizes[copy][i]
+            left = size.deadline - (t - int(self.created[copy, i])) * dt
+            tasks.append(TaskView(int(self.task_id[copy, i]), size, left, t - int(self.arrived[copy, i]),
+                                  self._static[self.origin[copy, i]][0]))
+        return Observation(t, self._static[node][0], view(node, 0.0, 0.0), undecided[copy][node], tasks,
+                           [view(j, rate, backlog(b, t, dt)) for j, rate, b in zip(to, rates, busy, strict=True)],
+                           busy)
+
+    def act(self, copy: int, node: int, actions: Sequence[int]) -> None:
+        """The agent's answer for the driven controller of node index ``node`` in copy ``copy``: one action per
+        task of its last observation, in order (0 keeps a task, a >= 1 sends it to neighbour a - 1, valid ones
+        only), placed by the controller in the next tick. Without one it places nothing, as a ``Controller``."""
+        i = self.slots[copy, node, :len(actions)]
+        shown = i >= 0
+        self.ask_action[copy, i[shown]] = np.asarray(actions)[shown]
+        self.given[copy, i[shown]] = True
+
+    def _enter(self, phase: int, step: int = 0) -> None:
+        """The part of its tick a role is in: its ledger entries are ordered by it, then by their key."""
+        self._stage = (phase, step)
+
+    def _record(self, c: np.ndarray, roles: np.ndarray, key: np.ndarray | int, i: np.ndarray, kind: int,
+                value: np.ndarray | float) -> None:
+        """Ledger entries (``role.Counters.ledger``) of tasks ``i`` by ``roles``, in the current stage."""
+        n = len(c)
+        if n:
+            phase, step = self._stage
+            self._entries.append((c, roles, np.full(n, phase), np.full(n, step), np.broadcast_to(key, (n,)),
+                                  self.task_id[c, i], np.full(n, kind), np.broadcast_to(value, (n,)).astype(float)))
+
+    def _settle_ledger(self) -> None:
+        """The tick's ledger of each copy, in canonical role order and, within a role, in the order its tick
+        wrote it; and the response times of its completions, in the same order."""
+        self.ledger = [[] for _ in range(self.k)]
+        self.completions = [[] for _ in range(self.k)]
+        if not self._entries:
+            return
+        c, role, phase, step, key, task, kind, value = (np.concatenate(a) for a in zip(*self._entries, strict=True))
+        by = np.lexsort((key, step, phase, role, c))
+        for copy, r, entry in zip(c[by].tolist(), role[by].tolist(),
+                                  zip(task[by].tolist(), kind[by].tolist(), value[by].tolist(), strict=True),
+                                  strict=True):
+            self.ledger[copy].append(entry)
+            if entry[1] == COMPLETED:
+                self.completions[copy].append((r, entry[2]))
 
     # ----- helpers -----
 
@@ -298,10 +433,13 @@ class ArraySim:
         self.flying += np.bincount(c * len(self.roles) + sender, minlength=self.flying.size).reshape(
             self.flying.shape)
 
-    def _drop(self, c: np.ndarray, i: np.ndarray, roles: np.ndarray, cause: str) -> None:
-        """Tasks leave the system, counted under ``cause`` by ``roles`` (a drop cause, or "completed")."""
+    def _drop(self, c: np.ndarray, i: np.ndarray, roles: np.ndarray, cause: str, key: np.ndarray | int = 0) -> None:
+        """Tasks leave the system, counted under ``cause`` by ``roles`` (a drop cause, or "completed"); ``key``
+        orders their ledger entries within the role's current stage (``_enter``)."""
         self.state[c, i] = GONE
         self._add(c, roles, cause)
+        if self.recording and cause != "completed":
+            self._record(c, roles, key, i, LOST, 0.0)
 
     def _next_order(self, count: int) -> np.ndarray:
         first = self._counter
@@ -315,6 +453,9 @@ class ArraySim:
         # the answer to the last observation is placed: it reaches the worker next tick
         c, i = self.asking
         self.asking = (NONE, NONE)
+        if len(c) and self.driven.any():  # a driven controller places what its agent answered (``act``)
+            answered = ~self.driven[self.node[c, i]] | self.given[c, i]
+            c, i = c[answered], i[answered]
         if len(c):
             self.dec_arrive[c, i] = t + 1
             self.decided[t + 1] = (c, i)
@@ -322,6 +463,8 @@ class ArraySim:
             self._add(c, self.controller[self.node[c, i]], "decisions")
         if t % self.sc.decision_interval:
             return
+        if self.driven.any():
+            self._remember_view(t)
         # observe: the oldest undecided tasks, as the worker reported them at the end of the last tick
         w = self.win
         c, i = self._find((self.state[:, w] == UNDECIDED) & (self.dec_arrive[:, w] < 0))
@@ -333,6 +476,10 @@ class ArraySim:
         rank = group_rank(c, nd)
         extra = np.zeros((k, self.n, self.target.shape[1]), dtype=np.int64)
         self.asking = (c[rank < self.per_epoch], i[rank < self.per_epoch])
+        if self.driven.any():
+            shown = (rank < self.per_epoch) & self.driven[nd]
+            self.slots[c[shown], nd[shown], rank[shown]] = i[shown]
+            self.given[c[shown], i[shown]] = False
         for b in range(self.per_epoch):
             sel = rank == b
             cb, ib, nb = c[sel], i[sel], nd[sel]
@@ -387,10 +534,19 @@ class ArraySim:
             roles = self.client[nd]
             imposed = self.imposed[c, i] != 0.0
             self._add(c[imposed], roles[imposed], "delay_imposed", self.imposed[c[imposed], i[imposed]])
+            # the ledger, result by result: its charge, then what became of it
+            self._enter(0)  # a client's tick has one part
+            key = 2 * np.arange(len(c))
+            if self.recording:
+                self._record(c[imposed], roles[imposed], key[imposed], i[imposed], CHARGED,
+                             self.imposed[c[imposed], i[imposed]])
             late = t >= self.expires[c, i]
-            self._drop(c[late], i[late], roles[late], "expired")
+            self._drop(c[late], i[late], roles[late], "expired", key[late] + 1)
             ok = ~late
             self._drop(c[ok], i[ok], roles[ok], "completed")
+            if self.recording:
+                self._record(c[ok], roles[ok], key[ok] + 1, i[ok], COMPLETED,
+                             (t - self.created[c[ok], i[ok]]) * self.dt)
             times = np.zeros(self.counters.shape[:2])
             np.add.at(times, (c[ok], roles[ok]), (t - self.created[c[ok], i[ok]]) * self.dt)
             self.counters[:, :, F["response_time_sum"]] += times
@@ -417,9 +573,13 @@ class ArraySim:
         c, i = c[held], i[held]
         if len(c):
             nd = self.node[c, i]
-            np.subtract.at(self.queued, (c, nd), self.state[c, i] == QUEUED)
-            np.subtract.at(self.undecided, (c, nd), self.state[c, i] == UNDECIDED)
-            self._drop(c, i, self.worker[nd], "expired")
+            undecided = self.state[c, i] == UNDECIDED
+            np.subtract.at(self.queued, (c, nd), ~undecided)
+            np.subtract.at(self.undecided, (c, nd), undecided)
+            if self.recording:
+                self.bumped[c[undecided], nd[undecided]] = True
+            self._enter(EXPIRY)  # the queue's tasks in queue order, then the undecided ones in arrival order
+            self._drop(c, i, self.worker[nd], "expired", self.order[c, i] + undecided * (1 << 40))
         self._decisions(t)
         self._admit(t)
         self._serve(t)
@@ -431,6 +591,8 @@ class ArraySim:
         if not len(c):
             return
         nd = self.node[c, i]
+        if self.recording:
+            self.bumped[c, nd] = True
         stale = self.state[c, i] != UNDECIDED
         self._add(c[stale], self.worker[nd[stale]], "stale_decisions")
         c, i, nd = c[~stale], i[~stale], nd[~stale]
@@ -451,12 +613,15 @@ class ArraySim:
             if len(co):
                 self.hops[co, io] += 1
                 self._add(co, self.worker[no], "offloaded")
+                self._enter(DECISIONS, b)
                 self._transmit(t, co, io, no, self.target[no, action[~local]], self.in_bits[co, io], TO_WORKER)
 
     def _transmit(self, t: int, c: np.ndarray, i: np.ndarray, src: np.ndarray, dst: np.ndarray, bits: np.ndarray,
                   kind: int) -> None:
         """Queue messages on links src -> dst (one per link and call), as ``Radio.send`` and ``Role.transmit`` do."""
         roles = self.worker[src]
+        if self.recording:  # a worker tells its controller of a link's change while it has tasks to place
+            self.bumped[c, src] |= self.undecided[c, src] > 0
         start = np.maximum(float(t), self.busy[c, src, dst])
         late = start > self.latest[c, i]  # it could only start after its deadline: never sent
         self._drop(c[late], i[late], roles[late], "expired")
@@ -478,6 +643,8 @@ class ArraySim:
             s, j, cs = s[by], j[by], cs[by]
             waited = (self.ofinish[cs, j] - np.maximum(float(t), self.ostart[cs, j])) * self.dt
             self._add(cs, roles[s], "delay_imposed", waited * self.urgency[cs, i[s]])
+            if self.recording:  # each charged offload ahead, in sending order
+                self._record(cs, roles[s], np.arange(len(s)), j, CHARGED, waited * self.urgency[cs, i[s]])
         if kind == TO_WORKER:  # an offload: charged for what it makes later messages wait
             self.olink[c, i], self.ostart[c, i], self.ofinish[c, i] = link, start, finish
         arrive = np.maximum(t + 1, np.ceil(finish).astype(np.int64))
@@ -493,17 +660,22 @@ class ArraySim:
         by = np.lexsort((self.seq[c, i], self.src_rank[c, i], nd, c))
         c, i, nd = c[by], i[by], nd[by]
         roles = self.worker[nd]
+        self._enter(ADMISSION)
+        key = np.arange(len(c))  # mail order
         late = t >= self.expires[c, i]
-        self._drop(c[late], i[late], roles[late], "expired")
-        c, i, nd, roles = c[~late], i[~late], nd[~late], roles[~late]
+        self._drop(c[late], i[late], roles[late], "expired", key[late])
+        c, i, nd, roles, key = c[~late], i[~late], nd[~late], roles[~late], key[~late]
         if not len(c):
             return
         before = group_rank(c, nd)  # admitted ahead of it in this tick
         room = before < self.buffer[nd] - (self.queued[c, nd] + self.undecided[c, nd])
-        self._drop(c[~room], i[~room], roles[~room], "queue_full")
+        self._drop(c[~room], i[~room], roles[~room], "queue_full", key[~room])
         c, i, nd = c[room], i[room], nd[room]
         self.order[c, i] = self._next_order(len(c))
+        self.arrived[c, i] = t
         wait = self.decides[nd] & (self.hops[c, i] < self.sc.max_hops)
+        if self.recording:
+            self.bumped[c[wait], nd[wait]] = True
         self.state[c, i] = np.where(wait, UNDECIDED, QUEUED)
         np.add.at(self.undecided, (c[wait], nd[wait]), 1)
         np.add.at(self.queued, (c[~wait], nd[~wait]), 1)
@@ -517,6 +689,7 @@ class ArraySim:
         qn = self.node[qc, qi]
         by = np.argsort(((qc * self.n + qn) << 32) + self.order[qc, qi], kind="stable")  # by copy, node, order
         qc, qi, qn = qc[by], qi[by], qn[by]
+        finishing = 0  # the how-manieth task each worker finishes in this tick
         while active.any():
             keep = active[qc, qn] & (self.state[qc, qi] == QUEUED)
             c, i, nd = qc[keep], qi[keep], qn[keep]
@@ -539,6 +712,8 @@ class ArraySim:
             self.rem[c[~done], i[~done]] = remaining[~done] - left[~done]
             cd, id_, nd_ = c[done], i[done], nd[done]
             self.queued[cd, nd_] -= 1
+            self._enter(SERVICE, finishing)
+            finishing += 1
             self._results(t, cd, id_, nd_)
             active = (self.queued > 0) & (budget > 0.0)
         c, nd = np.nonzero(used)
@@ -569,6 +744,11 @@ class ArraySim:
         cnt[:, :, F["queue"]][:, self.worker[w]] = self.queued[:, w]
         cnt[:, :, F["undecided"]][:, self.worker[w]] = self.undecided[:, w]
         cnt[:, :, F["in_flight"]] = self.flying
+        if self.recording:  # a worker's report tells its controller how long its links stay busy
+            c, nd = np.nonzero(self.bumped & (self.controller >= 0))
+            if len(c):
+                to = np.maximum(self.target[nd, 1:], 0)  # (a missing neighbour's column is never read)
+                self.told_busy[c, nd] = self.busy[c[:, None], nd[:, None], to]
         if t % self.sc.state_interval == 0:
             self.heard[:] = self.queued
             self.heard_occupancy[:] = self.queued + self.undecided
