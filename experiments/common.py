@@ -241,8 +241,8 @@ def check_scenario(prog: str, scenario: str, lam: float | None, backend: str = "
         usage_error(prog, f"--backend array runs in this process: --transport {transport} applies to the emulator")
     asked = backend
     if asked == "auto":
-        backend, why = (("array", "it models this scenario exactly, and faster") if transport == "inproc" else
-                        ("emulator", f"--transport {transport} runs the node code"))
+        backend, why = (("array", "it models this scenario: the emulator's results, step for step")
+                        if transport == "inproc" else ("emulator", f"--transport {transport} runs the node code"))
     else:
         why = f"--backend {asked}"
     try:
@@ -272,7 +272,8 @@ def backend_line(chosen: Sequence[tuple[str, str]]) -> str:
     """What ``--backend auto`` chose for a run's scenarios, in one line: the backend, and why."""
     refused = [why for b, why in chosen if b == "emulator"]
     if not refused:
-        return f"--backend auto: the array backend ({chosen[0][1] if len(chosen) == 1 else 'it models every scenario'})"
+        why = chosen[0][1] if len(chosen) == 1 else "it models every scenario: the emulator's results, step for step"
+        return f"--backend auto: the array backend ({why})"
     if len(refused) == len(chosen) == 1:
         return f"--backend auto: the emulator ({refused[0]})"
     return (f"--backend auto: the array backend for {len(chosen) - len(refused)} of {len(chosen)} scenarios, the "

@@ -60,8 +60,8 @@ def test_training_on_either_backend_learns_the_same_weights(tmp_path, capsys):
 def test_auto_trains_on_the_array_backend_where_it_models_the_scenario(tmp_path, capsys):
     train.main(["ppo", *TINY, "--hidden", "16", "--episodes", "1", "--out", str(tmp_path)])
     err = capsys.readouterr().err.strip().splitlines()
-    assert err == ["python -m experiments.train: --backend auto: the array backend (it models this scenario "
-                   "exactly, and faster)"]
+    assert err == ["python -m experiments.train: --backend auto: the array backend (it models this scenario: the "
+                   "emulator's results, step for step)"]
     assert json.loads((tmp_path / "config.json").read_text())["backend"] == "array"
 
 
