@@ -109,9 +109,9 @@ def main(argv: Sequence[str] | None = None) -> None:
     else:
         p.error(f"{args.policy!r} is neither a baseline ({', '.join(BASELINES)}), an import path module:Class, "
                 "nor a checkpoint file")
-    backend = choose_backend(p.prog, [(args.scenario, args.lam)], args.backend, args.transport)[args.scenario, args.lam]
     if why := ray_problem(args):
         p.error(why)
+    backend = choose_backend(p.prog, [(args.scenario, args.lam)], args.backend, args.transport)[args.scenario, args.lam]
     first = EPISODES[args.split].seeds(args.episodes)[0]
     if wants_ray(args):
         weights = Path(args.policy).read_bytes() if checkpoint else None

@@ -157,9 +157,9 @@ def run_study(study: str, points: Sequence[Point], x_key: str, xlabel: str, args
                    for seed in args.seeds for a in learners}
     except ValueError as e:
         usage_error(prog, str(e))
-    backends = choose_backend(prog, [(p.scenario, p.lam) for p in points], args.backend, args.transport)
     if why := ray_problem(args):
         usage_error(prog, why)
+    backends = choose_backend(prog, [(p.scenario, p.lam) for p in points], args.backend, args.transport)
     set_threads(args.threads)
     out: Path = args.out
     out.mkdir(parents=True, exist_ok=True)
