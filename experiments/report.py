@@ -220,7 +220,8 @@ def section(table: Table, figures: Path, link: str, reps: int, progress: Any = N
         ref = max(baselines or policies,
                   key=lambda p: np.mean(list(table.per_episode(p, "completion_ratio").values())))
     lines += [f"### Every policy against `{ref}`, episode by episode", "",
-              f"`{ref}`: the baseline with the highest {'normalised score IQM' if scored else 'mean completion'}. "
+              f"`{ref}`: the {'baseline' if baselines else 'policy'} with the highest "
+              f"{'normalised score IQM' if scored else 'mean completion'}. "
               "Δ: the policy's mean difference from it on the same episodes (a learner: its runs' mean per episode), "
               "with its paired bootstrap interval; W/T/L: the episodes where the policy is better, equal or worse.",
               "", "| policy | P(policy > ref), normalised score | Δ completion [points] | W/T/L | "
