@@ -83,6 +83,13 @@ FAMILIES = (
            "whose link breaks is lost (link broken). Tasks of 4e7 instructions (4 s on a device), 1 MB in, "
            "20 s deadlines; 600 steps. A device's own CPU runs out at lambda = 0.25.", DROP_COLUMNS),
 )
+NO_CARD = ("Payloads (`examples/payload_classifier`, [docs/extending.md](../extending.md#real-work-in-the-loop)) "
+           "have no card: their service times are the CPU times a run measures, so the same seeds give other "
+           "numbers on another machine or under another load, where a card holds only what the seeds fix. A "
+           "record of the measured times replays only the recorded run's own placements, not another "
+           "baseline's, and measuring takes about 15 s an episode (41 ticks/s), some 14 minutes for a card's "
+           "54 episodes.")
+"""What the page says of the feature without a family."""
 METRICS: tuple[Column, ...] = (
     ("completion_ratio", "completion %", 100.0, "max"), ("response_time_mean", "response [s]", 1.0, None),
     ("dropped", "dropped", 1.0, "min"), ("penalised_response_time", "score [s]", 1.0, "min"))
@@ -210,7 +217,7 @@ def main(argv: Sequence[str] | None = None) -> None:
     (args.out / "README.md").write_text(
         "# Regime cards\n\nMade by `python -m experiments.regimes` from the CSV files beside this page "
         "(one row per rate, baseline and episode).\n[docs/scenario.md](../scenario.md#scenario-families) "
-        "describes the families.\n\n" + "\n".join(cards))
+        f"describes the families.\n\n{NO_CARD}\n\n" + "\n".join(cards))
     print(f"wrote {len(chosen)} cards to {args.out / 'README.md'}")
 
 
