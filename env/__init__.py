@@ -7,7 +7,8 @@ from env.overrides import ScenarioOverrides
 from env.reward import PaperWeights, RewardContext, RewardSettings, RewardTerms
 from env.settings import MAX_SEED
 from env.wrappers import InvalidActionPenalty, PotentialShaping
+from node_runtime.model.array import Unsupported
 
 __all__ = ["MAX_SEED", "InvalidActionError", "InvalidActionPenalty", "JobField", "NeighbourField", "OwnField",
            "PaperWeights", "PotentialShaping", "RewardContext", "RewardSettings", "RewardTerms", "ScenarioOverrides",
-           "TaskField", "ZenohEdgeEnv"]
+           "TaskField", "Unsupported", "ZenohEdgeEnv"]

@@ -8,11 +8,12 @@ The second form draws a learning curve (``--baseline NAME=CSV``: the rows ``pyth
 ... --csv`` writes, drawn as a level line); it trains nothing.
 
 TorchRL's own multi-agent PPO recipe, in one file: ``env.vector.ZenohEdgeVectorEnv`` (``--envs`` K
-simulations of ``observation="flat"`` stepped as one batch, with the keys of ``PettingZooWrapper`` and all
-agents in one group), ``MultiAgentMLP`` with ``share_params=True`` for the actor (the one-hot agent
-id in the observation tells the agents apart) and ``centralised=True`` for the critic (it sees every
-agent's observation), ``ProbabilisticActor`` with ``MaskedCategorical``, ``ClipPPOLoss`` with GAE and a
-``Collector`` (TorchRL 0.14's name for ``SyncDataCollector``). A frame is one step of one simulation (every
+simulations of ``observation="flat"`` stepped as one batch, on the array backend where it models the scenario:
+``--backend``; with the keys of ``PettingZooWrapper`` and all agents in one group), ``MultiAgentMLP`` with
+``share_params=True`` for the actor (the one-hot agent id in the observation tells the agents apart) and
+``centralised=True`` for the critic (it sees every agent's observation), ``ProbabilisticActor`` with
+``MaskedCategorical``, ``ClipPPOLoss`` with GAE and a ``Collector`` (TorchRL 0.14's name for
+``SyncDataCollector``). A frame is one step of one simulation (every
 agent acts once), so a batch of ``--frames-per-batch`` frames holds that many steps over the K simulations.
 
 Every ``--eval-every`` batches the greedy policy (the most likely allowed action) plays ``--eval-episodes``
@@ -42,6 +43,7 @@ from agents.training import EVAL_SEED, episode_metrics
 from env import ScenarioOverrides, ZenohEdgeEnv
 from env.reward import REWARDS
 from env.vector import ZenohEdgeVectorEnv
+from experiments.common import BACKENDS, choose_backend
 
 OBS = ("agents", "observation", "observation")  # where PettingZooWrapper and the vector env put the flat vector
 MASK = ("agents", "action_mask")
@@ -58,7 +60,9 @@ class SymLog(nn.Module):
 
 
 def settings(args: argparse.Namespace) -> dict:
-    return {"max_steps": args.max_steps, "reward": args.reward, "overrides": ScenarioOverrides(arrival_rate=args.lam)}
+    """What the training and the evaluation environments share; ``args.backend`` is resolved ("auto" chosen)."""
+    return {"max_steps": args.max_steps, "reward": args.reward, "overrides": ScenarioOverrides(arrival_rate=args.lam),
+            "backend": args.backend}
 
 
 def make_env(args: argparse.Namespace, seed: int) -> ZenohEdgeEnv:
@@ -114,6 +118,10 @@ def parse(argv: list[str] | None = None) -> argparse.Namespace:
     p.add_argument("--max-steps", type=int, default=300, help="steps per episode (default 300)")
     p.add_argument("--lam", type=float, default=0.17, help="task arrival rate per source (default 0.17)")
     p.add_argument("--reward", default="sparse", choices=list(REWARDS), help="default sparse (docs/reward.md)")
+    p.add_argument("--backend", default="auto", choices=BACKENDS,
+                   help="auto (default: the array backend where it models the scenario, else the emulator; one line "
+                        "on stderr says which), array or emulator (docs/env.md, \"Backends\"); training and greedy "
+                        "evaluation both run on it")
     p.add_argument("--envs", type=int, default=4,
                    help="simulations stepped together (K; default 4); simulation k's episodes are seeded from seed + k")
     p.add_argument("--frames-per-batch", type=int, default=1200,
@@ -136,6 +144,8 @@ def parse(argv: list[str] | None = None) -> argparse.Namespace:
     args = p.parse_args(argv)
     if args.envs < 1 or args.frames_per_batch % args.envs:
         p.error(f"--envs must be >= 1 and divide --frames-per-batch (got {args.envs} and {args.frames_per_batch})")
+    if args.plot is None:
+        args.backend = choose_backend(p.prog, [(args.scenario, args.lam)], args.backend)[args.scenario, args.lam]
     return args
 
 

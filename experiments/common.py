@@ -15,7 +15,7 @@ from typing import Any, NoReturn
 import torch
 
 from agents import LEARNERS, LearnerConfig
-from env import MAX_SEED, ScenarioOverrides, ZenohEdgeEnv
+from env import MAX_SEED, ScenarioOverrides, Unsupported, ZenohEdgeEnv
 from env.reward import REWARDS, RewardSettings
 from orchestrator.scenario.errors import ScenarioError
 
@@ -68,10 +68,17 @@ def congestion_price(text: str) -> float:
         raise argparse.ArgumentTypeError(str(e)) from None
 
 
+BACKENDS = ("emulator", "array", "auto")  # --backend: the node code, the array backend, or the second where it applies
+# evaluation's default too: the array backend gives the emulator's episodes exactly (tests/test_array_env.py), so a
+# policy scores the same on either (tests/test_backends.py); the emulator stays one --backend away
+EVAL_BACKEND = "auto"
+
+
 def add_env_arguments(parser: argparse.ArgumentParser, scenario: bool = True, reward: str | None = "paper",
-                      reward_default_help: str | None = None) -> None:
+                      reward_default_help: str | None = None, backend: str = "auto") -> None:
     """``reward``: the command's default reward (the studies reproduce the paper's); ``reward_default_help``
-    says what the default is when the command decides it later (training: per learner)."""
+    says what the default is when the command decides it later (training: per learner); ``backend``: the
+    command's default backend."""
     g = parser.add_argument_group("environment")
     if scenario:
         g.add_argument("--scenario", default="aot2",
@@ -95,7 +102,17 @@ def add_env_arguments(parser: argparse.ArgumentParser, scenario: bool = True, re
                         f"deadline's worth of waiting imposed on another task costs, in completions (default "
                         f"{RewardSettings().congestion_price:g}; docs/reward.md)")
     g.add_argument("--transport", default="inproc", choices=["inproc", "zenoh"],
-                   help="inproc (default: one process, same results as zenoh) or zenoh (node processes)")
+                   help="inproc (default: one process, same results as zenoh) or zenoh (node processes), for the "
+                        "emulator backend")
+    add_backend_argument(g, backend)
+
+
+def add_backend_argument(parser: argparse.ArgumentParser | argparse._ArgumentGroup, default: str) -> None:
+    parser.add_argument("--backend", default=default, choices=BACKENDS,
+                        help=f"default: {default}. auto (the array backend where it models the scenario, else the "
+                             "emulator; one line on stderr says which and why), array (the model as arrays in this "
+                             "process: the same results, faster) or emulator (the node code, over --transport); "
+                             "docs/env.md, \"Backends\"")
 
 
 def add_learner_arguments(parser: argparse.ArgumentParser, seeds: bool = False) -> None:
@@ -118,10 +135,12 @@ def add_learner_arguments(parser: argparse.ArgumentParser, seeds: bool = False) 
 
 
 def make_env(scenario: str, lam: float | None, max_steps: int | None, reward: str = "paper",
-             transport: str = "inproc", seed: int = 0, congestion_price: float | None = None) -> ZenohEdgeEnv:
+             transport: str = "inproc", seed: int = 0, congestion_price: float | None = None,
+             backend: str = "emulator") -> ZenohEdgeEnv:
     """The environment every agent of a study runs in: padded spaces, so one network can serve all agents.
-    ``congestion_price``: None for the environment's default."""
-    return ZenohEdgeEnv(scenario, transport=transport, overrides=ScenarioOverrides(arrival_rate=lam),
+    ``congestion_price``: None for the environment's default; ``backend``: "emulator" or "array" (``choose_backend``
+    resolves "auto")."""
+    return ZenohEdgeEnv(scenario, backend=backend, transport=transport, overrides=ScenarioOverrides(arrival_rate=lam),
                         max_steps=max_steps, reward=reward, uniform_spaces=True, seed=seed,
                         congestion_price=congestion_price)
 
@@ -213,12 +232,52 @@ def _suggest(word: str, choices: Collection[str]) -> str:
     return f" (did you mean {hint[0]!r}?)" if hint else ""
 
 
-def check_scenario(prog: str, scenario: str, lam: float | None) -> None:
-    """Load ``scenario`` once before any work starts; a file that is missing or wrong is the user's error."""
+def check_scenario(prog: str, scenario: str, lam: float | None, backend: str = "emulator",
+                   transport: str = "inproc") -> tuple[str, str]:
+    """Load ``scenario`` once before any work starts; a file that is missing or wrong, or one that ``--backend
+    array`` does not model, is the user's error. Returns the backend it runs on ("auto" resolved: the array
+    backend where the scenario's own check lets it, else the emulator) and why, in a few words."""
+    if backend == "array" and transport != "inproc":
+        usage_error(prog, f"--backend array runs in this process: --transport {transport} applies to the emulator")
+    asked = backend
+    if asked == "auto":
+        backend, why = (("array", "it models this scenario: the emulator's results, step for step")
+                        if transport == "inproc" else ("emulator", f"--transport {transport} runs the node code"))
+    else:
+        why = f"--backend {asked}"
     try:
-        make_env(scenario, lam, None).close()
+        try:
+            make_env(scenario, lam, None, transport=transport, backend=backend).close()
+        except Unsupported as e:
+            if asked != "auto":
+                usage_error(prog, str(e))
+            backend, why = "emulator", str(e).partition(";")[0]
+            make_env(scenario, lam, None, transport=transport, backend=backend).close()
     except ScenarioError as e:
         usage_error(prog, str(e).replace("\n", "; "))
+    return backend, why
+
+
+def choose_backend(prog: str, scenarios: Sequence[tuple[str, float | None]], backend: str,
+                   transport: str = "inproc") -> dict[tuple[str, float | None], str]:
+    """Each (scenario, rate)'s backend, every scenario checked (``check_scenario``); with ``--backend auto``, one
+    line on stderr says which backend the run uses and why."""
+    chosen = {point: check_scenario(prog, *point, backend, transport) for point in dict.fromkeys(scenarios)}
+    if backend == "auto":
+        print(f"{prog}: {backend_line(list(chosen.values()))}", file=sys.stderr)
+    return {point: b for point, (b, _) in chosen.items()}
+
+
+def backend_line(chosen: Sequence[tuple[str, str]]) -> str:
+    """What ``--backend auto`` chose for a run's scenarios, in one line: the backend, and why."""
+    refused = [why for b, why in chosen if b == "emulator"]
+    if not refused:
+        why = chosen[0][1] if len(chosen) == 1 else "it models every scenario: the emulator's results, step for step"
+        return f"--backend auto: the array backend ({why})"
+    if len(refused) == len(chosen) == 1:
+        return f"--backend auto: the emulator ({refused[0]})"
+    return (f"--backend auto: the array backend for {len(chosen) - len(refused)} of {len(chosen)} scenarios, the "
+            f"emulator for {len(refused)} (first: {refused[0]})")
 
 
 def set_threads(n: int) -> None:

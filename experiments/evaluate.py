@@ -20,7 +20,16 @@ from typing import Any
 from agents import BASELINES, AgentPolicy, Learner, evaluate, load_learner, make_policy
 from agents.training import progress_bar, write_csv
 from experiments import marl_eval, raw
-from experiments.common import Parser, add_env_arguments, check_scenario, make_env, positive_int, seed_int, set_threads
+from experiments.common import (
+    EVAL_BACKEND,
+    Parser,
+    add_env_arguments,
+    choose_backend,
+    make_env,
+    positive_int,
+    seed_int,
+    set_threads,
+)
 from experiments.distributed import add_ray_arguments, ray_problem, run_on_ray, wants_ray
 from experiments.plot import mean_ci
 from experiments.protocol import EPISODES, SPLITS
@@ -43,6 +52,7 @@ class Episode:
     reward: str
     transport: str
     congestion_price: float
+    backend: str
 
     def __str__(self) -> str:
         return f"episode {self.k}"
@@ -57,7 +67,8 @@ def run_episode(job: Episode, scratch: Path) -> dict[str, Any]:
         (scratch / "policy.pt").write_bytes(job.checkpoint)
         policy = load_learner(scratch / "policy.pt", job.device)
         (scratch / "policy.pt").unlink()  # not an output
-    env = make_env(job.scenario, job.lam, job.max_steps, job.reward, job.transport, job.seed, job.congestion_price)
+    env = make_env(job.scenario, job.lam, job.max_steps, job.reward, job.transport, job.seed, job.congestion_price,
+                   job.backend)
     try:
         (row,) = evaluate(env, policy, 1, seed=job.first + job.k)
     finally:
@@ -79,7 +90,7 @@ def main(argv: Sequence[str] | None = None) -> None:
                    help="add the episodes to this marl-eval JSON file (created if missing; docs/agents.md)")
     p.add_argument("--device", default="cpu", help="cpu (default) or cuda, for checkpoints")
     p.add_argument("--no-progress", dest="progress", action="store_false", help="no progress bar")
-    add_env_arguments(p)
+    add_env_arguments(p, backend=EVAL_BACKEND)
     add_ray_arguments(p)
     args = p.parse_args(argv)
     set_threads(1)
@@ -98,19 +109,20 @@ def main(argv: Sequence[str] | None = None) -> None:
     else:
         p.error(f"{args.policy!r} is neither a baseline ({', '.join(BASELINES)}), an import path module:Class, "
                 "nor a checkpoint file")
-    check_scenario(p.prog, args.scenario, args.lam)
     if why := ray_problem(args):
         p.error(why)
+    backend = choose_backend(p.prog, [(args.scenario, args.lam)], args.backend, args.transport)[args.scenario, args.lam]
     first = EPISODES[args.split].seeds(args.episodes)[0]
     if wants_ray(args):
         weights = Path(args.policy).read_bytes() if checkpoint else None
         jobs = [Episode(k, first, None if checkpoint else args.policy, weights, args.seed, args.device,
-                        args.scenario, args.lam, args.max_steps, args.reward, args.transport, args.congestion_price)
+                        args.scenario, args.lam, args.max_steps, args.reward, args.transport, args.congestion_price,
+                        backend)
                 for k in range(args.episodes)]
         rows = run_on_ray(run_episode, jobs, Path.cwd(), args)
     else:
         env = make_env(args.scenario, args.lam, args.max_steps, args.reward, args.transport, args.seed,
-                       args.congestion_price)
+                       args.congestion_price, backend)
         progress = progress_bar() if args.progress else None
         with progress or nullcontext():
             rows = evaluate(env, policy, args.episodes, seed=first, progress=progress,
@@ -119,8 +131,8 @@ def main(argv: Sequence[str] | None = None) -> None:
     # a checkpoint's run is its training seed; a baseline's, the seed of its random choices
     seed, trained = (policy.config.seed, policy.env_steps) if isinstance(policy, Learner) else (args.seed, 0)
     regime = Path(args.scenario).stem if args.lam is None else f"{Path(args.scenario).stem}-lam{args.lam:g}"
-    rows = [raw.row(policy.name, seed if isinstance(policy, Learner) else None, args.scenario, regime, r)
-            for r in rows]
+    rows = [raw.row(policy.name, seed if isinstance(policy, Learner) else None, args.scenario, regime, r,
+                    {"backend": backend}) for r in rows]
     for metric in ("response_time_mean", "completion_ratio", "penalised_response_time", "dropped",
                    "overloaded_node_ticks", "completed", "return"):
         mean, ci = mean_ci([r[metric] for r in rows])

@@ -45,8 +45,11 @@ from env.reward import RewardSettings
 from experiments import raw, tune_baselines
 from experiments import train as train_command
 from experiments.common import (
+    EVAL_BACKEND,
     Parser,
+    add_backend_argument,
     add_learner_arguments,
+    choose_backend,
     congestion_price,
     learner_config,
     make_env,
@@ -78,23 +81,31 @@ def scenarios(names: Sequence[str]) -> list[SuiteRegime]:
     return out
 
 
-def regime_env(regime: SuiteRegime, slots: int, max_steps: int | None, price: float | None = None) -> ZenohEdgeEnv:
+def regime_env(regime: SuiteRegime, slots: int, max_steps: int | None, price: float | None = None,
+               backend: str = "emulator") -> ZenohEdgeEnv:
     """A regime's environment with ``slots`` neighbour slots for every agent: the generalist's one shape."""
-    return ZenohEdgeEnv(str(regime.path), transport="inproc", neighbour_slots=slots, max_steps=max_steps,
-                        reward=REWARD, congestion_price=price)
+    return ZenohEdgeEnv(str(regime.path), backend=backend, transport="inproc", neighbour_slots=slots,
+                        max_steps=max_steps, reward=REWARD, congestion_price=price)
+
+
+def regime_backends(prog: str, regimes: Sequence[SuiteRegime], backend: str) -> dict[str, str]:
+    """Each regime's backend by name (``--backend auto``: one line on stderr says which and why)."""
+    chosen = choose_backend(prog, [(str(r.path), None) for r in regimes], backend)
+    return {r.name: chosen[str(r.path), None] for r in regimes}
 
 
 class OpenEnvs:
     """The environments of the regimes drawn last, kept open (starting one costs more than an episode's reset)."""
 
-    def __init__(self, slots: int, max_steps: int | None, price: float | None, keep: int = OPEN_ENVS) -> None:
-        self.slots, self.max_steps, self.price, self.keep = slots, max_steps, price, keep
+    def __init__(self, slots: int, max_steps: int | None, price: float | None, backends: dict[str, str],
+                 keep: int = OPEN_ENVS) -> None:
+        self.slots, self.max_steps, self.price, self.backends, self.keep = slots, max_steps, price, backends, keep
         self.open: OrderedDict[str, ZenohEdgeEnv] = OrderedDict()
 
     def get(self, regime: SuiteRegime) -> ZenohEdgeEnv:
         env = self.open.pop(regime.name, None)
         if env is None:
-            env = regime_env(regime, self.slots, self.max_steps, self.price)
+            env = regime_env(regime, self.slots, self.max_steps, self.price, self.backends[regime.name])
         self.open[regime.name] = env
         while len(self.open) > self.keep:
             self.open.popitem(last=False)[1].close()
@@ -157,10 +168,11 @@ def train(args: argparse.Namespace, p: Parser) -> None:
         check_degrees([*regimes, *checks], args.slots)
     except ValueError as e:
         p.error(str(e))
+    backends = regime_backends(p.prog, [*regimes, *checks], args.backend)
     set_threads(args.threads)
     args.out.mkdir(parents=True, exist_ok=True)
-    envs = OpenEnvs(args.slots, args.max_steps, args.congestion_price)
-    checked = OpenEnvs(args.slots, args.max_steps, args.congestion_price, keep=len(checks))
+    envs = OpenEnvs(args.slots, args.max_steps, args.congestion_price, backends)
+    checked = OpenEnvs(args.slots, args.max_steps, args.congestion_price, backends, keep=len(checks))
     learner = generalist(args.slots, config, args.device)
     try:
         first = envs.get(regimes[0])  # every regime's shape is checked as it is drawn; this sizes the schedules
@@ -169,7 +181,7 @@ def train(args: argparse.Namespace, p: Parser) -> None:
     (args.out / "config.json").write_text(json.dumps({
         "algo": "ppo", "suite": str(args.suite), "regimes": [r.name for r in regimes],
         "validation": str(args.validation) if args.validation else None, "episodes": args.episodes,
-        "max_steps": first.max_steps, "slots": args.slots, "reward": REWARD,
+        "max_steps": first.max_steps, "slots": args.slots, "reward": REWARD, "backends": backends,
         "congestion_price": first.reward_settings.congestion_price, "config": asdict(config)}, indent=1))
     learner.start_training(args.episodes * first.max_steps)
     draw = np.random.default_rng(args.seed)  # which regime each episode runs: from the training seed
@@ -226,7 +238,7 @@ def specialist(args: argparse.Namespace, p: Parser) -> None:
                  *(["--hidden", *map(str, args.hidden)] if args.hidden else []),
                  *(a for o in args.overrides for a in ("--set", o)),
                  *([] if args.progress else ["--no-progress"]),
-                 "--reward", REWARD, "--price", str(args.congestion_price)]
+                 "--backend", args.backend, "--reward", REWARD, "--price", str(args.congestion_price)]
         train_command.main(argv)
 
 
@@ -245,10 +257,11 @@ class Entry:
         path = self.checkpoint or self.specialists / regime.name / "ppo.pt"
         return load_learner(path, device)
 
-    def env(self, policy: AgentPolicy, regime: SuiteRegime, max_steps: int | None, price: float) -> ZenohEdgeEnv:
+    def env(self, policy: AgentPolicy, regime: SuiteRegime, max_steps: int | None, price: float,
+            backend: str) -> ZenohEdgeEnv:
         if self.checkpoint is not None:
-            return regime_env(regime, policy.specs["agent"].slots, max_steps, price)
-        return make_env(str(regime.path), None, max_steps, REWARD, congestion_price=price)
+            return regime_env(regime, policy.specs["agent"].slots, max_steps, price, backend)
+        return make_env(str(regime.path), None, max_steps, REWARD, congestion_price=price, backend=backend)
 
 
 def entries(args: argparse.Namespace) -> list[Entry]:
@@ -302,6 +315,7 @@ def evaluate(args: argparse.Namespace, p: Parser) -> None:
                 raise ValueError(f"{missing}: no specialist for {regime.name} ({how})")
     except ValueError as e:
         p.error(str(e))
+    backends = regime_backends(p.prog, regimes, args.backend)
     set_threads(1)
     rows: list[dict[str, Any]] = []
     progress = progress_bar() if args.progress else None
@@ -312,7 +326,7 @@ def evaluate(args: argparse.Namespace, p: Parser) -> None:
             for regime in regimes:
                 policy = entry.policy(regime, args.device)
                 try:
-                    env = entry.env(policy, regime, args.max_steps, args.congestion_price)
+                    env = entry.env(policy, regime, args.max_steps, args.congestion_price, backends[regime.name])
                 except (ValueError, ScenarioError) as e:
                     p.error(f"{regime.path}: {str(e).splitlines()[0]}")
                 for mode in args.modes if isinstance(policy, Learner) else [None]:
@@ -324,7 +338,8 @@ def evaluate(args: argparse.Namespace, p: Parser) -> None:
                     start = time.perf_counter()
                     for k, seed in enumerate(seeds):
                         episode = {"episode": k, **run_episode(env, policy, seed)}
-                        rows.append(raw.row(label, trained, regime.path, regime.name, episode))
+                        rows.append(raw.row(label, trained, regime.path, regime.name, episode,
+                                            {"backend": backends[regime.name]}))
                         if progress is not None:
                             progress.update(bar, advance=1, info=f"{label} {regime.name}")
                     if progress is None:
@@ -360,6 +375,7 @@ def main(argv: Sequence[str] | None = None) -> None:
     t.add_argument("--slots", type=positive_int, default=SLOTS,
                    help=f"neighbour slots: at least the largest degree of any regime it will meet (default {SLOTS})")
     for q in (t, s):
+        add_backend_argument(q, "auto")
         q.add_argument("--max-steps", type=positive_int, default=None, help="steps per episode (default: the regime's)")
         add_price_argument(q, "")
         add_learner_arguments(q)
@@ -382,6 +398,7 @@ def main(argv: Sequence[str] | None = None) -> None:
                         "likely action, as <policy>_greedy); the default is chosen on validation")
     add_price_argument(e, ", for the return column")
     e.add_argument("--csv", type=Path, required=True, help="one row per policy, regime and episode")
+    add_backend_argument(e, EVAL_BACKEND)
     e.add_argument("--device", default="cpu", help="cpu (default) or cuda")
     e.add_argument("--no-progress", dest="progress", action="store_false", help="no progress bar")
     args = p.parse_args(argv)

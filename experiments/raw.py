@@ -15,7 +15,8 @@ One row per policy, training run and episode (docs/benchmark.md, "Raw per-episod
 - optional, where the bound was computed: ``local`` (what ``local`` completed on the episode), ``bound``,
   ``bound_kind`` and ``normalised_score``. The report joins them by (suite, regime, seed) onto every policy.
 
-Other columns (a learner's return, wall time) may follow; the reader keeps only these.
+Other columns (the backend that ran the episode, a learner's return, wall time) may follow; the reader keeps
+only these.
 """
 
 from __future__ import annotations

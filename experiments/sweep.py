@@ -41,7 +41,7 @@ from experiments.common import (
     Parser,
     add_env_arguments,
     add_learner_arguments,
-    check_scenario,
+    choose_backend,
     learner_config,
     make_env,
     positive_int,
@@ -94,6 +94,7 @@ class SweepRun:
     config: LearnerConfig | None  # None for a baseline
     reward: str
     transport: str
+    backend: str  # "emulator" or "array", as chosen for the point
     device: str
     threads: int
     congestion_price: float
@@ -156,22 +157,21 @@ def run_study(study: str, points: Sequence[Point], x_key: str, xlabel: str, args
                    for seed in args.seeds for a in learners}
     except ValueError as e:
         usage_error(prog, str(e))
-    for point in {(p.scenario, p.lam): p for p in points}.values():
-        check_scenario(prog, point.scenario, point.lam)
     if why := ray_problem(args):
         usage_error(prog, why)
+    backends = choose_backend(prog, [(p.scenario, p.lam) for p in points], args.backend, args.transport)
     set_threads(args.threads)
     out: Path = args.out
     out.mkdir(parents=True, exist_ok=True)
     (out / "config.json").write_text(json.dumps({
         "study": study, "quick": args.quick, "settings": dataclasses.asdict(settings), "seeds": args.seeds,
         "reward": args.reward, "congestion_price": args.congestion_price, "transport": args.transport,
-        "device": args.device,
+        "backends": {p.label: backends[p.scenario, p.lam] for p in points}, "device": args.device,
         "points": [dataclasses.asdict(p) for p in points],
         "learners": {a: {k: v for k, v in dataclasses.asdict(configs[a, args.seeds[0]]).items() if k != "seed"}
                      for a in learners}}, indent=1))
     runs = [SweepRun(study, point, agent, seed, settings, configs.get((agent, seed)), args.reward, args.transport,
-                     args.device, args.threads, args.congestion_price)
+                     backends[point.scenario, point.lam], args.device, args.threads, args.congestion_price)
             for seed in args.seeds for point in points for agent in args.agents
             if agent in LEARNERS or seed == args.seeds[0]]
     if wants_ray(args):
@@ -208,7 +208,7 @@ def run_one(run: SweepRun, out: Path, progress: Progress | None = None) -> RunRe
     set_threads(run.threads)
     s = run.settings
     env = make_env(run.point.scenario, run.point.lam, s.max_steps, run.reward, run.transport, run.seed,
-                   run.congestion_price)
+                   run.congestion_price, run.backend)
     timings = []
     trained_steps = 0
     try:

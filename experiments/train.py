@@ -3,6 +3,11 @@
     python -m experiments.train ddqn --scenario aot2 --lam 0.17 --episodes 50 --out runs/ddqn-aot2
     python -m experiments.train ppo --episodes 100 --set ppo.centralised_critic=true --out runs/mappo
     python -m experiments.train ppo --scenario aot3_wired --lam 0.2 --max-steps 400 --episodes 100
+    python -m experiments.train ppo --scenario aot2 --backend emulator   # the node code, not the array backend
+
+Training runs on the array backend where it models the scenario (``--backend auto``, the default: the same
+results as the node code, step for step), else on the emulator; one line on stderr says which, and
+config.json records it.
 """
 
 from __future__ import annotations
@@ -19,7 +24,7 @@ from experiments.common import (
     Parser,
     add_env_arguments,
     add_learner_arguments,
-    check_scenario,
+    choose_backend,
     learner_config,
     make_env,
     positive_int,
@@ -47,14 +52,15 @@ def main(argv: Sequence[str] | None = None) -> None:
                                 overrides=args.overrides)
     except ValueError as e:
         p.error(str(e))
-    check_scenario(p.prog, args.scenario, args.lam)
+    backend = choose_backend(p.prog, [(args.scenario, args.lam)], args.backend, args.transport)[args.scenario, args.lam]
     set_threads(args.threads)
     out = args.out or Path("runs") / f"{args.algo}-{Path(args.scenario).stem}"
     out.mkdir(parents=True, exist_ok=True)
     env = make_env(args.scenario, args.lam, args.max_steps, args.reward, args.transport, args.seed,
-                   args.congestion_price)
+                   args.congestion_price, backend)
     learner = LEARNERS[args.algo].for_env(env, config, args.device)
     (out / "config.json").write_text(json.dumps({"algo": args.algo, "scenario": args.scenario, "lambda": args.lam,
+                                                 "backend": backend,
                                                  "max_steps": env.max_steps, "reward": args.reward,
                                                  "congestion_price": env.reward_settings.congestion_price,
                                                  "episodes": args.episodes, "config": dataclasses.asdict(config)},
