@@ -25,7 +25,8 @@ from topologies import bundled_scenarios
 
 SMALL = [("aot1", "local", 300, 3), ("aot2", "least_queue", 250, 7), ("aot4", "round_robin", 150, 5),
          ("aot3_compute", "least_queue", 200, 2), ("aot1_urgent", "round_robin", 200, 4),
-         ("aot3_compute", "greedy", 200, 6)]
+         ("aot3_compute", "greedy", 200, 6), ("aot2", "random", 200, 3), ("aot4", "greedy_backlog", 150, 3),
+         ("aot3_compute", "local_first", 200, 3), ("aot2", "threshold", 300, 3), ("aot3", "drift_plus_penalty", 200, 3)]
 
 
 def first_difference(scenario: str | Scenario, policy: str, ticks: int, seed: int) -> str | None:
@@ -133,5 +134,42 @@ def test_what_it_does_not_model_is_refused_in_one_line(name, feature):
 
 
 def test_a_policy_it_does_not_run_is_refused():
-    assert "'greedy_backlog'" in refusal(load_scenario("aot2"), "greedy_backlog")
-    assert refusal(load_scenario("aot2"), "least_queue") is None
+    assert "'mylab:Mine'" in refusal(load_scenario("aot2"), "mylab:Mine")
+    assert all(refusal(load_scenario("aot2"), policy) is None for policy in POLICIES)
+
+
+def test_a_random_policy_on_another_stream_is_caught(monkeypatch):
+    """``random`` must draw the controller's own stream, draw for draw: another stream of the same seed differs."""
+    own = array.stream
+    monkeypatch.setattr(array, "stream", lambda seed, node, role: own(seed, node, role, 1))
+    assert first_difference("aot2", "random", 200, 3) is not None
+
+
+def test_backlogs_ignored_are_caught(monkeypatch):
+    """greedy_backlog with every link's backlog read as empty is plain greedy, and the comparison sees it."""
+    by_backlog = ArraySim._by_backlog
+
+    def idle_links(self, name, t, *rest):
+        busy, self.busy = self.busy, np.zeros_like(self.busy)
+        try:
+            return by_backlog(self, name, t, *rest)
+        finally:
+            self.busy = busy
+
+    monkeypatch.setattr(ArraySim, "_by_backlog", idle_links)
+    assert first_difference("aot4", "greedy_backlog", 150, 3) is not None
+
+
+def test_a_deadline_one_tick_later_for_local_first_is_caught(monkeypatch):
+    """local_first keeps a task whose estimate meets its time left; a tick more of it is caught."""
+    by_backlog = ArraySim._by_backlog
+
+    def later(self, name, t, *rest):
+        deadline, self.deadline = self.deadline, self.deadline + self.dt
+        try:
+            return by_backlog(self, name, t, *rest)
+        finally:
+            self.deadline = deadline
+
+    monkeypatch.setattr(ArraySim, "_by_backlog", later)
+    assert first_difference("aot3_compute", "local_first", 200, 3) is not None

@@ -28,14 +28,21 @@ from itertools import pairwise
 import numpy as np
 
 from node_runtime.model.client import arrivals
+from node_runtime.model.controller import CONTROLLER
 from node_runtime.model.energy import compute_energy, idle_energy
 from node_runtime.model.messages import Task, TaskSize
+from node_runtime.model.policies import DriftPlusPenalty, Threshold
 from node_runtime.model.radio import dbm_to_watts
+from node_runtime.model.rng import stream
 from node_runtime.model.role import STAT_FIELDS, role_id
 from node_runtime.model.spec import Scenario
 from node_runtime.model.worker import EPS_CYCLES
 
-POLICIES = ("local", "round_robin", "least_queue", "greedy")  # the node-side policies it runs, vectorised
+# the node-side policies it runs, vectorised: every built-in one of policies.py
+POLICIES = ("local", "round_robin", "least_queue", "greedy", "random", "greedy_backlog", "local_first", "threshold",
+            "drift_plus_penalty")
+BACKLOG = POLICIES[5:]  # the policies that read the links' backlogs
+RANDOM_CHUNK = 64  # draws of a random controller's stream taken at once (the same numbers as one at a time)
 BUILTIN = {"worker": "node_runtime.model.worker:Worker", "client": "node_runtime.model.client:Client",
            "controller": "node_runtime.model.controller:Controller"}
 FIELDS = (*STAT_FIELDS, "in_flight", "response_time_sum")  # per role, as the orchestrator's metrics keep them
@@ -170,6 +177,7 @@ class ArraySim:
         self.policy_of = np.array([POLICIES.index(policy or nd.policy) if nd.has("controller") else -1
                                    for nd in nodes])
         self.per_epoch = 1 if sc.mode == "binary" else sc.batch_size
+        self.randoms = np.flatnonzero(self.policy_of == POLICIES.index("random"))  # the controllers that draw
 
     # ----- episode -----
 
@@ -192,6 +200,7 @@ class ArraySim:
         self.expires = np.zeros(shape, dtype=np.int64)
         self.latest = np.zeros(shape)  # the last tick (a float) a transmission of it may start
         self.urgency = np.zeros(shape)
+        self.deadline = np.zeros(shape)  # seconds, as created (a controller's time left derives from it)
         expiry: dict[tuple[int, TaskSize], int] = {}
         for c, tasks in enumerate(drawn):
             if not tasks:
@@ -207,6 +216,7 @@ class ArraySim:
                                    else expiry.setdefault(key, expiry_tick(t, size, sc.dt)) for t, _, size in tasks]
             self.latest[c, :n] = [t + size.deadline / sc.dt for t, _, size in tasks]
             self.urgency[c, :n] = [1.0 / max(size.deadline, sc.dt) for _, _, size in tasks]
+            self.deadline[c, :n] = [size.deadline for _, _, size in tasks]
         self.state = np.zeros(shape, dtype=np.int8)
         self.node = np.zeros(shape, dtype=np.int64)  # where it is held, or where its message goes
         self.arrive = np.zeros(shape, dtype=np.int64)
@@ -249,6 +259,11 @@ class ArraySim:
         self.born = by_tick(self.created, ticks)
         self.dies = by_tick(self.expires, ticks)
         self.flying = np.zeros((k, len(self.roles)), dtype=np.int64)  # messages in flight, by sending role
+        # random: each controller's own stream (the policy's, ``Controller.reset``), drawn RANDOM_CHUNK at a time
+        self.streams = {(c, int(nd)): stream(int(s), int(nd), CONTROLLER.stream) for c, s in enumerate(seeds)
+                        for nd in self.randoms}
+        self.draws = np.zeros((k, self.n, RANDOM_CHUNK), dtype=np.int64)
+        self.drawn = np.full((k, self.n), RANDOM_CHUNK)  # draws used of each chunk
 
     def step(self) -> np.ndarray:
         """Run tick ``t`` of every copy; the counters at its end."""
@@ -350,13 +365,23 @@ class ArraySim:
             gr = pol == POLICIES.index("greedy")
             if gr.any():
                 action[gr] = self._greedy(cb[gr], ib[gr], nb[gr], extra)
+            rd = pol == POLICIES.index("random")
+            if rd.any():
+                action[rd] = self._random(cb[rd], nb[rd])
+            for name in BACKLOG:
+                on = pol == POLICIES.index(name)
+                if on.any():
+                    action[on] = self._by_backlog(name, t, cb[on], ib[on], nb[on], extra)
             extra[cb, nb, action] += 1
             self.ask_action[cb, ib] = action
             self.ask_rank[cb, ib] = b
 
     def _greedy(self, c: np.ndarray, i: np.ndarray, nd: np.ndarray, extra: np.ndarray) -> np.ndarray:
-        """``policies.Greedy``: the least estimated completion time, in its float operations, over the valid
-        actions (ties: the lowest action)."""
+        """``policies.Greedy``: the least estimated completion time over the valid actions (ties: the lowest)."""
+        return np.argmin(np.where(self.valid[nd], self._estimate(c, i, nd, extra), np.inf), axis=1)
+
+    def _estimate(self, c: np.ndarray, i: np.ndarray, nd: np.ndarray, extra: np.ndarray) -> np.ndarray:
+        """``Greedy.estimate`` of every action (a row per task), in its float operations."""
         to = self.target[nd]
         more = extra[c, nd]
         cycles = self.cycles[c, i][:, None]
@@ -367,7 +392,53 @@ class ArraySim:
         full = self.heard_occupancy[c[:, None], to] + more >= self.buffer[to]
         estimate = np.where(full, np.inf, transfer + wait + run)
         estimate[:, 0] = (wait + run)[:, 0]
-        return np.argmin(np.where(self.valid[nd], estimate, np.inf), axis=1)
+        return estimate
+
+    def _random(self, c: np.ndarray, nd: np.ndarray) -> np.ndarray:
+        """``policies.Random``: a valid action drawn from each controller's own stream (one (copy, node) per call)."""
+        spent = self.drawn[c, nd] >= RANDOM_CHUNK
+        for cc, node in zip(c[spent].tolist(), nd[spent].tolist(), strict=True):
+            self.draws[cc, node] = self.streams[cc, node].integers(self.n_valid[node], size=RANDOM_CHUNK)
+            self.drawn[cc, node] = 0
+        pick = self.draws[c, nd, self.drawn[c, nd]]
+        self.drawn[c, nd] += 1
+        return self.valid_list[nd, pick]
+
+    def _by_backlog(self, name: str, t: int, c: np.ndarray, i: np.ndarray, nd: np.ndarray,
+                    extra: np.ndarray) -> np.ndarray:
+        """The policies that add the links' backlogs (``NodeView.backlog_s``, ``controller.backlog``) to greedy's
+        estimate, each in its float operations: ``GreedyBacklog``, ``LocalFirst``, ``Threshold`` and
+        ``DriftPlusPenalty`` at their default parameters.
+
+        The busy-until ticks a controller knows are its worker's at the end of the last tick it reported in; with
+        tasks to place they are the links' at the end of the previous tick, as held here: the worker reports
+        whenever its undecided set changes, and whenever it transmits while tasks wait for a decision, so since
+        its last report the set stayed the same and not empty, and nothing was sent."""
+        to = self.target[nd]
+        busy = self.busy[c[:, None], nd[:, None], to]
+        backlog = np.where(busy > t + 1, (busy - (t + 1)) * self.dt, 0.0)
+        greedy = self._estimate(c, i, nd, extra)
+        estimate = greedy + backlog  # GreedyBacklog.estimate
+        estimate[:, 0] = greedy[:, 0]
+        valid = self.valid[nd]
+        choice = np.argmin(np.where(valid, estimate, np.inf), axis=1)
+        if name == "greedy_backlog":
+            return choice
+        if name == "local_first":
+            left = self.deadline[c, i] - (t - self.created[c, i]) * self.dt  # TaskView.time_left
+            return np.where(estimate[:, 0] <= left, 0, choice)
+        if name == "threshold":
+            cost = np.where(valid, estimate, np.inf)
+            cost[:, 0] = np.inf
+            best = np.argmin(cost, axis=1)
+            keep = self.heard[c, nd] + extra[c, nd, 0] < Threshold.threshold
+            return np.where(keep | ~np.isfinite(cost[np.arange(len(c)), best]), 0, best)
+        # drift_plus_penalty
+        service = self.cycles[c, i][:, None] / self.capacity[to]
+        drift = ((self.heard[c[:, None], to] + extra[c, nd]) * service + service / 2) * service
+        transfer = self.io_bytes[c, i][:, None] * 8.0 / self.rate[nd[:, None], to]
+        drift[:, 1:] += ((backlog + transfer / 2) * transfer)[:, 1:]
+        return np.argmin(np.where(valid, drift + DriftPlusPenalty.v * estimate, np.inf), axis=1)
 
     # ----- clients -----
 
