@@ -26,7 +26,8 @@ from topologies import bundled_scenarios
 SMALL = [("aot1", "local", 300, 3), ("aot2", "least_queue", 250, 7), ("aot4", "round_robin", 150, 5),
          ("aot3_compute", "least_queue", 200, 2), ("aot1_urgent", "round_robin", 200, 4),
          ("aot3_compute", "greedy", 200, 6), ("aot2", "random", 200, 3), ("aot4", "greedy_backlog", 150, 3),
-         ("aot3_compute", "local_first", 200, 3), ("aot2", "threshold", 300, 3), ("aot3", "drift_plus_penalty", 200, 3)]
+         ("aot3_compute", "local_first", 200, 3), ("aot2", "threshold", 300, 3), ("aot3", "drift_plus_penalty", 200, 3),
+         ("aot2_reference", "least_queue", 300, 3), ("aot4_reference", "greedy_backlog", 200, 3)]
 
 
 def first_difference(scenario: str | Scenario, policy: str, ticks: int, seed: int) -> str | None:
@@ -69,7 +70,9 @@ def test_array_backend_gives_the_emulators_counters_tick_for_tick(name, policy, 
 # the settings the backend takes beyond the bundled scenarios' own, on aot2 (the first two in CI)
 SETTINGS = [{"mode": "batch", "batch_size": 3}, {"decision_interval": 3, "state_interval": 2},
             {"mode": "batch", "batch_size": 2, "decision_interval": 2, "state_interval": 3}, {"max_hops": 0},
-            {"dt": 0.5}]
+            {"dt": 0.5}, {"admission": "queue_first"}, {"control_latency": 0},
+            {"control_latency": 0, "decision_interval": 2, "state_interval": 3},
+            {"admission": "queue_first", "control_latency": 0, "mode": "batch", "batch_size": 3, "state_interval": 2}]
 
 
 @pytest.mark.parametrize("changes", SETTINGS, ids=lambda c: ",".join(f"{k}={v}" for k, v in c.items()))
@@ -123,8 +126,7 @@ def test_a_lifo_queue_is_caught(monkeypatch):
     assert first_difference("aot2", "least_queue", 250, 7) is not None
 
 
-@pytest.mark.parametrize(("name", "feature"), [("aot2_reference", "admission 'queue_first'"),
-                                               ("examples/failures", "failures"),
+@pytest.mark.parametrize(("name", "feature"), [("examples/failures", "failures"),
                                                ("examples/aot2_overrides", "link loss")])
 def test_what_it_does_not_model_is_refused_in_one_line(name, feature):
     with pytest.raises(Unsupported) as info:
@@ -173,3 +175,36 @@ def test_a_deadline_one_tick_later_for_local_first_is_caught(monkeypatch):
 
     monkeypatch.setattr(ArraySim, "_by_backlog", later)
     assert first_difference("aot3_compute", "local_first", 200, 3) is not None
+
+
+def test_a_started_task_offered_for_diversion_is_caught(monkeypatch):
+    """queue_first: a task that has had cycles may not be diverted; offering it to the controller is caught."""
+    divertible = ArraySim._divertible
+
+    def never_started(self, w):
+        rem, serving = self.rem, self.serving
+        self.rem, self.serving = self.cycles, np.full_like(serving, -1)
+        try:
+            return divertible(self, w)
+        finally:
+            self.rem, self.serving = rem, serving
+
+    monkeypatch.setattr(ArraySim, "_divertible", never_started)
+    assert first_difference("aot2_reference", "least_queue", 100, 3) is not None
+
+
+def test_a_colocated_controller_seeing_its_worker_as_broadcast_is_caught(monkeypatch):
+    """control_latency 0: the controller reads its own worker as it is (age 0); its broadcast state is a tick
+    older, and reading that is caught."""
+    seen = ArraySim._seen
+
+    def as_broadcast(self, c, nd):
+        queued, undecided = self.queued, self.undecided
+        self.queued, self.undecided = self.heard_late, self.heard_occupancy_late - self.heard_late
+        try:
+            return seen(self, c, nd)
+        finally:
+            self.queued, self.undecided = queued, undecided
+
+    monkeypatch.setattr(ArraySim, "_seen", as_broadcast)
+    assert first_difference("aot2_reference", "least_queue", 300, 3) is not None

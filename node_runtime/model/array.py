@@ -82,10 +82,6 @@ def refusal(sc: Scenario, policy: str | None = None) -> str | None:
             return "link loss"
         if any(t.payload is not None for t in sc.workload.task_types):
             return "payloads"
-        if sc.admission != "decide_first":
-            return f"admission {sc.admission!r}"
-        if sc.control_latency != 2:
-            return f"control_latency {sc.control_latency}"
         if sc.max_hops > 1:
             return f"max_hops {sc.max_hops} (results forwarded along a path)"
         for n in sc.nodes:  # an offloaded task's result goes straight back to its origin over the link
@@ -177,6 +173,7 @@ class ArraySim:
         self.policy_of = np.array([POLICIES.index(policy or nd.policy) if nd.has("controller") else -1
                                    for nd in nodes])
         self.per_epoch = 1 if sc.mode == "binary" else sc.batch_size
+        self.queue_first = sc.admission == "queue_first"
         self.randoms = np.flatnonzero(self.policy_of == POLICIES.index("random"))  # the controllers that draw
 
     # ----- episode -----
@@ -239,6 +236,9 @@ class ArraySim:
         self.heard = np.zeros((k, self.n), dtype=np.int64)  # queue lengths as last broadcast ...
         self.heard_occupancy = np.zeros((k, self.n), dtype=np.int64)  # ... and occupancies
         self.rr = np.zeros((k, self.n), dtype=np.int64)  # round robin's next
+        self.kept = np.zeros(shape, dtype=bool)  # queue_first: kept by a decision (not offered again)
+        self.heard_late = np.zeros((k, self.n), dtype=np.int64)  # co-located: the states heard a tick before
+        self.heard_occupancy_late = np.zeros((k, self.n), dtype=np.int64)
         self.queued = np.zeros((k, self.n), dtype=np.int64)
         self.undecided = np.zeros((k, self.n), dtype=np.int64)
         self.serving = np.full((k, self.n), -1, dtype=np.int64)
@@ -323,19 +323,18 @@ class ArraySim:
 
     def _controllers(self, t: int) -> None:
         k = self.k
-        # the answer to the last observation is placed: it reaches the worker next tick
-        c, i = self.asking
-        self.asking = (NONE, NONE)
-        if len(c):
-            self.dec_arrive[c, i] = t + 1
-            self.decided[t + 1] = (c, i)
-            self.dec_action[c, i] = self.ask_action[c, i]
-            self._add(c, self.controller[self.node[c, i]], "decisions")
-        if t % self.sc.decision_interval:
+        colocated = self.sc.colocated_control
+        if not colocated:  # the answer to the last observation is placed: it reaches the worker next tick
+            self._place(t, t + 1)
+        # control_latency 2: the observation of tick t, on its worker's state at the end of the last tick as
+        # reported; 0: the observation of the last tick, on its worker's state at its end, answered at once
+        seen = t - colocated
+        if seen < 0 or seen % self.sc.decision_interval:
             return
-        # observe: the oldest undecided tasks, as the worker reported them at the end of the last tick
+        # the oldest tasks the controller may place (queue_first: queued tasks it may divert)
         w = self.win
-        c, i = self._find((self.state[:, w] == UNDECIDED) & (self.dec_arrive[:, w] < 0))
+        c, i = self._find((self._divertible(w) if self.queue_first else self.state[:, w] == UNDECIDED)
+                          & (self.dec_arrive[:, w] < 0))
         if not len(c):
             return
         nd = self.node[c, i]
@@ -359,8 +358,7 @@ class ArraySim:
             lq = pol == POLICIES.index("least_queue")
             if lq.any():
                 cl, nl = cb[lq], nb[lq]
-                key = np.where(self.valid[nl], self.heard[cl[:, None], self.target[nl]] + extra[cl, nl], np.iinfo(
-                    np.int64).max)
+                key = np.where(self.valid[nl], self._seen(cl, nl)[0] + extra[cl, nl], np.iinfo(np.int64).max)
                 action[lq] = np.argmin(key, axis=1)  # ties: the lowest action, so local first
             gr = pol == POLICIES.index("greedy")
             if gr.any():
@@ -371,10 +369,41 @@ class ArraySim:
             for name in BACKLOG:
                 on = pol == POLICIES.index(name)
                 if on.any():
-                    action[on] = self._by_backlog(name, t, cb[on], ib[on], nb[on], extra)
+                    action[on] = self._by_backlog(name, seen, cb[on], ib[on], nb[on], extra)
             extra[cb, nb, action] += 1
             self.ask_action[cb, ib] = action
             self.ask_rank[cb, ib] = b
+        if colocated:  # the host hands the answer to the worker at the start of this tick
+            self._place(t, t)
+
+    def _place(self, t: int, arrive: int) -> None:
+        """The answer to the last observation, placed at tick ``t``: decisions that reach the worker at ``arrive``."""
+        c, i = self.asking
+        self.asking = (NONE, NONE)
+        if len(c):
+            self.dec_arrive[c, i] = arrive
+            self.decided[arrive] = (c, i)
+            self.dec_action[c, i] = self.ask_action[c, i]
+            self._add(c, self.controller[self.node[c, i]], "decisions")
+
+    def _divertible(self, w: slice) -> np.ndarray:
+        """queue_first (``Worker.divertible``), over the window ``w``: queued tasks that have not started, were not
+        kept by a decision, and may still be offloaded (fewer hops than ``max_hops``, at a node that decides)."""
+        nd = self.node[:, w]
+        return ((self.state[:, w] == QUEUED) & ~self.kept[:, w] & (self.hops[:, w] < self.sc.max_hops)
+                & self.decides[nd] & (self.rem[:, w] == self.cycles[:, w])
+                & (np.take_along_axis(self.serving, nd, axis=1) != np.arange(w.start, w.stop)))
+
+    def _seen(self, c: np.ndarray, nd: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The queues and occupancies a controller sees of each action's target (a row per task): as broadcast
+        and heard a tick later; co-located (control_latency 0), its own worker as it is."""
+        to = self.target[nd]
+        if not self.sc.colocated_control:
+            return self.heard[c[:, None], to], self.heard_occupancy[c[:, None], to]
+        queue, occupancy = self.heard_late[c[:, None], to], self.heard_occupancy_late[c[:, None], to]
+        queue[:, 0] = self.queued[c, nd]
+        occupancy[:, 0] = self.queued[c, nd] + self.undecided[c, nd]
+        return queue, occupancy
 
     def _greedy(self, c: np.ndarray, i: np.ndarray, nd: np.ndarray, extra: np.ndarray) -> np.ndarray:
         """``policies.Greedy``: the least estimated completion time over the valid actions (ties: the lowest)."""
@@ -386,10 +415,11 @@ class ArraySim:
         more = extra[c, nd]
         cycles = self.cycles[c, i][:, None]
         capacity = self.capacity[to]
-        wait = (self.heard[c[:, None], to] + more) * cycles / capacity
+        queue, occupancy = self._seen(c, nd)
+        wait = (queue + more) * cycles / capacity
         run = cycles / capacity
         transfer = self.io_bytes[c, i][:, None] * 8.0 / self.rate[nd[:, None], to]
-        full = self.heard_occupancy[c[:, None], to] + more >= self.buffer[to]
+        full = occupancy + more >= self.buffer[to]
         estimate = np.where(full, np.inf, transfer + wait + run)
         estimate[:, 0] = (wait + run)[:, 0]
         return estimate
@@ -431,11 +461,11 @@ class ArraySim:
             cost = np.where(valid, estimate, np.inf)
             cost[:, 0] = np.inf
             best = np.argmin(cost, axis=1)
-            keep = self.heard[c, nd] + extra[c, nd, 0] < Threshold.threshold
+            keep = self._seen(c, nd)[0][:, 0] + extra[c, nd, 0] < Threshold.threshold
             return np.where(keep | ~np.isfinite(cost[np.arange(len(c)), best]), 0, best)
         # drift_plus_penalty
         service = self.cycles[c, i][:, None] / self.capacity[to]
-        drift = ((self.heard[c[:, None], to] + extra[c, nd]) * service + service / 2) * service
+        drift = ((self._seen(c, nd)[0] + extra[c, nd]) * service + service / 2) * service
         transfer = self.io_bytes[c, i][:, None] * 8.0 / self.rate[nd[:, None], to]
         drift[:, 1:] += ((backlog + transfer / 2) * transfer)[:, 1:]
         return np.argmin(np.where(valid, drift + DriftPlusPenalty.v * estimate, np.inf), axis=1)
@@ -498,7 +528,11 @@ class ArraySim:
         if not len(c):
             return
         nd = self.node[c, i]
-        stale = self.state[c, i] != UNDECIDED
+        if self.queue_first:  # it must still be divertible: queued, not started, not kept
+            stale = ((self.state[c, i] != QUEUED) | self.kept[c, i] | (self.rem[c, i] != self.cycles[c, i])
+                     | (self.serving[c, nd] == i))
+        else:
+            stale = self.state[c, i] != UNDECIDED
         self._add(c[stale], self.worker[nd[stale]], "stale_decisions")
         c, i, nd = c[~stale], i[~stale], nd[~stale]
         by = np.lexsort((self.ask_rank[c, i], nd, c))
@@ -508,13 +542,17 @@ class ArraySim:
             sel = rank == b
             cb, ib, nb = c[sel], i[sel], nd[sel]
             action = self.dec_action[cb, ib]
-            np.subtract.at(self.undecided, (cb, nb), 1)
             local = action == 0
             cl, il, nl = cb[local], ib[local], nb[local]
-            self.state[cl, il] = QUEUED
-            self.order[cl, il] = self._next_order(len(cl))
-            np.add.at(self.queued, (cl, nl), 1)
             co, io, no = cb[~local], ib[~local], nb[~local]
+            if self.queue_first:  # local: it stays where it is in the queue, kept; else it leaves the queue
+                self.kept[cl, il] = True
+                np.subtract.at(self.queued, (co, no), 1)
+            else:
+                np.subtract.at(self.undecided, (cb, nb), 1)
+                self.state[cl, il] = QUEUED
+                self.order[cl, il] = self._next_order(len(cl))
+                np.add.at(self.queued, (cl, nl), 1)
             if len(co):
                 self.hops[co, io] += 1
                 self._add(co, self.worker[no], "offloaded")
@@ -570,7 +608,7 @@ class ArraySim:
         self._drop(c[~room], i[~room], roles[~room], "queue_full")
         c, i, nd = c[room], i[room], nd[room]
         self.order[c, i] = self._next_order(len(c))
-        wait = self.decides[nd] & (self.hops[c, i] < self.sc.max_hops)
+        wait = self.decides[nd] & (self.hops[c, i] < self.sc.max_hops) & (not self.queue_first)
         self.state[c, i] = np.where(wait, UNDECIDED, QUEUED)
         np.add.at(self.undecided, (c[wait], nd[wait]), 1)
         np.add.at(self.queued, (c[~wait], nd[~wait]), 1)
@@ -636,6 +674,8 @@ class ArraySim:
         cnt[:, :, F["queue"]][:, self.worker[w]] = self.queued[:, w]
         cnt[:, :, F["undecided"]][:, self.worker[w]] = self.undecided[:, w]
         cnt[:, :, F["in_flight"]] = self.flying
+        if self.sc.colocated_control:  # what a co-located controller has heard at the end of the next tick
+            self.heard_late[:], self.heard_occupancy_late[:] = self.heard, self.heard_occupancy
         if t % self.sc.state_interval == 0:
             self.heard[:] = self.queued
             self.heard_occupancy[:] = self.queued + self.undecided
