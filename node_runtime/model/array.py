@@ -76,8 +76,6 @@ def refusal(sc: Scenario, policy: str | None = None) -> str | None:
                 return f"client {n.id} hands its tasks to other workers ({', '.join(sc.targets[n.id])})"
         if sc.workload.source:
             return f"user task source {sc.workload.source}"
-        if sc.failures:
-            return "failures"
         if any(lk.loss > 0 for lk in sc.links):
             return "link loss"
         if any(t.payload is not None for t in sc.workload.task_types):
@@ -237,6 +235,13 @@ class ArraySim:
         self.heard_occupancy = np.zeros((k, self.n), dtype=np.int64)  # ... and occupancies
         self.rr = np.zeros((k, self.n), dtype=np.int64)  # round robin's next
         self.kept = np.zeros(shape, dtype=bool)  # queue_first: kept by a decision (not offered again)
+        # failures: which nodes are down in each tick, and the tasks its controller still thinks it may place
+        # when its node comes back (its worker's last report before the failure, which dropped them)
+        self.down = np.zeros((ticks + 1, self.n), dtype=bool)
+        for node, windows in sc.failure_windows.items():
+            for a, b in windows:
+                self.down[a:b, sc.index[node]] = True
+        self.ghosts: dict[int, tuple[np.ndarray, np.ndarray]] = {}  # node -> (copies, tasks)
         self.heard_late = np.zeros((k, self.n), dtype=np.int64)  # co-located: the states heard a tick before
         self.heard_occupancy_late = np.zeros((k, self.n), dtype=np.int64)
         self.queued = np.zeros((k, self.n), dtype=np.int64)
@@ -333,8 +338,14 @@ class ArraySim:
             return
         # the oldest tasks the controller may place (queue_first: queued tasks it may divert)
         w = self.win
-        c, i = self._find((self._divertible(w) if self.queue_first else self.state[:, w] == UNDECIDED)
-                          & (self.dec_arrive[:, w] < 0))
+        offered = self._divertible(w) if self.queue_first else self.state[:, w] == UNDECIDED
+        if self.sc.failures:  # a controller that is down does not observe
+            offered &= ~self.down[seen, self.node[:, w]]
+        c, i = self._find(offered & (self.dec_arrive[:, w] < 0))
+        if self.sc.failures and seen:  # one back up sees its worker's last report, from before the failure
+            back = [self.ghosts.pop(int(node), (NONE, NONE)) for node in
+                    np.flatnonzero(~self.down[seen] & self.down[seen - 1])]
+            c, i = np.concatenate([c, *(g[0] for g in back)]), np.concatenate([i, *(g[1] for g in back)])
         if not len(c):
             return
         nd = self.node[c, i]
@@ -380,6 +391,8 @@ class ArraySim:
         """The answer to the last observation, placed at tick ``t``: decisions that reach the worker at ``arrive``."""
         c, i = self.asking
         self.asking = (NONE, NONE)
+        up = ~self.down[t, self.node[c, i]]  # a controller that is down drops its answer
+        c, i = c[up], i[up]
         if len(c):
             self.dec_arrive[c, i] = arrive
             self.decided[arrive] = (c, i)
@@ -484,9 +497,11 @@ class ArraySim:
             roles = self.client[nd]
             imposed = self.imposed[c, i] != 0.0
             self._add(c[imposed], roles[imposed], "delay_imposed", self.imposed[c[imposed], i[imposed]])
-            late = t >= self.expires[c, i]
+            failed = self.down[t, nd]
+            self._drop(c[failed], i[failed], roles[failed], "node_failure")
+            late = (t >= self.expires[c, i]) & ~failed
             self._drop(c[late], i[late], roles[late], "expired")
-            ok = ~late
+            ok = ~late & ~failed
             self._drop(c[ok], i[ok], roles[ok], "completed")
             times = np.zeros(self.counters.shape[:2])
             np.add.at(times, (c[ok], roles[ok]), (t - self.created[c[ok], i[ok]]) * self.dt)
@@ -502,6 +517,8 @@ class ArraySim:
 
     def _workers(self, t: int) -> None:
         w = self.has_worker
+        if self.sc.failures:
+            self._fail(t)
         occupancy = self.queued + self.undecided
         full = (occupancy >= self.buffer) & w
         cnt = self.counters
@@ -520,14 +537,38 @@ class ArraySim:
         self._decisions(t)
         self._admit(t)
         self._serve(t)
-        if self.idle.any():
-            cnt[:, :, F["energy_idle"]][:, self.worker[w]] += self.idle[w]
+        if self.idle.any():  # a node that is down spends nothing
+            cnt[:, :, F["energy_idle"]][:, self.worker[w]] += np.where(self.down[t, w], 0.0, self.idle[w])
+
+    def _fail(self, t: int) -> None:
+        """Nodes going down in tick t drop all they hold (``node_failure``) and reset their links: nothing queued,
+        nothing charged (``Worker.tick``, ``Worker.drop_all``)."""
+        went = self.down[t] & ~self.down[t - 1] if t else self.down[t]
+        if not went.any():
+            return
+        w = self.win
+        held = (self.state[:, w] == UNDECIDED) | (self.state[:, w] == QUEUED)
+        c, i = self._find(held & went[self.node[:, w]])
+        if not self.sc.colocated_control:  # what its worker last reported as still to place
+            offered = (self._divertible(w) if self.queue_first else self.state[:, w] == UNDECIDED)[c, i - w.start]
+            offered &= self.dec_arrive[c, i] < 0
+            for node in np.flatnonzero(went):
+                mine = offered & (self.node[c, i] == node)
+                self.ghosts[int(node)] = (c[mine], i[mine])
+        self.queued[:, went] = 0
+        self.undecided[:, went] = 0
+        self._drop(c, i, self.worker[self.node[c, i]], "node_failure")
+        self.busy[:, went, :] = 0.0
+        charged = self.olink[:, w] >= 0
+        self.olink[:, w][charged & went[self.olink[:, w] // self.n]] = -1
 
     def _decisions(self, t: int) -> None:
         c, i = self.decided.pop(t, (NONE, NONE))
         if not len(c):
             return
         nd = self.node[c, i]
+        up = ~self.down[t, nd]  # a node that is down ignores them
+        c, i, nd = c[up], i[up], nd[up]
         if self.queue_first:  # it must still be divertible: queued, not started, not kept
             stale = ((self.state[c, i] != QUEUED) | self.kept[c, i] | (self.rem[c, i] != self.cycles[c, i])
                      | (self.serving[c, nd] == i))
@@ -598,8 +639,11 @@ class ArraySim:
         by = np.lexsort((self.seq[c, i], self.src_rank[c, i], nd, c))
         c, i, nd = c[by], i[by], nd[by]
         roles = self.worker[nd]
-        late = t >= self.expires[c, i]
+        failed = self.down[t, nd]
+        self._drop(c[failed], i[failed], roles[failed], "node_failure")
+        late = (t >= self.expires[c, i]) & ~failed
         self._drop(c[late], i[late], roles[late], "expired")
+        late |= failed
         c, i, nd, roles = c[~late], i[~late], nd[~late], roles[~late]
         if not len(c):
             return
@@ -676,6 +720,7 @@ class ArraySim:
         cnt[:, :, F["in_flight"]] = self.flying
         if self.sc.colocated_control:  # what a co-located controller has heard at the end of the next tick
             self.heard_late[:], self.heard_occupancy_late[:] = self.heard, self.heard_occupancy
-        if t % self.sc.state_interval == 0:
-            self.heard[:] = self.queued
-            self.heard_occupancy[:] = self.queued + self.undecided
+        if t % self.sc.state_interval == 0:  # a node that is down is silent
+            up = ~self.down[t]
+            self.heard[:, up] = self.queued[:, up]
+            self.heard_occupancy[:, up] = (self.queued + self.undecided)[:, up]
