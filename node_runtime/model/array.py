@@ -22,7 +22,7 @@ tasks out), then workers (overload, expiry, decisions, admission, CPU, results b
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from itertools import pairwise
 
 import numpy as np
@@ -36,13 +36,13 @@ from node_runtime.model.radio import dbm_to_watts
 from node_runtime.model.rng import stream
 from node_runtime.model.role import STAT_FIELDS, role_id
 from node_runtime.model.spec import Scenario
-from node_runtime.model.worker import EPS_CYCLES
+from node_runtime.model.worker import EPS_CYCLES, WORKER
 
 # the node-side policies it runs, vectorised: every built-in one of policies.py
 POLICIES = ("local", "round_robin", "least_queue", "greedy", "random", "greedy_backlog", "local_first", "threshold",
             "drift_plus_penalty")
 BACKLOG = POLICIES[5:]  # the policies that read the links' backlogs
-RANDOM_CHUNK = 64  # draws of a random controller's stream taken at once (the same numbers as one at a time)
+CHUNK = 64  # numbers of a random stream drawn at once (the same numbers as drawn one at a time)
 BUILTIN = {"worker": "node_runtime.model.worker:Worker", "client": "node_runtime.model.client:Client",
            "controller": "node_runtime.model.controller:Controller"}
 FIELDS = (*STAT_FIELDS, "in_flight", "response_time_sum")  # per role, as the orchestrator's metrics keep them
@@ -51,6 +51,26 @@ F = {name: i for i, name in enumerate(FIELDS)}
 # worker; its result on its way to its client; gone (completed or dropped)
 NEW, TO_WORKER, UNDECIDED, QUEUED, TO_CLIENT, GONE = range(6)
 SEQ_STRIDE = 1 << 20  # message numbers: send call * stride + position in the call (per sender, in send order)
+
+
+class Streams:
+    """One random stream per (copy, node), as a role draws it one number at a time, drawn CHUNK at a time."""
+
+    def __init__(self, streams: dict[tuple[int, int], np.random.Generator],
+                 draw: Callable[[np.random.Generator, int], np.ndarray], k: int, n: int, dtype: type) -> None:
+        self.streams, self.draw = streams, draw  # draw(stream, node): its next CHUNK numbers
+        self.chunk = np.zeros((k, n, CHUNK), dtype=dtype)
+        self.used = np.full((k, n), CHUNK)
+
+    def take(self, c: np.ndarray, nd: np.ndarray) -> np.ndarray:
+        """The next number of each stream (copy c, node nd); each pair at most once per call."""
+        spent = self.used[c, nd] >= CHUNK
+        for cc, node in zip(c[spent].tolist(), nd[spent].tolist(), strict=True):
+            self.chunk[cc, node] = self.draw(self.streams[cc, node], node)
+            self.used[cc, node] = 0
+        numbers = self.chunk[c, nd, self.used[c, nd]]
+        self.used[c, nd] += 1
+        return numbers
 
 
 class Unsupported(ValueError):
@@ -76,8 +96,6 @@ def refusal(sc: Scenario, policy: str | None = None) -> str | None:
                 return f"client {n.id} hands its tasks to other workers ({', '.join(sc.targets[n.id])})"
         if sc.workload.source:
             return f"user task source {sc.workload.source}"
-        if any(lk.loss > 0 for lk in sc.links):
-            return "link loss"
         if any(t.payload is not None for t in sc.workload.task_types):
             return "payloads"
         if sc.max_hops > 1:
@@ -151,8 +169,10 @@ class ArraySim:
         self.idle = np.array([idle_energy(nd.idle_power_w, sc.dt) if nd.idle_power_w else 0.0 for nd in nodes])
         self.watts = np.array([dbm_to_watts(nd.tx_power_dbm) for nd in nodes])
         self.rate = np.ones((n, n))
+        self.loss = np.zeros((n, n))
         for (a, b), lk in sc.link.items():
             self.rate[sc.index[a], sc.index[b]] = lk.rate_bps
+            self.loss[sc.index[a], sc.index[b]] = lk.loss
         self.decides = np.array([nd.has("controller") and sc.max_hops > 0 for nd in nodes])
         # the actions of each controller: 0 keeps a task, a >= 1 sends it to neighbour a - 1 (-1: no such action)
         width = 1 + max((len(sc.neighbours[nd.id]) for nd in nodes), default=0)
@@ -264,11 +284,14 @@ class ArraySim:
         self.born = by_tick(self.created, ticks)
         self.dies = by_tick(self.expires, ticks)
         self.flying = np.zeros((k, len(self.roles)), dtype=np.int64)  # messages in flight, by sending role
-        # random: each controller's own stream (the policy's, ``Controller.reset``), drawn RANDOM_CHUNK at a time
-        self.streams = {(c, int(nd)): stream(int(s), int(nd), CONTROLLER.stream) for c, s in enumerate(seeds)
-                        for nd in self.randoms}
-        self.draws = np.zeros((k, self.n, RANDOM_CHUNK), dtype=np.int64)
-        self.drawn = np.full((k, self.n), RANDOM_CHUNK)  # draws used of each chunk
+        # random: each controller's own stream (the policy's, ``Controller.reset``)
+        self.choices = Streams({(c, int(nd)): stream(int(s), int(nd), CONTROLLER.stream) for c, s in enumerate(seeds)
+                                for nd in self.randoms},
+                               lambda g, node: g.integers(self.n_valid[node], size=CHUNK), k, self.n, np.int64)
+        # link loss: each worker's radio stream (``Worker.reset``), a number per transmission on a lossy link
+        self.losses = Streams({(c, int(nd)): stream(int(s), int(nd), WORKER.stream) for c, s in enumerate(seeds)
+                               for nd in np.flatnonzero(self.loss.any(axis=1))},
+                              lambda g, node: g.random(CHUNK), k, self.n, float)
 
     def step(self) -> np.ndarray:
         """Run tick ``t`` of every copy; the counters at its end."""
@@ -439,13 +462,7 @@ class ArraySim:
 
     def _random(self, c: np.ndarray, nd: np.ndarray) -> np.ndarray:
         """``policies.Random``: a valid action drawn from each controller's own stream (one (copy, node) per call)."""
-        spent = self.drawn[c, nd] >= RANDOM_CHUNK
-        for cc, node in zip(c[spent].tolist(), nd[spent].tolist(), strict=True):
-            self.draws[cc, node] = self.streams[cc, node].integers(self.n_valid[node], size=RANDOM_CHUNK)
-            self.drawn[cc, node] = 0
-        pick = self.draws[c, nd, self.drawn[c, nd]]
-        self.drawn[c, nd] += 1
-        return self.valid_list[nd, pick]
+        return self.valid_list[nd, self.choices.take(c, nd)]
 
     def _by_backlog(self, name: str, t: int, c: np.ndarray, i: np.ndarray, nd: np.ndarray,
                     extra: np.ndarray) -> np.ndarray:
@@ -612,11 +629,16 @@ class ArraySim:
         seconds = bits / self.rate[src, dst]
         finish = start + seconds / self.dt
         self.busy[c, src, dst] = finish
-        self._add(c, roles, "energy_transmit", self.watts[src] * seconds)
+        # a lost message occupied the link (and is charged for it), but costs no energy and charges nothing
+        lost = np.zeros(len(c), dtype=bool)
+        lossy = np.flatnonzero(self.loss[src, dst] > 0.0)
+        if len(lossy):
+            lost[lossy] = self.losses.take(c[lossy], src[lossy]) < self.loss[src[lossy], dst[lossy]]
+        self._add(c[~lost], roles[~lost], "energy_transmit", (self.watts[src] * seconds)[~lost])
         link = src * self.n + dst
         # the charged offloads still on the link, in the order they were sent: each charged what this one waits
         w = self.win
-        s, j = np.nonzero((self.olink[c, w] == link[:, None]) & (self.ofinish[c, w] > t))
+        s, j = np.nonzero((self.olink[c, w] == link[:, None]) & (self.ofinish[c, w] > t) & ~lost[:, None])
         j += w.start
         if len(s):
             cs = c[s]
@@ -626,6 +648,8 @@ class ArraySim:
             self._add(cs, roles[s], "delay_imposed", waited * self.urgency[cs, i[s]])
         if kind == TO_WORKER:  # an offload: charged for what it makes later messages wait
             self.olink[c, i], self.ostart[c, i], self.ofinish[c, i] = link, start, finish
+        self._drop(c[lost], i[lost], roles[lost], "link_loss")
+        c, i, dst, finish, roles, src = (a[~lost] for a in (c, i, dst, finish, roles, src))
         arrive = np.maximum(t + 1, np.ceil(finish).astype(np.int64))
         self._send(c, i, kind, dst, arrive, roles, self.worker_rank[src])
 
