@@ -27,7 +27,7 @@ from itertools import pairwise
 
 import numpy as np
 
-from node_runtime.model.client import arrivals
+from node_runtime.model.client import arrivals_of
 from node_runtime.model.controller import CONTROLLER
 from node_runtime.model.energy import compute_energy, idle_energy
 from node_runtime.model.messages import Task, TaskSize
@@ -202,7 +202,7 @@ class ArraySim:
             raise ValueError(f"{len(seeds)} seeds for {self.k} copies")
         sc, k = self.sc, self.k
         ticks = sc.episode_ticks if ticks is None else ticks
-        drawn = [arrivals(sc, int(s), ticks) for s in seeds]
+        drawn = arrivals_of(sc, [int(s) for s in seeds], ticks)
         m = max(1, max(len(d) for d in drawn))
         self.m = m
         shape = (k, m)
