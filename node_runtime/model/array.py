@@ -254,6 +254,7 @@ class ArraySim:
         self.heard = np.zeros((k, self.n), dtype=np.int64)  # queue lengths as last broadcast ...
         self.heard_occupancy = np.zeros((k, self.n), dtype=np.int64)  # ... and occupancies
         self.rr = np.zeros((k, self.n), dtype=np.int64)  # round robin's next
+        self.joined = [(NONE, NONE)]  # the tasks queued since the CPU last ran (its queue then first), in order
         self.kept = np.zeros(shape, dtype=bool)  # queue_first: kept by a decision (not offered again)
         # failures: which nodes are down in each tick, and the tasks its controller still thinks it may place
         # when its node comes back (its worker's last report before the failure, which dropped them)
@@ -610,6 +611,7 @@ class ArraySim:
                 np.subtract.at(self.undecided, (cb, nb), 1)
                 self.state[cl, il] = QUEUED
                 self.order[cl, il] = self._next_order(len(cl))
+                self.joined.append((cl, il))
                 np.add.at(self.queued, (cl, nl), 1)
             if len(co):
                 self.hops[co, io] += 1
@@ -680,22 +682,28 @@ class ArraySim:
         self.state[c, i] = np.where(wait, UNDECIDED, QUEUED)
         np.add.at(self.undecided, (c[wait], nd[wait]), 1)
         np.add.at(self.queued, (c[~wait], nd[~wait]), 1)
+        self.joined.append((c[~wait], i[~wait]))
 
     def _serve(self, t: int) -> None:
         """The CPU: the tick's cycles on the FIFO queue, head first, work-conserving (``Worker.serve``)."""
         budget = np.where(self.has_worker, self.budget, 0.0)[None, :].repeat(self.k, axis=0)
         used = np.zeros((self.k, self.n))
         active = (self.queued > 0) & (budget > 0.0)
-        qc, qi = self._find(self.state[:, self.win] == QUEUED)  # no task joins a queue while the CPU runs
+        # the queued tasks (no task joins a queue while the CPU runs): those of the last tick still queued, in
+        # order, and the ones queued since, sorted in (a sort of one long sorted run and a short tail)
+        qc, qi = (np.concatenate(a) for a in zip(*self.joined, strict=True))
+        self.joined = []
         qn = self.node[qc, qi]
         by = np.argsort(((qc * self.n + qn) << 32) + self.order[qc, qi], kind="stable")  # by copy, node, order
         qc, qi, qn = qc[by], qi[by], qn[by]
-        while active.any():
+        queued = qc, qi
+        while active.any():  # a queue that stops being served, or a task that leaves one, does not come back
             keep = active[qc, qn] & (self.state[qc, qi] == QUEUED)
-            c, i, nd = qc[keep], qi[keep], qn[keep]
+            qc, qi, qn = c, i, nd = qc[keep], qi[keep], qn[keep]
             first = np.r_[True, (c[1:] != c[:-1]) | (nd[1:] != nd[:-1])]
-            behind = np.zeros((self.k, self.n))  # urgency of the tasks queued behind each head
-            np.add.at(behind, (c[~first], nd[~first]), self.urgency[c[~first], i[~first]])
+            # urgency of the tasks queued behind each head, added in queue order (bincount adds in input order)
+            behind = np.bincount(c[~first] * self.n + nd[~first], self.urgency[c[~first], i[~first]],
+                                 minlength=self.k * self.n).reshape(self.k, self.n)
             c, i, nd = c[first], i[first], nd[first]
             new = self.serving[c, nd] != i
             self.imposed[c[new], i[new]] = 0.0
@@ -714,6 +722,9 @@ class ArraySim:
             self.queued[cd, nd_] -= 1
             self._results(t, cd, id_, nd_)
             active = (self.queued > 0) & (budget > 0.0)
+        c, i = queued
+        still = self.state[c, i] == QUEUED
+        self.joined.append((c[still], i[still]))
         c, nd = np.nonzero(used)
         if len(c):
             roles = self.worker[nd]
