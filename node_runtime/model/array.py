@@ -8,16 +8,18 @@ functions (``Task.expires_at`` for a task's expiry tick, the link rates of the s
 ``Client`` with its own random streams, and ``tests/test_array_backend.py`` proves it gives the in-process
 emulator's counters tick for tick.
 
-Covered today (``refusal`` names the first thing a scenario needs beyond it, in one line): decide-first
-admission with the default control latency of 2 ticks, binary or batch mode, any decision or state
-interval, node-side policies ``local``, ``round_robin``, ``least_queue`` and ``greedy``, ``max_hops`` 0 or 1,
-clients on worker nodes, every arrival schedule and task mix of the built-in task source, FIFO links without
-loss, energy. Not yet: failures, link loss, payloads, ``queue_first``, ``control_latency: 0``, multi-hop
-results, clients without a worker, the other policies, and user-defined roles, policies or task sources.
+Covered today (``refusal`` names the first thing a scenario needs beyond it, in one line): admission
+decide-first or queue-first, control latency 2 or 0, binary or batch mode, any decision or state interval,
+every built-in node-side policy (``random`` on each controller's own stream), ``max_hops`` 0 or 1, clients on
+worker nodes, every arrival schedule and task mix of the built-in task source, FIFO links with loss (each
+worker's radio stream), failures, energy. Not yet: payloads, multi-hop results, clients without a worker,
+and user-defined roles, policies or task sources.
 
 One tick runs the roles in an order that their one-tick message delay makes equivalent to the emulator's:
 controllers (they read the worker's state at the end of the previous tick), clients (results in, new
-tasks out), then workers (overload, expiry, decisions, admission, CPU, results back).
+tasks out), then workers (failure, overload, expiry, decisions, admission, CPU, results back). A co-located
+controller (control latency 0) observes its worker at the end of the previous tick in the same slot and
+hands its answer over at once, which the worker applies in this tick, as the emulator's host does.
 """
 
 from __future__ import annotations
