@@ -150,6 +150,33 @@ def test_loss_drawn_from_another_stream_is_caught(monkeypatch):
     assert first_difference(lossy("aot2", 0.1), "least_queue", 200, 3) is not None
 
 
+# max_hops above 1: tasks offloaded again, results relayed back along their path (the first in CI)
+HOPS = [("aot4", 3, "random", {}), ("examples/grid", 3, "random", {}), ("aot2", 2, "greedy_backlog", {}),
+        ("aot4", 2, "least_queue", {"admission": "queue_first", "control_latency": 0}),
+        ("examples/failures", 3, "round_robin", {})]
+
+
+@pytest.mark.parametrize("case", HOPS, ids=lambda c: f"{c[0]}-{c[1]}-{c[2]}-{c[3]}")
+def test_several_hops(case, request):
+    if HOPS.index(case) and not request.config.getoption("--all"):
+        pytest.skip("the full set runs with --all")
+    name, hops, policy, changes = case
+    assert first_difference(load_scenario(name).replace(max_hops=hops, **changes), policy, 300, 3) is None
+
+
+def test_a_result_that_skips_its_path_is_caught(monkeypatch):
+    """With max_hops above 1 a result goes back along its task's path; handing it to the origin at once is caught."""
+    def straight_home(self, t):
+        c, i = self.arriving
+        c, i = c[self.state[c, i] == array.TO_RELAY], i[self.state[c, i] == array.TO_RELAY]
+        nd = self.node[c, i]
+        self._send(c, i, array.TO_CLIENT, self.origin[c, i], np.full(len(c), t + 1), self.worker[nd],
+                   self.worker_rank[nd])
+
+    monkeypatch.setattr(ArraySim, "_relay", straight_home)
+    assert first_difference(load_scenario("aot4").replace(max_hops=3), "random", 200, 3) is not None
+
+
 def full_set() -> list[tuple[str, str]]:
     return [(name, policy) for name in bundled_scenarios() for policy in POLICIES
             if refusal(load_scenario(name), policy) is None]
@@ -178,12 +205,13 @@ def test_a_lifo_queue_is_caught(monkeypatch):
     assert first_difference("aot2", "least_queue", 250, 7) is not None
 
 
-def test_what_it_does_not_model_is_refused_in_one_line():
-    sc = load_scenario("aot2")
+@pytest.mark.parametrize(("name", "feature"), [("examples/payload_classifier", "payloads"),
+                                               ("examples/zigzag_workload", "no worker of its own")])
+def test_what_it_does_not_model_is_refused_in_one_line(name, feature):
     with pytest.raises(Unsupported) as info:
-        ArraySim(sc.replace(max_hops=2), 2)
+        ArraySim(load_scenario(name), 2)
     message = str(info.value)
-    assert "\n" not in message and "max_hops 2" in message and "in-process or Zenoh backend" in message
+    assert "\n" not in message and feature in message and "in-process or Zenoh backend" in message
 
 
 def test_a_policy_it_does_not_run_is_refused():

@@ -10,14 +10,15 @@ emulator's counters tick for tick.
 
 Covered today (``refusal`` names the first thing a scenario needs beyond it, in one line): admission
 decide-first or queue-first, control latency 2 or 0, binary or batch mode, any decision or state interval,
-every built-in node-side policy (``random`` on each controller's own stream), ``max_hops`` 0 or 1, clients on
-worker nodes, every arrival schedule and task mix of the built-in task source, FIFO links with loss (each
-worker's radio stream), failures, energy. Not yet: payloads, multi-hop results, clients without a worker,
-and user-defined roles, policies or task sources.
+every built-in node-side policy (``random`` on each controller's own stream), any ``max_hops`` (results
+relayed back along the task's path), clients on worker nodes, every arrival schedule and task mix of the
+built-in task source, FIFO links with loss (each worker's radio stream), failures, energy. Not yet:
+payloads, clients without a worker, and user-defined roles, policies or task sources.
 
 One tick runs the roles in an order that their one-tick message delay makes equivalent to the emulator's:
 controllers (they read the worker's state at the end of the previous tick), clients (results in, new
-tasks out), then workers (failure, overload, expiry, decisions, admission, CPU, results back). A co-located
+tasks out), then workers (failure, overload, results relayed, expiry, decisions, admission, CPU, results
+back). A co-located
 controller (control latency 0) observes its worker at the end of the previous tick in the same slot and
 hands its answer over at once, which the worker applies in this tick, as the emulator's host does.
 """
@@ -52,6 +53,7 @@ F = {name: i for i, name in enumerate(FIELDS)}
 # where a task is: not created yet; a task message on its way to a worker; held undecided or queued by a
 # worker; its result on its way to its client; gone (completed or dropped)
 NEW, TO_WORKER, UNDECIDED, QUEUED, TO_CLIENT, GONE = range(6)
+TO_RELAY = 6  # max_hops above 1: a result on its way to the previous worker of its task's path
 SEQ_STRIDE = 1 << 20  # message numbers: send call * stride + position in the call (per sender, in send order)
 
 
@@ -100,8 +102,6 @@ def refusal(sc: Scenario, policy: str | None = None) -> str | None:
             return f"user task source {sc.workload.source}"
         if any(t.payload is not None for t in sc.workload.task_types):
             return "payloads"
-        if sc.max_hops > 1:
-            return f"max_hops {sc.max_hops} (results forwarded along a path)"
         for n in sc.nodes:  # an offloaded task's result goes straight back to its origin over the link
             for j in sc.neighbours[n.id] if n.has("controller") and sc.max_hops else ():
                 if sc.node[j].has("worker") and (j, n.id) not in sc.link:
@@ -176,6 +176,9 @@ class ArraySim:
             self.rate[sc.index[a], sc.index[b]] = lk.rate_bps
             self.loss[sc.index[a], sc.index[b]] = lk.loss
         self.decides = np.array([nd.has("controller") and sc.max_hops > 0 for nd in nodes])
+        self.adjacent = np.zeros((n, n), dtype=bool)  # j in the radio of i: a result goes straight to its origin
+        for a, js in sc.neighbours.items():
+            self.adjacent[sc.index[a], [sc.index[j] for j in js]] = True
         # the actions of each controller: 0 keeps a task, a >= 1 sends it to neighbour a - 1 (-1: no such action)
         width = 1 + max((len(sc.neighbours[nd.id]) for nd in nodes), default=0)
         self.target = np.full((n, width), -1)
@@ -258,6 +261,11 @@ class ArraySim:
         self.rr = np.zeros((k, self.n), dtype=np.int64)  # round robin's next
         self.joined = [(NONE, NONE)]  # the tasks queued since the CPU last ran (its queue then first), in order
         self.kept = np.zeros(shape, dtype=bool)  # queue_first: kept by a decision (not offered again)
+        self.dec_node = np.zeros(shape, dtype=np.int64)  # the node whose controller asked about it
+        # max_hops above 1: the workers that admitted each task, in order, and where its result is on that path
+        self.path = np.zeros((k, m, sc.max_hops + 1) if sc.max_hops > 1 else (0, 0, 0), dtype=np.int64)
+        self.plen = np.zeros(shape if sc.max_hops > 1 else (0, 0), dtype=np.int64)
+        self.hop = np.zeros(shape if sc.max_hops > 1 else (0, 0), dtype=np.int64)
         # failures: which nodes are down in each tick, and the tasks its controller still thinks it may place
         # when its node comes back (its worker's last report before the failure, which dropped them)
         self.down = np.zeros((ticks + 1, self.n), dtype=bool)
@@ -380,6 +388,7 @@ class ArraySim:
         rank = group_rank(c, nd)
         extra = np.zeros((k, self.n, self.target.shape[1]), dtype=np.int64)
         self.asking = (c[rank < self.per_epoch], i[rank < self.per_epoch])
+        self.dec_node[self.asking] = nd[rank < self.per_epoch]
         for b in range(self.per_epoch):
             sel = rank == b
             cb, ib, nb = c[sel], i[sel], nd[sel]
@@ -417,13 +426,13 @@ class ArraySim:
         """The answer to the last observation, placed at tick ``t``: decisions that reach the worker at ``arrive``."""
         c, i = self.asking
         self.asking = (NONE, NONE)
-        up = ~self.down[t, self.node[c, i]]  # a controller that is down drops its answer
+        up = ~self.down[t, self.dec_node[c, i]]  # a controller that is down drops its answer
         c, i = c[up], i[up]
         if len(c):
             self.dec_arrive[c, i] = arrive
             self.decided[arrive] = (c, i)
             self.dec_action[c, i] = self.ask_action[c, i]
-            self._add(c, self.controller[self.node[c, i]], "decisions")
+            self._add(c, self.controller[self.dec_node[c, i]], "decisions")
 
     def _divertible(self, w: slice) -> np.ndarray:
         """queue_first (``Worker.divertible``), over the window ``w``: queued tasks that have not started, were not
@@ -544,6 +553,8 @@ class ArraySim:
         cnt = self.counters
         cnt[:, :, F["overloaded"]][:, self.worker[w]] = full[:, w]
         cnt[:, :, F["overloaded_ticks"]][:, self.worker[w]] += full[:, w]
+        if self.sc.max_hops > 1:
+            self._relay(t)
         # expiry of held tasks
         c, i = self.dies[t]  # a held task expires at its expiry tick: it was admitted before, and not expired then
         state = self.state[c, i]
@@ -586,7 +597,7 @@ class ArraySim:
         c, i = self.decided.pop(t, (NONE, NONE))
         if not len(c):
             return
-        nd = self.node[c, i]
+        nd = self.dec_node[c, i]
         up = ~self.down[t, nd]  # a node that is down ignores them
         c, i, nd = c[up], i[up], nd[up]
         if self.queue_first:  # it must still be divertible: queued, not started, not kept
@@ -594,6 +605,7 @@ class ArraySim:
                      | (self.serving[c, nd] == i))
         else:
             stale = self.state[c, i] != UNDECIDED
+        stale |= self.node[c, i] != nd  # a result on its way, further along its path
         self._add(c[stale], self.worker[nd[stale]], "stale_decisions")
         c, i, nd = c[~stale], i[~stale], nd[~stale]
         by = np.lexsort((self.ask_rank[c, i], nd, c))
@@ -680,6 +692,11 @@ class ArraySim:
         self._drop(c[~room], i[~room], roles[~room], "queue_full")
         c, i, nd = c[room], i[room], nd[room]
         self.order[c, i] = self._next_order(len(c))
+        self.dec_arrive[c, i], self.kept[c, i] = -1, False  # a task offloaded here is this controller's to place
+        if self.sc.max_hops > 1:
+            self.path[c, i, self.plen[c, i]] = nd
+            self.hop[c, i] = self.plen[c, i]
+            self.plen[c, i] += 1
         wait = self.decides[nd] & (self.hops[c, i] < self.sc.max_hops) & (not self.queue_first)
         self.state[c, i] = np.where(wait, UNDECIDED, QUEUED)
         np.add.at(self.undecided, (c[wait], nd[wait]), 1)
@@ -734,8 +751,8 @@ class ArraySim:
             self.counters[c, roles, F["energy_compute"]] += compute_energy(self.kappa[nd], used[c, nd], self.freq[nd])
 
     def _results(self, t: int, c: np.ndarray, i: np.ndarray, nd: np.ndarray) -> None:
-        """Finished tasks' results back to their origin (``Worker.route_result``): handed over on its own
-        node, sent over the link to a neighbour."""
+        """Results one step towards their origin (``Worker.route_result``): handed over on its own node, sent over
+        the link to a neighbour, else to the previous worker on the task's path (one per (copy, node) per call)."""
         late = t >= self.expires[c, i]
         self._drop(c[late], i[late], self.worker[nd[late]], "expired")
         c, i, nd = c[~late], i[~late], nd[~late]
@@ -743,9 +760,32 @@ class ArraySim:
         here = origin == nd
         self._send(c[here], i[here], TO_CLIENT, origin[here], np.full(here.sum(), t + 1), self.worker[nd[here]],
                    self.worker_rank[nd[here]])
-        away = ~here
-        if away.any():
-            self._transmit(t, c[away], i[away], nd[away], origin[away], self.out_bits[c[away], i[away]], TO_CLIENT)
+        near = ~here & self.adjacent[nd, origin]
+        if near.any():
+            self._transmit(t, c[near], i[near], nd[near], origin[near], self.out_bits[c[near], i[near]], TO_CLIENT)
+        far = ~here & ~near
+        if far.any():
+            c, i, nd = c[far], i[far], nd[far]
+            self.hop[c, i] -= 1
+            self._transmit(t, c, i, nd, self.path[c, i, self.hop[c, i]], self.out_bits[c, i], TO_RELAY)
+
+    def _relay(self, t: int) -> None:
+        """Results reaching a worker on their way back, routed on at once in mail order (``Worker.tick``'s inbox);
+        a worker that is down drops them."""
+        c, i = self.arriving
+        here = self.state[c, i] == TO_RELAY
+        c, i = c[here], i[here]
+        if not len(c):
+            return
+        nd = self.node[c, i]
+        by = np.lexsort((self.seq[c, i], self.src_rank[c, i], nd, c))
+        c, i, nd = c[by], i[by], nd[by]
+        failed = self.down[t, nd]
+        self._drop(c[failed], i[failed], self.worker[nd[failed]], "node_failure")
+        c, i, nd = c[~failed], i[~failed], nd[~failed]
+        rank = group_rank(c, nd)
+        for r in range(int(rank.max(initial=-1)) + 1):
+            self._results(t, c[rank == r], i[rank == r], nd[rank == r])
 
     # ----- end of the tick -----
 
