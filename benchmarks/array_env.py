@@ -102,7 +102,9 @@ def array_rate(sc, policy: str | None, ticks: int, k: int) -> dict[str, float]:
 
 def in_child(*args: str) -> dict[str, float]:
     """``array_rate`` in a fresh process (this script with ``--child``), so that its peak memory is its own."""
-    out = subprocess.run([sys.executable, __file__, "--child", *args], capture_output=True, text=True, check=True)
+    out = subprocess.run([sys.executable, __file__, "--child", *args], capture_output=True, text=True)
+    if out.returncode:
+        raise RuntimeError(f"array_env.py --child {' '.join(args)} failed:\n{out.stderr}")
     return json.loads(out.stdout.splitlines()[-1])
 
 
