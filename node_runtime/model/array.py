@@ -647,14 +647,16 @@ class ArraySim:
         self.busy[c, src, dst] = finish
         # a lost message occupied the link (and is charged for it), but costs no energy and charges nothing
         lost = np.zeros(len(c), dtype=bool)
-        lossy = np.flatnonzero(self.loss[src, dst] > 0.0)
-        if len(lossy):
+        if self.losses.streams:
+            lossy = np.flatnonzero(self.loss[src, dst] > 0.0)
             lost[lossy] = self.losses.take(c[lossy], src[lossy]) < self.loss[src[lossy], dst[lossy]]
-        self._add(c[~lost], roles[~lost], "energy_transmit", (self.watts[src] * seconds)[~lost])
+        kept = ~lost if lost.any() else slice(None)
+        self._add(c[kept], roles[kept], "energy_transmit", (self.watts[src] * seconds)[kept])
         link = src * self.n + dst
         # the charged offloads still on the link, in the order they were sent: each charged what this one waits
         w = self.win
-        s, j = np.nonzero((self.olink[c, w] == link[:, None]) & (self.ofinish[c, w] > t) & ~lost[:, None])
+        on_air = (self.olink[c, w] == link[:, None]) & (self.ofinish[c, w] > t)
+        s, j = np.nonzero(on_air & ~lost[:, None] if lost.any() else on_air)
         j += w.start
         if len(s):
             cs = c[s]
@@ -664,8 +666,9 @@ class ArraySim:
             self._add(cs, roles[s], "delay_imposed", waited * self.urgency[cs, i[s]])
         if kind == TO_WORKER:  # an offload: charged for what it makes later messages wait
             self.olink[c, i], self.ostart[c, i], self.ofinish[c, i] = link, start, finish
-        self._drop(c[lost], i[lost], roles[lost], "link_loss")
-        c, i, dst, finish, roles, src = (a[~lost] for a in (c, i, dst, finish, roles, src))
+        if lost.any():
+            self._drop(c[lost], i[lost], roles[lost], "link_loss")
+            c, i, dst, finish, roles, src = (a[~lost] for a in (c, i, dst, finish, roles, src))
         arrive = np.maximum(t + 1, np.ceil(finish).astype(np.int64))
         self._send(c, i, kind, dst, arrive, roles, self.worker_rank[src])
 
@@ -797,7 +800,10 @@ class ArraySim:
         cnt[:, :, F["in_flight"]] = self.flying
         if self.sc.colocated_control:  # what a co-located controller has heard at the end of the next tick
             self.heard_late[:], self.heard_occupancy_late[:] = self.heard, self.heard_occupancy
-        if t % self.sc.state_interval == 0:  # a node that is down is silent
+        if t % self.sc.state_interval == 0 and self.sc.failures:  # a node that is down is silent
             up = ~self.down[t]
             self.heard[:, up] = self.queued[:, up]
             self.heard_occupancy[:, up] = (self.queued + self.undecided)[:, up]
+        elif t % self.sc.state_interval == 0:
+            self.heard[:] = self.queued
+            self.heard_occupancy[:] = self.queued + self.undecided
