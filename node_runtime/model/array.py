@@ -18,9 +18,9 @@ payloads, clients without a worker, and user-defined roles, policies or task sou
 One tick runs the roles in an order that their one-tick message delay makes equivalent to the emulator's:
 controllers (they read the worker's state at the end of the previous tick), clients (results in, new
 tasks out), then workers (failure, overload, results relayed, expiry, decisions, admission, CPU, results
-back). A co-located
-controller (control latency 0) observes its worker at the end of the previous tick in the same slot and
-hands its answer over at once, which the worker applies in this tick, as the emulator's host does.
+back). A co-located controller (control latency 0) observes its worker at the end of the previous tick in
+the same slot and hands its answer over at once, which the worker applies in this tick, as the emulator's
+host does.
 """
 
 from __future__ import annotations
@@ -102,7 +102,7 @@ def refusal(sc: Scenario, policy: str | None = None) -> str | None:
             return f"user task source {sc.workload.source}"
         if any(t.payload is not None for t in sc.workload.task_types):
             return "payloads"
-        for n in sc.nodes:  # an offloaded task's result goes straight back to its origin over the link
+        for n in sc.nodes:  # an offloaded task's result comes back over the link it went by, reversed
             for j in sc.neighbours[n.id] if n.has("controller") and sc.max_hops else ():
                 if sc.node[j].has("worker") and (j, n.id) not in sc.link:
                     return f"link {j} -> {n.id} is missing (a result could not come back directly)"
@@ -485,7 +485,9 @@ class ArraySim:
         The busy-until ticks a controller knows are its worker's at the end of the last tick it reported in; with
         tasks to place they are the links' at the end of the previous tick, as held here: the worker reports
         whenever its undecided set changes, and whenever it transmits while tasks wait for a decision, so since
-        its last report the set stayed the same and not empty, and nothing was sent."""
+        its last report the set stayed the same and not empty, and nothing was sent. (Back from a failure, a
+        controller's first observation holds only tasks the failure dropped: their decisions are stale whatever
+        they say, so the backlogs it reads then change nothing.)"""
         to = self.target[nd]
         busy = self.busy[c[:, None], nd[:, None], to]
         backlog = np.where(busy > t + 1, (busy - (t + 1)) * self.dt, 0.0)
