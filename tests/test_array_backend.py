@@ -4,8 +4,9 @@ Both run the same scenario with the same seeds and the same node-side policy; af
 counters (the ``STAT_FIELDS``, in flight, the response times' sum) must be equal, and with them every
 column of ticks.csv and nodes.csv, which the orchestrator sums from them: exactly, floats included (the
 backend adds its floats in the emulator's order). CI runs a small set; ``--all`` runs every bundled
-scenario the backend takes with each of its policies over a whole episode. A deliberately broken rule
-(a deadline one tick late) must make the comparison fail.
+scenario the backend takes with each of its policies over a whole episode, and the settings, failures,
+losses and hop limits below in full. Deliberately broken rules (a deadline one tick late, another random
+stream, a result that skips its path, ...) must make the comparison fail.
 """
 
 from __future__ import annotations
