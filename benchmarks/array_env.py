@@ -18,6 +18,14 @@ scenario, measured in one run so that their ratios hold when the machine's speed
 The array rows run node-side policies, not an agent: they measure the simulation, not an RL loop. Then the
 same child measurements for random-geometric scenarios of N nodes (``scale.py``'s) at ``--node-k`` copies.
 The load average is printed with each table.
+
+    python benchmarks/array_env.py --scenarios aot2 --env-steps 200 --env-ks 64 256 1024
+
+``--env-steps N`` adds, per scenario, the environments on the array backend, every agent driven with uniformly
+random allowed actions (an agent-step is one agent's step: steps x agents x K over the wall time of the steps,
+the actions' drawing included, episodes of ``--env-max-steps`` crossing resets): ``ZenohEdgeEnv`` in-process and
+with ``backend="array"`` (flat observations), and ``ZenohEdgeVectorEnv`` with K in-process simulations
+(``--env-inproc-k``) and with ``backend="array"`` at each K of ``--env-ks``.
 """
 
 from __future__ import annotations
@@ -131,6 +139,57 @@ def array_row(name: str, k: int | str, r: dict[str, float], reference: float | N
                       f"{r['arrays_mib']:.1f}", f"{r['peak_mib']:.0f}")
 
 
+# ----- the environments -----
+
+def env_rate(backend: str, name: str, steps: int, max_steps: int) -> float:
+    """Agent-steps/s of one ``ZenohEdgeEnv`` (flat observations) with random allowed actions."""
+    from env import ZenohEdgeEnv
+
+    env = ZenohEdgeEnv(name, backend=backend, transport="inproc", observation="flat", max_steps=max_steps)
+    rng = np.random.default_rng(0)
+    obs, _ = env.reset(seed=1)
+    start = time.perf_counter()
+    for _ in range(steps):
+        obs, *_ = env.step({a: int(rng.choice(np.flatnonzero(o["action_mask"]))) for a, o in obs.items()})
+        if not env.agents:
+            obs, _ = env.reset()
+    wall = time.perf_counter() - start
+    env.close()
+    return steps * len(env.possible_agents) / wall
+
+
+def vector_rate(backend: str, name: str, steps: int, max_steps: int, k: int) -> float:
+    """Agent-steps/s of ``ZenohEdgeVectorEnv`` with K simulations, random allowed actions, resets as episodes end."""
+    import torch
+
+    from env.vector import GROUP, ZenohEdgeVectorEnv
+
+    def policy(td):
+        mask = td[GROUP, "action_mask"]
+        td[GROUP, "action"] = torch.multinomial(mask.flatten(0, -2).float(), 1).view(mask.shape[:-1])
+        return td
+
+    env = ZenohEdgeVectorEnv(name, num_envs=k, seed=1, backend=backend, max_steps=max_steps)
+    start = time.perf_counter()
+    td = env.rollout(steps, policy, break_when_any_done=False)
+    wall = time.perf_counter() - start
+    env.close()
+    return td[GROUP, "action"].numel() / wall
+
+
+def env_table(name: str, args: argparse.Namespace) -> None:
+    print(f"\nenvironments: {name}, {args.env_steps} steps, episodes of {args.env_max_steps}, random allowed "
+          f"actions, load average {os.getloadavg()[0]:.1f}")
+    print(f"{'env':>22} {'agent-steps/s':>14}")
+    run = (name, args.env_steps, args.env_max_steps)
+    rows = [("ZenohEdgeEnv inproc", lambda: env_rate("emulator", *run)),
+            ("ZenohEdgeEnv array", lambda: env_rate("array", *run)),
+            (f"vector inproc {args.env_inproc_k}", lambda: vector_rate("emulator", *run, args.env_inproc_k))]
+    rows += [(f"vector array {k}", lambda k=k: vector_rate("array", *run, k)) for k in args.env_ks]
+    for label, measure in rows:
+        print(f"{label:>22} {measure():>14,.0f}", flush=True)
+
+
 def main() -> None:
     if sys.argv[1:2] == ["--child"]:
         child(sys.argv[2:])
@@ -145,6 +204,10 @@ def main() -> None:
     ap.add_argument("--nodes", type=int, nargs="*", default=[100, 300, 1000],
                     help="node counts of the random-geometric scenarios (default 100 300 1000; none: skip)")
     ap.add_argument("--node-k", type=int, default=16, help="copies of each of those (default 16)")
+    ap.add_argument("--env-steps", type=int, default=0, help="also the envs with backend='array', this many steps")
+    ap.add_argument("--env-max-steps", type=int, default=100)
+    ap.add_argument("--env-ks", type=int, nargs="+", default=[64, 256, 1024])
+    ap.add_argument("--env-inproc-k", type=int, default=4)
     args = ap.parse_args()
     print(version_line())
     header = ("| backend | K | agent-steps/s | per CPU s | x inproc | set-up s | arrays MiB | peak MiB |\n"
@@ -161,6 +224,8 @@ def main() -> None:
             print(array_row("array", k, in_child("scenario", name, args.policy, str(args.ticks), str(k)), reference),
                   flush=True)
         print(f"after: {load()}")
+        if args.env_steps:
+            env_table(name, args)
     if args.nodes:
         print(f"\nrandom-geometric scenarios of N nodes (benchmarks/scale.py), their own policy, K = {args.node_k}, "
               f"{args.ticks} ticks, {load()}\n{header.replace('backend', 'nodes')}")

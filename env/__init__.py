@@ -2,12 +2,12 @@
 
 from env.actions import InvalidActionError
 from env.environment import ZenohEdgeEnv
-from env.observations import NeighbourField, OwnField, TaskField
+from env.observations import JobField, NeighbourField, OwnField, TaskField
 from env.overrides import ScenarioOverrides
 from env.reward import PaperWeights, RewardContext, RewardSettings, RewardTerms
 from env.settings import MAX_SEED
 from env.wrappers import InvalidActionPenalty, PotentialShaping
 
-__all__ = ["MAX_SEED", "InvalidActionError", "InvalidActionPenalty", "NeighbourField", "OwnField", "PaperWeights",
-           "PotentialShaping", "RewardContext", "RewardSettings", "RewardTerms", "ScenarioOverrides", "TaskField",
-           "ZenohEdgeEnv"]
+__all__ = ["MAX_SEED", "InvalidActionError", "InvalidActionPenalty", "JobField", "NeighbourField", "OwnField",
+           "PaperWeights", "PotentialShaping", "RewardContext", "RewardSettings", "RewardTerms", "ScenarioOverrides",
+           "TaskField", "ZenohEdgeEnv"]

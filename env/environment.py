@@ -18,6 +18,7 @@ action is ruled in ``env.actions``; penalties and shaping are wrappers (``env.wr
 from __future__ import annotations
 
 from collections.abc import Sequence
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, ClassVar
 
@@ -25,7 +26,7 @@ import numpy as np
 from gymnasium import spaces
 from pettingzoo import ParallelEnv
 
-from env.actions import ActionRules
+from env.actions import ActionRules, ResolvedActions
 from env.credit import TaskCredit
 from env.observations import FlatObservation, ObservationBuilder, ObservationLayout
 from env.overrides import ScenarioOverrides
@@ -45,11 +46,23 @@ from node_runtime.model.spec import Scenario
 from node_runtime.model.view import Observation
 from node_runtime.model.workload import nominal_arrivals
 from node_runtime.runtime.layout import Layout
+from orchestrator.array_session import ArrayCopy
 from orchestrator.catalogue import Out
-from orchestrator.metrics import output_values, penalty_s
+from orchestrator.metrics import TickReport, output_values, penalty_s
 from orchestrator.session import Simulation
 
 AGENT_PREFIX = "ctrl_"
+
+
+@dataclass(frozen=True, slots=True)
+class Placed:
+    """A step's actions, before the simulation runs it: checked, as the controllers' actions by role, and the
+    reward terms and credits of the decisions, by agent."""
+
+    resolved: ResolvedActions
+    controller_actions: dict[str, Any]
+    terms: dict[str, tuple[RewardTerms, ...]]
+    credits: dict[str, list[tuple[int, float]]]
 
 
 def agent_name(node: str) -> str:
@@ -63,7 +76,11 @@ class ZenohEdgeEnv(ParallelEnv):
         scenario: a bundled name ("aot1" … "aot4"), a YAML path, a dict in the scenario format, or a
             ``Scenario``.
         seed: seed of the first episode (later resets without a seed draw from a stream it seeds).
-        transport: "zenoh" (node processes over a Zenoh router) or "inproc" (same code, one process).
+        backend: "emulator" (default: the node code, over ``transport``) or "array" (the model's array program
+            in this process, docs/array.md: the same observations, rewards and infos step for step, much faster,
+            for the scenarios it covers; any other is refused in one line, ``Unsupported``). docs/env.md, "Backends".
+        transport: with the emulator backend, "zenoh" (node processes over a Zenoh router) or "inproc" (same
+            code, one process).
         layout: "per-role", "per-node", "single" (default for inproc) or "groups:K"; the default for zenoh is
             per-role while its processes fit this machine, else groups:K (docs/protocol.md#the-default-layout).
         reward: "paper" (Eq. 1–5, see docs/reward.md), "reference", "sparse", "team", "score", "team_score", "marginal",
@@ -104,7 +121,8 @@ class ZenohEdgeEnv(ParallelEnv):
     }
 
     def __init__(self, scenario: str | Path | dict | Scenario = "aot1", *, seed: int | None = None,
-                 transport: str = "zenoh", layout: Layout | None = None, reward: str | RewardFn | None = None,
+                 backend: str = "emulator", transport: str = "zenoh", layout: Layout | None = None,
+                 reward: str | RewardFn | None = None,
                  observation: type[ObservationBuilder] | str | None = None,
                  reward_weights: PaperWeights | None = None, overrides: ScenarioOverrides | None = None,
                  max_steps: int | None = None, agents: Sequence[str] | None = None, uniform_spaces: bool = False,
@@ -112,8 +130,8 @@ class ZenohEdgeEnv(ParallelEnv):
                  info_numbers: bool = True,
                  connect: str | None = None, sim_id: str | None = None, timeout: float = 30.0,
                  security: str | Path | None = None, congestion_price: float | None = None) -> None:
-        self.connection = Connection(transport=transport, layout=layout, timeout=timeout, connect=connect,
-                                     sim_id=sim_id, security=security)
+        self.connection = Connection(backend=backend, transport=transport, layout=layout, timeout=timeout,
+                                     connect=connect, sim_id=sim_id, security=security)
         self.episode = EpisodeSettings(max_steps=max_steps, agents=agents, seed=seed)
         self.observing = ObservationSettings(observation=observation, uniform_spaces=uniform_spaces,
                                              neighbour_slots=neighbour_slots, info_numbers=info_numbers)
@@ -122,7 +140,9 @@ class ZenohEdgeEnv(ParallelEnv):
             raise ValueError(f"render_mode must be one of {self.metadata['render_modes']} or None")
         self.render_mode = render_mode
         self.scenario = self.connection.scenario(scenario, overrides)
+        self.connection.check(self.scenario)
         self.max_steps = self.episode.steps(self.scenario)
+        self.episode_ticks = 1 + self.max_steps * self.scenario.decision_interval  # the reset tick, then the steps'
         self._set_reward(reward)
         self._set_agents()
         self._set_spaces(invalid_action)
@@ -158,7 +178,8 @@ class ZenohEdgeEnv(ParallelEnv):
         builder = self.observing.builder(sc)
         self.flat = builder == FLAT
         padded = self.observing.uniform_spaces or self.flat or fixed is not None
-        self.layouts = {a: ObservationLayout(d, slots if padded else d, batch) for a, d in degrees.items()}
+        jobs = sc.workload.jobs is not None  # a scenario of jobs: its tasks' DAG features too
+        self.layouts = {a: ObservationLayout(d, slots if padded else d, batch, jobs) for a, d in degrees.items()}
         if self.flat:
             n = len(self.possible_agents)
             self.builders = {a: FlatObservation(lay, i, n) for i, (a, lay) in enumerate(self.layouts.items())}
@@ -173,7 +194,7 @@ class ZenohEdgeEnv(ParallelEnv):
 
     def _set_episode_state(self) -> None:
         """No simulation until the first reset; the seeds of the episodes to come."""
-        self.sim: Simulation | None = None
+        self.sim: Simulation | ArrayCopy | None = None
         self._seeds = np.random.default_rng(self.episode.seed)
         self._next_seed = self.episode.seed
         self._raw: dict[str, Observation | None] = {}
@@ -196,6 +217,15 @@ class ZenohEdgeEnv(ParallelEnv):
     def reset(self, seed: int | None = None, options: dict | None = None):
         """Start an episode; the node processes stay up. ``options``: {"policy": name} for the
         controllers the agents do not drive."""
+        episode_seed = self._episode_seed(seed)
+        if self.sim is None:
+            self.sim = self._open()
+            self._closed = False
+        report = self.sim.reset(episode_seed, external=self._driven(), policy=(options or {}).get("policy"))
+        return self._started(report)
+
+    def _episode_seed(self, seed: int | None) -> int:
+        """The seed of the episode a reset starts: ``seed``, else the first one, else one drawn from the stream."""
         check_seed(seed, "reset")
         if seed is not None:
             self._seeds = np.random.default_rng(seed)
@@ -205,11 +235,14 @@ class ZenohEdgeEnv(ParallelEnv):
         else:
             episode_seed = int(self._seeds.integers(2**31))
         self._next_seed = None
-        if self.sim is None:
-            self.sim = self._open()
-            self._closed = False
-        external = [role_id("controller", n) for n in self.node_of.values()]
-        report = self.sim.reset(episode_seed, external=external, policy=(options or {}).get("policy"))
+        return episode_seed
+
+    def _driven(self) -> list[str]:
+        """The controller roles the agents drive."""
+        return [role_id("controller", n) for n in self.node_of.values()]
+
+    def _started(self, report: TickReport):
+        """The reset's observations and infos, from the report of the episode's tick 0."""
         self.agents = list(self.possible_agents)
         self._steps = 0
         self._invalid = dict.fromkeys(self.possible_agents, 0)
@@ -217,13 +250,23 @@ class ZenohEdgeEnv(ParallelEnv):
         self.credit.reset()
         self.sim.open_next()
         self._observe()
-        nodes = _by_node(output_values(Out.ENV, report.nodes, report.node_delta, self.sim.metrics.capacity))
+        nodes = _by_node(output_values(Out.ENV, report.nodes, report.node_delta, self.sim.metrics.capacity,
+                                            jobs=self.sim.metrics.jobs))
         infos = {a: self._info(a, nodes, ()) for a in self.agents}
         self.step_details = infos
         return dict(self._obs), self._numbers(infos) if self.flat else infos
 
     def step(self, actions: dict[str, Any]):
         """``actions``: one per live agent; docs/env.md "Actions" says what each may be and what it does."""
+        placed = self._place(actions)
+        reports = [self.sim.step(placed.controller_actions)]
+        for _ in range(self.scenario.decision_interval - 1):
+            reports.append(self.sim.step())
+        return self._stepped(placed, reports)
+
+    def _place(self, actions: dict[str, Any]) -> Placed:
+        """The step's actions checked, what the controllers carry out, and the reward terms and credits of
+        the decisions: all that is known before the simulation runs the step."""
         if not self.agents:
             self._not_running()
         resolved = self.action_rules.resolve(actions, self.agents, self._raw)
@@ -245,9 +288,12 @@ class ZenohEdgeEnv(ParallelEnv):
         for agent in resolved.invalid:
             self._invalid[agent] += 1
         self._last_actions = resolved.decisions
-        reports = [self.sim.step(controller_actions)]
-        for _ in range(self.scenario.decision_interval - 1):
-            reports.append(self.sim.step())
+        return Placed(resolved, controller_actions, terms, credits)
+
+    def _stepped(self, placed: Placed, reports: list[TickReport]):
+        """The step's observations, rewards, terminations, truncations and infos, from the reports of its ticks."""
+        resolved, terms, credits = placed.resolved, placed.terms, placed.credits
+        dt = self.scenario.dt
         self._steps += 1
         truncated = self._steps >= self.max_steps
         if not truncated:
@@ -259,9 +305,11 @@ class ZenohEdgeEnv(ParallelEnv):
 
         node_delta = reports[0].node_delta if len(reports) == 1 else sum(r.node_delta for r in reports)
         capacity = self.sim.metrics.capacity * len(reports)  # the step's cycles, for a share
-        deltas = _by_node(output_values(Out.ENV_DELTA, reports[-1].nodes, node_delta, capacity))
-        network_delta = output_values(Out.ENV_DELTA, reports[-1].totals, sum(r.delta for r in reports), capacity.sum())
-        nodes = _by_node(output_values(Out.ENV, reports[-1].nodes, node_delta, capacity))
+        jobs = self.sim.metrics.jobs
+        deltas = _by_node(output_values(Out.ENV_DELTA, reports[-1].nodes, node_delta, capacity, jobs=jobs))
+        network_delta = output_values(Out.ENV_DELTA, reports[-1].totals, sum(r.delta for r in reports), capacity.sum(),
+                                      jobs=jobs)
+        nodes = _by_node(output_values(Out.ENV, reports[-1].nodes, node_delta, capacity, jobs=jobs))
         rewards, infos = {}, {}
         for agent in self.agents:
             row = self._row[agent]
@@ -327,8 +375,8 @@ class ZenohEdgeEnv(ParallelEnv):
         raise RuntimeError(f"step() after the episode ended (every agent truncated at step {self._steps}): "
                            "call reset() to start a new one")
 
-    def _open(self) -> Simulation:
-        sim = self.connection.open(self.scenario)
+    def _open(self) -> Simulation | ArrayCopy:
+        sim = self.connection.open(self.scenario, self.episode_ticks)
         sim.metrics.history = False  # infos need the running totals only: memory stays flat over long episodes
         return sim
 

@@ -9,6 +9,9 @@ in docs/env.md):
 - ``neighbours`` (D, 8): present (0/1), queue, occupancy, buffer, capacity [Gcycles/s], tier,
   link rate [Mbit/s], age of the information [ticks] — in the canonical neighbour order, which is
   also the order of actions 1..D;
+- ``job`` (3,) — or (B, 3) — only in a scenario of jobs (``workload.jobs``): in a job (0/1), the task's
+  remaining critical path [Gcycles] (its own cycles plus the most on a path to its job's end), and its
+  successors' data [MB] (the bytes its result carries on to them);
 - ``action_mask`` (1 + D,) int8 — in batch mode a tuple of B such arrays, one per task slot (the form
   ``MultiDiscrete.sample(mask)`` takes): 1 where the action is allowed.
 
@@ -58,6 +61,15 @@ class TaskField(IntEnum):
     WAITED_TICKS = 6
 
 
+class JobField(IntEnum):
+    """Columns of ``job`` (of each row in batch mode), in a scenario of jobs only:
+    ``obs["job"][JobField.CRITICAL_GCYCLES]``."""
+
+    IN_JOB = 0  # 1 when the task to place belongs to a job
+    CRITICAL_GCYCLES = 1  # remaining critical path: its cycles plus the most on a path to an exit task of its job
+    SUCCESSOR_MB = 2  # the data of its out-edges, which its successors need
+
+
 class NeighbourField(IntEnum):
     """Columns of ``neighbours`` (one row per slot): ``obs["neighbours"][:, NeighbourField.QUEUE]``."""
 
@@ -75,9 +87,10 @@ class NeighbourField(IntEnum):
 # Columns the encoder fills once (static) and at every step (dynamic), as index arrays.
 _OWN_STATIC = np.array([OwnField.BUFFER, OwnField.CAPACITY_GCPS, OwnField.TIER])
 _NEIGHBOUR_STATIC = np.array([NeighbourField.PRESENT, NeighbourField.BUFFER, NeighbourField.CAPACITY_GCPS,
-                              NeighbourField.TIER, NeighbourField.RATE_MBPS])
-_NEIGHBOUR_DYNAMIC = np.array([NeighbourField.QUEUE, NeighbourField.OCCUPANCY, NeighbourField.AGE_TICKS,
-                               NeighbourField.BACKLOG_S])
+                              NeighbourField.TIER])
+# the rate is dynamic: a moving neighbour's follows the distance (0 out of range)
+_NEIGHBOUR_DYNAMIC = np.array([NeighbourField.QUEUE, NeighbourField.OCCUPANCY, NeighbourField.RATE_MBPS,
+                               NeighbourField.AGE_TICKS, NeighbourField.BACKLOG_S])
 
 
 @dataclass(frozen=True)
@@ -87,6 +100,7 @@ class ObservationLayout:
     degree: int
     slots: int  # neighbour slots (>= degree when padded)
     batch: int | None  # None in binary mode: one task, and no batch axis
+    jobs: bool = False  # a scenario of jobs: a ``job`` block beside ``task``
 
     @property
     def n_actions(self) -> int:
@@ -98,12 +112,18 @@ class ObservationLayout:
         task_low = np.zeros(task_shape, dtype=np.float32)
         task_low[..., TaskField.TIME_LEFT_S] = -inf  # an undecided task may already be past its deadline
         mask = spaces.Box(0, 1, (self.n_actions,), np.int8)
+        job = {"job": spaces.Box(0.0, inf, self.job_shape, np.float32)} if self.jobs else {}
         return spaces.Dict({
             "own": spaces.Box(0.0, inf, (len(OwnField),), np.float32),
             "task": spaces.Box(task_low, np.full(task_shape, inf, dtype=np.float32), task_shape, np.float32),
+            **job,
             "neighbours": spaces.Box(0.0, inf, (self.slots, len(NeighbourField)), np.float32),
             "action_mask": mask if self.batch is None else spaces.Tuple([mask] * self.batch),
         })
+
+    @property
+    def job_shape(self) -> tuple[int, ...]:
+        return (len(JobField),) if self.batch is None else (self.batch, len(JobField))
 
     def action_space(self) -> spaces.Space:
         if self.batch is None:
@@ -129,7 +149,7 @@ class ObservationLayout:
         base[0] = 1
         rows = [base.copy() for _ in range(1 if self.batch is None else self.batch)]
         if obs is not None:
-            worker = [n.worker for n in obs.neighbours]
+            worker = obs.valid_actions()[1:]
             for k in range(len(obs.tasks)):
                 rows[k][1:1 + self.degree] = worker
         return rows[0] if self.batch is None else tuple(rows)
@@ -157,8 +177,8 @@ class ObservationBuilder:
 class DictObservation(ObservationBuilder):
     """The default: the documented Dict of float32 arrays and the action mask.
 
-    Static features (buffers, capacities, tiers, link rates, which neighbours take tasks) are filled
-    once, from the first view; the changing ones (queues, ages, tasks) at every step.
+    Static features (buffers, capacities, tiers, which neighbours take tasks) are filled once, from the
+    first view; the changing ones (queues, link rates, ages, tasks) at every step.
     """
 
     def __init__(self, layout: ObservationLayout) -> None:
@@ -174,7 +194,7 @@ class DictObservation(ObservationBuilder):
         template["own"][_OWN_STATIC] = (own.buffer, own.capacity * 1e-9, own.tier)
         nb = template["neighbours"]
         for i, n in enumerate(first.neighbours):
-            nb[i, _NEIGHBOUR_STATIC] = (1.0, n.buffer, n.capacity * 1e-9, n.tier, n.rate_bps * 1e-6)
+            nb[i, _NEIGHBOUR_STATIC] = (1.0, n.buffer, n.capacity * 1e-9, n.tier)
         return template
 
     def encode(self, obs: Observation | None) -> dict[str, Any]:
@@ -188,14 +208,19 @@ class DictObservation(ObservationBuilder):
         own[OwnField.OCCUPANCY] = obs.own.occupancy
         own[OwnField.UNDECIDED] = obs.undecided
         if obs.neighbours:
-            out["neighbours"][:len(obs.neighbours), _NEIGHBOUR_DYNAMIC] = [(n.queue, n.occupancy, n.age, n.backlog_s)
-                                                                             for n in obs.neighbours]
+            out["neighbours"][:len(obs.neighbours), _NEIGHBOUR_DYNAMIC] = [
+                (n.queue, n.occupancy, n.rate_bps * 1e-6, n.age, n.backlog_s) for n in obs.neighbours]
         if obs.tasks:
             tasks = out["task"] if self.layout.batch is not None else out["task"][None, :]
             for k, task in enumerate(obs.tasks):  # the columns of TaskField, in order
                 size = task.size
                 tasks[k] = (1.0, size.instructions * 1e-9, size.input_bytes * 1e-6, size.output_bytes * 1e-6, size.cpi,
                             task.time_left, task.waited)
+            if self.layout.jobs:
+                jobs = out["job"] if self.layout.batch is not None else out["job"][None, :]
+                for k, task in enumerate(obs.tasks):  # the columns of JobField, in order
+                    if task.job is not None:
+                        jobs[k] = (1.0, task.job.critical_cycles * 1e-9, task.job.successor_bytes * 1e-6)
             out["action_mask"] = self.layout.masks(obs)
         return out
 
@@ -203,7 +228,8 @@ class DictObservation(ObservationBuilder):
 class FlatObservation(ObservationBuilder):
     """``observation="flat"``: ``{"observation": (F,) float32, "action_mask": int8}``, one shape for all agents.
 
-    ``observation`` is ``own``, ``task`` (row-major in batch mode), ``neighbours`` (row-major, padded to
+    ``observation`` is ``own``, ``task`` (row-major in batch mode), ``job`` (likewise, only in a scenario
+    of jobs), ``neighbours`` (row-major, padded to
     the largest degree) and the one-hot index of the agent in ``possible_agents``, so that a network
     shared by all agents can tell them apart; ``slices`` says where each block lies. ``action_mask`` is
     (1 + D,), or (B, 1 + D) in batch mode.
@@ -215,13 +241,13 @@ class FlatObservation(ObservationBuilder):
         self.agent_id = np.zeros(n_agents, dtype=np.float32)
         self.agent_id[agent_index] = 1.0
         spaces_ = layout.space().spaces
-        sizes = {"own": len(OwnField), "task": int(np.prod(spaces_["task"].shape)),
-                 "neighbours": layout.slots * len(NeighbourField), "agent_id": n_agents}
+        self.blocks = ("own", "task", "job", "neighbours") if layout.jobs else ("own", "task", "neighbours")
+        sizes = {k: int(np.prod(spaces_[k].shape)) for k in self.blocks} | {"agent_id": n_agents}
         ends = np.cumsum(list(sizes.values()))
         self.slices = {k: slice(int(end - n), int(end)) for (k, n), end in zip(sizes.items(), ends, strict=True)}
-        self._low = np.concatenate([spaces_[k].low.ravel() for k in ("own", "task", "neighbours")]
+        self._low = np.concatenate([spaces_[k].low.ravel() for k in self.blocks]
                                    + [np.zeros(n_agents, dtype=np.float32)])
-        self._high = np.concatenate([spaces_[k].high.ravel() for k in ("own", "task", "neighbours")]
+        self._high = np.concatenate([spaces_[k].high.ravel() for k in self.blocks]
                                     + [np.ones(n_agents, dtype=np.float32)])
 
     def space(self) -> spaces.Dict:
@@ -237,12 +263,11 @@ class FlatObservation(ObservationBuilder):
         """The flat form of this agent's Dict observation (``observation=None``, the default, with
         ``uniform_spaces=True``): what a policy trained on flat observations acts on."""
         mask = fields["action_mask"]
-        return {"observation": np.concatenate([fields["own"], fields["task"].ravel(), fields["neighbours"].ravel(),
-                                               self.agent_id]),
+        return {"observation": np.concatenate([*(fields[k].ravel() for k in self.blocks), self.agent_id]),
                 "action_mask": mask if isinstance(mask, np.ndarray) else np.stack(mask)}
 
 
 def copy_obs(obs: dict) -> dict:
     mask = obs["action_mask"]
-    return {"own": obs["own"].copy(), "task": obs["task"].copy(), "neighbours": obs["neighbours"].copy(),
+    return {**{k: v.copy() for k, v in obs.items() if k != "action_mask"},
             "action_mask": mask.copy() if isinstance(mask, np.ndarray) else tuple(m.copy() for m in mask)}

@@ -15,15 +15,18 @@ from typing import Any
 
 from env.observations import DictObservation, ObservationBuilder
 from env.overrides import ScenarioOverrides
+from node_runtime.model.array import Unsupported, refusal
 from node_runtime.model.rng import MAX_SEED
 from node_runtime.model.spec import Scenario, episode_too_long
 from node_runtime.runtime.layout import Layout, check_layout
 from node_runtime.runtime.security import Security
+from orchestrator.array_session import ArrayBatch, ArrayCopy
 from orchestrator.scenario import load_scenario
 from orchestrator.serve import describe
 from orchestrator.session import Simulation, check_transport
 
 FLAT = "flat"  # observation="flat": FlatObservation and numbers-only infos
+BACKENDS = ("emulator", "array")  # the node code (over ``transport``), or the array backend (docs/array.md)
 
 
 def check_seed(seed: Any, call: str) -> None:
@@ -102,11 +105,14 @@ class ObservationSettings:
 
 @dataclass(frozen=True, kw_only=True)
 class Connection:
-    """How the environment reaches its simulation: one it starts on ``transport`` ("zenoh" or "inproc") with
-    ``layout`` (None: the transport's default), or, with ``connect`` and ``sim_id``, one served by ``orchestrator
-    launch --serve``, reached with the ``driver`` identity in the directory ``security`` (TLS and logins).
+    """How the environment reaches its simulation: with the ``emulator`` backend, one it starts on ``transport``
+    ("zenoh" or "inproc") with ``layout`` (None: the transport's default), or, with ``connect`` and ``sim_id``, one
+    served by ``orchestrator launch --serve``, reached with the ``driver`` identity in the directory ``security``
+    (TLS and logins); with the ``array`` backend, the model's array program in this process (no transport, no
+    process: ``transport`` is not used, ``layout`` and ``connect`` may not be given).
     ``timeout``: seconds the clock waits for a tick."""
 
+    backend: str = "emulator"
     transport: str = "zenoh"
     layout: Layout | None = None
     timeout: float = 30.0
@@ -115,6 +121,11 @@ class Connection:
     security: Security | str | Path | None = None
 
     def __post_init__(self) -> None:
+        if self.backend not in BACKENDS:
+            raise ValueError(f"backend must be 'emulator' (the node code, over transport=) or 'array' (docs/array.md), "
+                             f"not {self.backend!r}")
+        if self.backend == "array" and (self.connect is not None or self.layout is not None):
+            raise ValueError("backend='array' runs in this process: connect= and layout= apply to the emulator backend")
         check_transport(self.transport)
         if self.layout is not None:
             object.__setattr__(self, "layout", check_layout(self.layout))
@@ -135,8 +146,16 @@ class Connection:
         sc = scenario if isinstance(scenario, Scenario) else load_scenario(scenario)
         return overrides.apply(sc) if overrides is not None else sc
 
-    def open(self, sc: Scenario) -> Simulation:
-        """Attach to the served simulation, or start ``sc`` on this transport."""
+    def check(self, sc: Scenario) -> None:
+        """Refuse, in one line (``Unsupported``), a scenario that the array backend does not model with agents."""
+        if self.backend == "array" and (reason := refusal(sc, agents=True)) is not None:
+            raise Unsupported(reason)
+
+    def open(self, sc: Scenario, ticks: int) -> Simulation | ArrayCopy:
+        """Attach to the served simulation, or start ``sc`` on this transport, or (array backend) an array
+        batch of one copy whose episodes last up to ``ticks`` ticks."""
+        if self.backend == "array":
+            return ArrayBatch(sc, 1, ticks).copies[0]
         if self.connect is not None:
             return Simulation.attach(self.connect, self.sim_id, timeout=self.timeout, security=self.security)
         return Simulation.open(sc, self.transport, layout=self.layout, timeout=self.timeout)

@@ -13,6 +13,12 @@ one group "agents", with a leading K axis, so code written against the wrapper (
 on it unchanged. To use several cores, put it in TorchRL's ``ParallelEnv``: each worker then steps K
 simulations.
 
+With ``backend="array"`` the K simulations are the K copies of one array program (docs/array.md), stepped
+together in one call per tick, and each copy's ``ZenohEdgeEnv`` reads its copy as it would read its own
+simulation: the same observations, rewards and infos as K in-process environments with the same seeds
+and actions. Its copies start their episodes together (every episode has the same length, so they also end
+together); a reset that names only some of them is refused.
+
 Optional dependency: ``pip install -e ".[marl]"`` (TorchRL).
 """
 
@@ -27,6 +33,7 @@ from torchrl.data import Binary, Categorical, Composite, Unbounded
 from torchrl.envs import EnvBase
 
 from env.environment import ZenohEdgeEnv
+from orchestrator.array_session import ArrayBatch
 
 GROUP = "agents"
 
@@ -40,6 +47,8 @@ class ZenohEdgeVectorEnv(EnvBase):
         seed: simulation k's first episode is seeded ``seed + k`` (as after ``set_seed(seed)``); without
             one, the K seeds start from fresh entropy, still one apart.
         info_numbers: put the flat infos under ``("agents", "info", key)`` (one (K, N) tensor per number).
+        backend: "emulator" (K in-process simulations of the node code) or "array" (one array program of K
+            copies; docs/env.md, "Backends").
         **kwargs: any other ``ZenohEdgeEnv`` argument but ``observation``, ``transport`` and ``connect``
             (flat and in-process here), e.g. ``max_steps``, ``reward``, ``overrides``.
 
@@ -49,21 +58,26 @@ class ZenohEdgeVectorEnv(EnvBase):
     """
 
     def __init__(self, scenario: Any = "aot1", *, num_envs: int = 1, seed: int | None = None,
-                 info_numbers: bool = True, **kwargs: Any) -> None:
+                 info_numbers: bool = True, backend: str = "emulator", **kwargs: Any) -> None:
         if isinstance(num_envs, bool) or not isinstance(num_envs, int) or num_envs < 1:
             raise ValueError(f"num_envs must be an integer >= 1, not {num_envs!r}")
         for fixed in ("observation", "transport", "connect"):
             if fixed in kwargs:
                 raise TypeError(f"ZenohEdgeVectorEnv is flat and in-process: {fixed}= cannot be given")
         super().__init__(batch_size=torch.Size([num_envs]), allow_done_after_reset=False)
-        self.envs = [ZenohEdgeEnv(scenario, observation="flat", transport="inproc", info_numbers=info_numbers,
-                                  **kwargs) for _ in range(num_envs)]
+        self.envs = [ZenohEdgeEnv(scenario, observation="flat", backend=backend, transport="inproc",
+                                  info_numbers=info_numbers, **kwargs) for _ in range(num_envs)]
         first = self.envs[0]
         self.agent_names = list(first.possible_agents)
         self.group_map = {GROUP: self.agent_names}
         self._seeds: list[int | None] = [None] * num_envs
         self._started = False  # the first reset resets every simulation, whatever it is asked
         self._make_specs(first, info_numbers)
+        self.batch: ArrayBatch | None = None
+        if backend == "array":  # one program of K copies: each env reads its copy as its simulation
+            self.batch = ArrayBatch(first.scenario, num_envs, first.episode_ticks)
+            for env, copy in zip(self.envs, self.batch.copies, strict=True):
+                env.sim = copy
         # every simulation's first reset gets its seed explicitly (the spec probe above reset the first one)
         self._set_seed(int(np.random.SeedSequence().entropy % 2**31) if seed is None else seed)
 
@@ -107,6 +121,8 @@ class ZenohEdgeVectorEnv(EnvBase):
     def _reset(self, tensordict: TensorDictBase | None = None, **kwargs: Any) -> TensorDictBase:
         which = self._to_reset(tensordict)
         self._started = True
+        if self.batch is not None:
+            return self._reset_batch(which)
         for i in np.flatnonzero(which):
             observations, infos = self.envs[i].reset(seed=self._seeds[i])
             self._seeds[i] = None  # later episodes draw from the stream that seed started
@@ -117,9 +133,9 @@ class ZenohEdgeVectorEnv(EnvBase):
         actions = tensordict.get((GROUP, "action")).cpu().numpy()
         rewards = np.zeros((len(self.envs), len(self.agent_names)), dtype=np.float32)
         ended = np.zeros(len(self.envs), dtype=bool)
-        for i, env in enumerate(self.envs):
-            observations, reward, _, truncations, infos = env.step(dict(zip(self.agent_names, actions[i].tolist(),
-                                                                            strict=True)))
+        steps = self._step_batch(actions) if self.batch is not None else (
+            env.step(dict(zip(self.agent_names, actions[i].tolist(), strict=True))) for i, env in enumerate(self.envs))
+        for i, (observations, reward, _, truncations, infos) in enumerate(steps):
             self._write(i, observations, infos)
             rewards[i] = [reward[a] for a in self.agent_names]
             ended[i] = truncations[self.agent_names[0]]  # every agent's episode ends at the same step
@@ -131,6 +147,30 @@ class ZenohEdgeVectorEnv(EnvBase):
         for env in self.envs:
             env.close()
         super().close(raise_if_closed=raise_if_closed)
+
+    # ----- the array backend: K copies, one call per tick -----
+
+    def _reset_batch(self, which: np.ndarray) -> TensorDictBase:
+        """Start an episode in every copy, each with the seed its own environment would take."""
+        if not which.all():
+            raise ValueError("the array backend resets all its copies together (they end together): "
+                             f"asked to reset {int(which.sum())} of {len(which)}")
+        seeds = [env._episode_seed(seed) for env, seed in zip(self.envs, self._seeds, strict=True)]
+        self._seeds = [None] * len(self.envs)
+        reports = self.batch.reset(seeds, external=self.envs[0]._driven())
+        for i, (env, report) in enumerate(zip(self.envs, reports, strict=True)):
+            self._write(i, *env._started(report))
+        return self._output(ended=np.zeros(len(self.envs), dtype=bool))
+
+    def _step_batch(self, actions: np.ndarray) -> list[tuple]:
+        """Each environment's step, its actions placed before and its reports read after the batch's ticks."""
+        placed = [env._place(dict(zip(self.agent_names, actions[i].tolist(), strict=True)))
+                  for i, env in enumerate(self.envs)]
+        ticks = [self.batch.step([p.controller_actions for p in placed])]
+        for _ in range(self.envs[0].scenario.decision_interval - 1):
+            ticks.append(self.batch.step([None] * len(self.envs)))
+        return [env._stepped(p, [tick[i] for tick in ticks])
+                for i, (env, p) in enumerate(zip(self.envs, placed, strict=True))]
 
     # ----- internals -----
 

@@ -117,6 +117,8 @@ def jobs(sc: Scenario, trace: Sequence[TraceTask], last_tick: int) -> tuple[Vari
     serves it from then until L - ``down``, and the two links carry the input and the result in between."""
     if sc.max_hops > 1:
         raise BoundError(f"{sc.name}: max_hops {sc.max_hops}; the bound models one hop (max_hops 0 or 1)")
+    if sc.moving:
+        raise BoundError(f"{sc.name}: moving nodes; the bound models links of fixed rates")
     dt = sc.dt
     variables: Variables = []
     resources: dict[Any, list[Job]] = {}

@@ -123,19 +123,25 @@ def generalist(slots: int, config: Any, device: str = "cpu") -> PPO:
     return PPO({"agent": AgentSpec(slots=slots, n_actions=1 + slots)}, config, device)
 
 
+CURVES = ("return", CRITERION, "penalised_response_time")  # each checkpoint's validation means: learning curves
+
+
 def validate(policy: AgentPolicy, regimes: Sequence[SuiteRegime], envs: OpenEnvs, episodes: int,
-             progress: Any = None) -> float:
-    """Mean ``CRITERION`` (completion ratio) over the validation regimes, on the validation episode seeds."""
+             progress: Any = None) -> dict[str, float]:
+    """Means over the validation regimes, on the validation episode seeds, of ``CURVES``: ``CRITERION``
+    (completion ratio) chooses the checkpoint, the others are logged for the learning curves."""
     task = progress.add_task("validate", total=len(regimes) * episodes, info="") if progress else None
-    values = []
+    values: dict[str, list[float]] = {m: [] for m in CURVES}
     for regime in regimes:
         for seed in EPISODES["validation"].seeds(episodes):
-            values.append(run_episode(envs.get(regime), policy, seed)[CRITERION])
+            row = run_episode(envs.get(regime), policy, seed)
+            for m in CURVES:
+                values[m].append(row[m])
             if progress is not None:
                 progress.update(task, advance=1)
     if progress is not None:
         progress.remove_task(task)
-    return float(np.nanmean(values))
+    return {m: float(np.nanmean(v)) for m, v in values.items()}
 
 
 def train(args: argparse.Namespace, p: Parser) -> None:
@@ -169,7 +175,7 @@ def train(args: argparse.Namespace, p: Parser) -> None:
     draw = np.random.default_rng(args.seed)  # which regime each episode runs: from the training seed
     log = CsvWriter(args.out / "train.csv")
     checks_log = CsvWriter(args.out / "validation.csv") if checks else None
-    best = -math.inf
+    best, frames = -math.inf, 0
     progress = progress_bar() if args.progress else None
     with progress or nullcontext():
         bar = progress.add_task("train generalist", total=args.episodes, info="") if progress else None
@@ -180,8 +186,9 @@ def train(args: argparse.Namespace, p: Parser) -> None:
             except (ValueError, ScenarioError) as e:
                 p.error(f"{regime.path}: {str(e).splitlines()[0]}")
             row = run_episode(env, learner, seed, learner)
-            log.write({"episode": k, "regime": regime.name, "episode_seed": row.pop("seed"), **row,
-                       **learner.stats()})
+            frames += row["steps"] * len(env.possible_agents)  # agent-steps, the learning curves' x axis
+            log.write({"episode": k, "regime": regime.name, "episode_seed": row.pop("seed"),
+                       "agents": len(env.possible_agents), "frames": frames, **row, **learner.stats()})
             if progress is not None:
                 progress.update(bar, advance=1, info=f"{regime.name}  completion {row['completion_ratio']:.2f}  "
                                                      f"{row['wall_s']:.1f} s/episode")
@@ -189,10 +196,12 @@ def train(args: argparse.Namespace, p: Parser) -> None:
                 path = args.out / f"ckpt-{k + 1:05d}.pt"
                 learner.save(path)
                 if checks_log is not None:
-                    value = validate(learner, checks, checked, args.validation_episodes, progress)
-                    checks_log.write({"episode": k + 1, "checkpoint": path.name, CRITERION: value})
-                    if value > best:
-                        best = value
+                    start = time.perf_counter()
+                    means = validate(learner, checks, checked, args.validation_episodes, progress)
+                    checks_log.write({"episode": k + 1, "frames": frames, "checkpoint": path.name, **means,
+                                      "wall_s": time.perf_counter() - start})
+                    if means[CRITERION] > best:
+                        best = means[CRITERION]
                         shutil.copyfile(path, args.out / "best.pt")
     log.close()
     if checks_log is not None:

@@ -55,6 +55,10 @@ BUS_ANY = Out.BUS | Out.BUS_DELTA | Out.BUS_NODES
 NODE_VIEWS = Out.NODES | Out.BUS_NODES | Out.ENV
 ROWS = Out.TICKS | Out.NODES | Out.SUMMARY_NODES
 CHANGES = Out.TICKS | Out.NODES | Out.BUS_DELTA | Out.ENV_DELTA  # where a COUNT shows its change, not its total
+# where the job metrics show: the job counts where the task counts are, the job ratios where theirs are
+JOB_COUNTS = (Out.SUMMARY | Out.SUMMARY_NODES | Out.TICKS | Out.NODES | Out.BUS | Out.BUS_DELTA | Out.TABLE | Out.ENV
+              | Out.ENV_DELTA)
+JOB_RATIOS = Out.SUMMARY | Out.SUMMARY_NODES | Out.TICKS | Out.BUS | Out.TABLE
 
 
 class Form(Enum):
@@ -71,6 +75,7 @@ class Part:
     key: str  # its name in outputs
     field: str  # the counter it reads
     label: str  # for people
+    moving: bool = False  # shown only for a scenario whose nodes move (elsewhere it is always 0)
 
 
 @dataclass(frozen=True, slots=True, eq=False)
@@ -92,6 +97,7 @@ class Metric:
     episode_mean: bool = False  # LEVEL: the summary gives its mean over the episode's ticks, not its last value
     share_of: str | None = None  # the table also gives it as a percentage of this metric
     of: tuple[str, ...] = ()  # RATIO: the counters of its denominator
+    jobs: bool = False  # a metric of jobs: shown only for a scenario of jobs (workload.jobs), so others' outputs stay
 
     def __post_init__(self) -> None:
         if not self.fields and self.agg is not Agg.SAMPLES:
@@ -109,6 +115,10 @@ class Metric:
         if problems:
             raise ValueError(f"metric {self.name}: {'; '.join(problems)}")
 
+    def parts_of(self, moving: bool) -> tuple[Part, ...]:
+        """The parts a scenario's outputs show: those of moving nodes only where nodes move."""
+        return tuple(p for p in self.parts if moving or not p.moving)
+
     def key(self, out: Out) -> str:
         """Its name in ``out``; in the summary a dotted path (task counts are under "totals")."""
         if out in self.names:
@@ -121,17 +131,18 @@ class Metric:
         return self.forms.get(out, Form.TOTAL)
 
     def columns(self, out: Out) -> list[str]:
-        """The column names (or flat keys) it takes in ``out``: its own, then its parts' if FLAT."""
+        """The column names (or flat keys) it takes in ``out``: its own, then its parts' if FLAT (those that
+        every scenario shows)."""
         key = self.key(out)
         if self.form(out) is Form.FLAT:
-            return [key, *(f"{key}_{p.key}" for p in self.parts)]
+            return [key, *(f"{key}_{p.key}" for p in self.parts_of(moving=False))]
         return [key]
 
     def summary_section(self) -> str:
         return self.key(Out.SUMMARY).partition(".")[0]
 
 
-DROP_PARTS = tuple(Part(c, c, c.replace("_", " ")) for c in DROP_CAUSES)
+DROP_PARTS = tuple(Part(c, c, c.replace("_", " "), moving=c == "link_broken") for c in DROP_CAUSES)
 ENERGY_PARTS = (Part("compute", "energy_compute", "compute"), Part("idle", "energy_idle", "idle"),
                 Part("transmit", "energy_transmit", "radio"))
 
@@ -208,6 +219,28 @@ CATALOGUE: tuple[Metric, ...] = (
     Metric("energy_j", "J", Agg.COUNT, "energy", "energy",
            Out.SUMMARY | Out.SUMMARY_NODES | Out.TICKS | Out.NODES | Out.BUS | Out.MONITOR | Out.TABLE | Out.ENV,
            parts=ENERGY_PARTS, dtype=float, forms={Out.SUMMARY: Form.PARTS_TOTAL, Out.BUS: Form.FLAT}),
+    # ----- jobs (docs/model.md, "Jobs as DAGs"), counted at their origin; only for a scenario of jobs -----
+    # jobs created
+    Metric("jobs", "jobs", Agg.COUNT, "jobs", "jobs", JOB_COUNTS, names={Out.SUMMARY: "jobs.generated"}, jobs=True),
+    # jobs whose every task's result came back in time
+    Metric("jobs_completed", "jobs", Agg.COUNT, "jobs completed", "jdone", JOB_COUNTS,
+           names={Out.SUMMARY: "jobs.completed"}, share_of="jobs", jobs=True),
+    # jobs that reached their deadline before completing
+    Metric("jobs_missed", "jobs", Agg.COUNT, "jobs missed", "jmiss", JOB_COUNTS, names={Out.SUMMARY: "jobs.missed"},
+           share_of="jobs", jobs=True),
+    # jobs still running: jobs = jobs_completed + jobs_missed + jobs_active, every tick
+    Metric("jobs_active", "jobs", Agg.LEVEL, "jobs running", "jrun", Out.SUMMARY | Out.TICKS | Out.NODES | Out.ENV,
+           names={Out.SUMMARY: "jobs.active"}, jobs=True),
+    # jobs_completed / jobs so far
+    Metric("job_completion_ratio", "ratio", Agg.RATIO, "job completion ratio", "jc/g", JOB_RATIOS,
+           fields=("jobs_completed",), of=("jobs",), names={Out.SUMMARY: "jobs.completion_ratio"}, jobs=True),
+    # the mean makespan of the completed jobs: (tick of its last result's arrival - tick of creation) x dt
+    Metric("makespan", "s", Agg.RATIO, "makespan (mean)", "mksp", JOB_RATIOS, fields=("makespan_sum",),
+           of=("jobs_completed",), names={Out.SUMMARY: "jobs.makespan_mean", Out.TICKS: "makespan_mean",
+                                           Out.SUMMARY_NODES: "makespan_mean"}, jobs=True),
+    # mean over the jobs created of the makespan if completed, else the penalty (docs/model.md)
+    Metric("penalised_makespan", "s", Agg.RATIO, "penalised makespan", "pmk", JOB_RATIOS,
+           fields=("job_penalised_s",), of=("jobs",), names={Out.SUMMARY: "jobs.penalised_makespan"}, jobs=True),
 )
 METRIC: dict[str, Metric] = {m.name: m for m in CATALOGUE}
 
@@ -226,30 +259,32 @@ def _in_rows(out: Out) -> Callable[[Metric], Any]:
                       row and m.agg is Agg.RATIO)
 
 
-def shown(out: Out) -> tuple[Metric, ...]:
-    """The metrics ``out`` shows, in its order (the launch table follows the summary's). Read at every
-    call, so that a test may extend ``CATALOGUE``."""
-    return _shown(out, CATALOGUE)
+def shown(out: Out, jobs: bool = False) -> tuple[Metric, ...]:
+    """The metrics ``out`` shows, in its order (the launch table follows the summary's); the job metrics only
+    with ``jobs`` (a scenario of jobs). Read at every call, so that a test may extend ``CATALOGUE``."""
+    return _shown(out, CATALOGUE, jobs)
 
 
 @cache
-def _shown(out: Out, catalogue: tuple[Metric, ...]) -> tuple[Metric, ...]:
-    metrics = [m for m in catalogue if out in m.show]
+def _shown(out: Out, catalogue: tuple[Metric, ...], jobs: bool = False) -> tuple[Metric, ...]:
+    metrics = [m for m in catalogue if out in m.show and (jobs or not m.jobs)]
     if out in (Out.SUMMARY, Out.TABLE):
         return tuple(_summary_order(metrics))
     return tuple(sorted(metrics, key=_in_rows(out)))
 
 
-def shown_as(out: Out) -> tuple[tuple[Metric, str, Form], ...]:
-    """``shown(out)``, each metric with its key and form in ``out``: what every tick's table of ``out`` reads."""
-    return _shown_as(out, CATALOGUE)
+def shown_as(out: Out, jobs: bool = False) -> tuple[tuple[Metric, str, Form], ...]:
+    """``shown(out, jobs)``, each metric with its key and form in ``out``: what every tick's table of ``out``
+    reads."""
+    return _shown_as(out, CATALOGUE, jobs)
 
 
 @cache
-def _shown_as(out: Out, catalogue: tuple[Metric, ...]) -> tuple[tuple[Metric, str, Form], ...]:
-    return tuple((m, m.key(out), m.form(out)) for m in _shown(out, catalogue))
+def _shown_as(out: Out, catalogue: tuple[Metric, ...], jobs: bool) -> tuple[tuple[Metric, str, Form], ...]:
+    return tuple((m, m.key(out), m.form(out)) for m in _shown(out, catalogue, jobs))
 
 
-def columns(out: Out) -> list[str]:
-    """The metric columns of ticks.csv (``Out.TICKS``) or nodes.csv (``Out.NODES``), in order."""
-    return [c for m in shown(out) for c in m.columns(out)]
+def columns(out: Out, jobs: bool = False) -> list[str]:
+    """The metric columns of ticks.csv (``Out.TICKS``) or nodes.csv (``Out.NODES``), in order; with ``jobs``,
+    those of a scenario of jobs."""
+    return [c for m in shown(out, jobs) for c in m.columns(out)]

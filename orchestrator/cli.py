@@ -495,6 +495,12 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--png", metavar="FILE",
                    help="PNG file to write (folders are created; default: runs/<scenario>-<time>/topology.png)")
     p.add_argument("--title", metavar="T", help="heading instead of the scenario name (counts are always shown)")
+    p.add_argument("--frames", type=COUNT, metavar="N",
+                   help="moving nodes: a strip of N frames of the positions over time instead of one picture")
+    p.add_argument("--every", type=COUNT, metavar="K",
+                   help="with --frames: ticks between frames (default: the frames spread over the episode)")
+    p.add_argument("--seed", type=integer(0, MAX_SEED),
+                   help="with --frames: the seed of the walks (default: the scenario's simulation.seed)")
     p.set_defaults(func=cmd_topology)
 
     p = sub.add_parser(

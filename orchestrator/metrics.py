@@ -11,7 +11,9 @@ A violation stops the run: a task was lost or invented, and no result after that
 
 Two more columns are the orchestrator's own, kept per role like the counters so that nodes and totals
 sum them alike: the sum of the response times of a client's completed tasks, and ``penalised_s``, that
-sum plus ``penalty_s`` for every task it generated that has not completed (docs/model.md, "Metrics").
+sum plus ``penalty_s`` for every task it generated that has not completed (docs/model.md, "Metrics"). In a
+scenario of jobs a third, ``job_penalised_s``, is the same for jobs (their makespans, and ``penalty_s`` for
+every job not completed), and the jobs are conserved too: jobs = completed + missed + running.
 """
 
 from __future__ import annotations
@@ -36,10 +38,14 @@ from orchestrator.catalogue import CATALOGUE, CHANGES, METRIC, Agg, Form, Metric
 
 # in_flight: tasks and results a role sent that have not arrived yet; response_time_sum and penalised_s:
 # seconds, for the penalised response time
-FIELDS = (*STAT_FIELDS, "in_flight", "response_time_sum", "penalised_s")
+FIELDS = (*STAT_FIELDS, "in_flight", "response_time_sum", "penalised_s", "job_penalised_s")
 F = {name: i for i, name in enumerate(FIELDS)}
 IN_FLIGHT, RT_SUM, PENALISED = F["in_flight"], F["response_time_sum"], F["penalised_s"]
 GENERATED, COMPLETED = F["generated"], F["completed"]
+JOBS, JOBS_COMPLETED, MAKESPAN_SUM, JOB_PENALISED = (F[name] for name in ("jobs", "jobs_completed", "makespan_sum",
+                                                                          "job_penalised_s"))
+# jobs = jobs_completed + jobs_missed + jobs_active, in a scenario of jobs
+JOBS_CONSERVED = ("jobs_completed", "jobs_missed", "jobs_active")
 N_STATS = len(STAT_FIELDS)
 # generated = completed + dropped + in_system, counter by counter
 CONSERVED = tuple(f for name in ("completed", "dropped", "in_system") for f in METRIC[name].fields)
@@ -70,6 +76,8 @@ def penalty_s(sc: Scenario) -> float:
     """What a task that never completes costs the penalised response time: the scenario's longest
     deadline (of its trace's rows, or of its task types: a range's high end plus its grace), so it is
     never less than a completion's time and letting a task expire never lowers the score."""
+    if sc.workload.jobs is not None:  # a job's deadline bounds its tasks' and its own time
+        return sc.workload.jobs.longest_deadline
     trace = sc.workload.trace
     deadlines = [row.size.deadline for row in trace or ()] or [t.longest_deadline for t in sc.workload.task_types]
     return max(deadlines, default=0.0)
@@ -108,15 +116,17 @@ def _plain(m: Metric, values: Any) -> Any:
 
 
 def output_values(out: Out, level: np.ndarray, change: np.ndarray, capacity: Any,
-                  samples: Callable[[Metric], Any] | None = None) -> dict[str, Any]:
+                  samples: Callable[[Metric], Any] | None = None, jobs: bool = False,
+                  moving: bool = False) -> dict[str, Any]:
     """What ``out`` shows of the catalogue, by key: Python numbers for one row, lists for several (the last
     axis of ``level``, the values at the end of the tick, and of ``change``, their change over the tick or
     step, runs over FIELDS; ``capacity``: the cycles available in that tick or step, per row). A count
     shows its change where ``out`` is one of CHANGES, else its cumulative value. ``samples(metric)``
-    gives a SAMPLES metric's value; without it they are left out."""
+    gives a SAMPLES metric's value; without it they are left out. ``jobs``: with the job metrics (a scenario
+    of jobs). ``moving``: the scenario's nodes move, so the parts only such scenarios have are shown too."""
     counts = change if out in CHANGES else level
     shown_values: dict[str, Any] = {}
-    for m, key, form in shown_as(out):
+    for m, key, form in shown_as(out, jobs):
         if m.agg is Agg.SAMPLES:
             if samples is not None:
                 shown_values[key] = samples(m)
@@ -125,17 +135,17 @@ def output_values(out: Out, level: np.ndarray, change: np.ndarray, capacity: Any
         elif m.agg is Agg.RATIO:
             shown_values[key] = ratio(m, level)
         else:
-            put(shown_values, key, m, form, counts if m.agg is Agg.COUNT else level)
+            put(shown_values, key, m, form, counts if m.agg is Agg.COUNT else level, moving)
     return shown_values
 
 
-def put(into: dict[str, Any], key: str, m: Metric, form: Form, row: np.ndarray) -> None:
+def put(into: dict[str, Any], key: str, m: Metric, form: Form, row: np.ndarray, moving: bool = False) -> None:
     """A count or level ``m`` from ``row`` (or rows) of FIELDS, in ``form``, under ``key`` (in the FLAT
-    form, its parts beside it)."""
+    form, its parts beside it; those of moving nodes only if ``moving``)."""
     if form is Form.TOTAL:
         into[key] = _plain(m, total(m, row))
         return
-    parts = {p.key: row[..., F[p.field]] for p in m.parts}
+    parts = {p.key: row[..., F[p.field]] for p in m.parts_of(moving)}
     if form is Form.PARTS:
         into[key] = {k: _plain(m, v) for k, v in parts.items()}
     elif form is Form.PARTS_TOTAL:
@@ -171,12 +181,14 @@ def bus_record(report: TickReport, metrics: Metrics, sim_id: str, episode: int) 
     record = {
         "type": "metrics", "sim": sim_id, "episode": episode, "tick": report.tick,
         "time_s": report.tick * metrics.scenario.dt,
-        "totals": output_values(Out.BUS, t, d, metrics.capacity.sum()),
-        "delta": output_values(Out.BUS_DELTA, t, d, metrics.capacity.sum()),
+        "totals": output_values(Out.BUS, t, d, metrics.capacity.sum(), jobs=metrics.jobs, moving=metrics.moving),
+        "delta": output_values(Out.BUS_DELTA, t, d, metrics.capacity.sum(), jobs=metrics.jobs,
+                               moving=metrics.moving),
     }
     record.update((m.key(Out.BUS), report.response_times) for m in shown(Out.BUS) if m.agg is Agg.SAMPLES)
     record["nodes"] = {"id": list(metrics.node_ids), "buffer": [n.buffer for n in metrics.scenario.nodes],
-                       **output_values(Out.BUS_NODES, report.nodes, report.node_delta, metrics.capacity)}
+                       **output_values(Out.BUS_NODES, report.nodes, report.node_delta, metrics.capacity,
+                                       jobs=metrics.jobs)}
     return record
 
 
@@ -306,6 +318,7 @@ class Metrics:
     def __init__(self, plan: ProcessLayout, history: bool = True) -> None:
         sc = plan.scenario
         self.scenario = sc
+        self.moving = sc.radio is not None  # its outputs show the drops of broken links
         self.roles = plan.roles
         self.node_ids = tuple(n.id for n in sc.nodes)
         incidence = np.zeros((len(self.node_ids), len(self.roles)))
@@ -314,6 +327,7 @@ class Metrics:
         self.incidence = incidence
         self.capacity = np.array([n.capacity * sc.dt if n.has("worker") else 0.0 for n in sc.nodes])
         self.penalty = penalty_s(sc)
+        self.jobs = sc.workload.jobs is not None  # a scenario of jobs: their metrics are shown, and checked
         self.history = history
         self._stream_to: Path | None = None  # where each episode's tables are streamed (``stream``)
         self._tables: list[_Table] = []  # ticks.csv, nodes.csv while they are open
@@ -407,11 +421,31 @@ class Metrics:
                 m[role, RT_SUM] += sum(times)
                 rts_by_node.setdefault(role_node(self.roles[role]), []).extend(times)
             ledgers.update(d.ledger)
+        ledger = [entry for role in sorted(ledgers) for entry in ledgers[role]] if ledgers else []
+        return self._record(tick, rts, rts_by_node, ledger)
+
+    def add_counters(self, tick: int, counters: np.ndarray, completions: list[tuple[int, float]],
+                     ledger: list[tuple[int, int, float]]) -> TickReport:
+        """Tick ``tick`` from every role's cumulative counters (roles by canonical index; the columns of FIELDS
+        up to the response times' sum), the response times of its completions (role index, seconds; in canonical
+        role order) and its ledger: what ``add`` makes of the processes' reports, from the array backend."""
+        self._matrix[:, :RT_SUM + 1] = counters
+        rts = [time for _, time in completions]
+        rts_by_node: dict[str, list[float]] = {}
+        for role, time in completions:
+            rts_by_node.setdefault(role_node(self.roles[role]), []).append(time)
+        return self._record(tick, rts, rts_by_node, ledger)
+
+    def _record(self, tick: int, rts: list[float], rts_by_node: dict[str, list[float]],
+                ledger: list[tuple[int, int, float]]) -> TickReport:
+        """The tick's sums, checked, reported and recorded, from the counters in the matrix."""
+        m = self._matrix
         m[:, PENALISED] = m[:, RT_SUM] + self.penalty * (m[:, GENERATED] - m[:, COMPLETED])
+        if self.jobs:
+            m[:, JOB_PENALISED] = m[:, MAKESPAN_SUM] + self.penalty * (m[:, JOBS] - m[:, JOBS_COMPLETED])
         totals = m.sum(axis=0)
         nodes = self.incidence @ m
         self.check(tick, totals)
-        ledger = [entry for role in sorted(ledgers) for entry in ledgers[role]] if ledgers else []
         report = TickReport(tick, totals, totals - self.last_totals, nodes, nodes - self.last_nodes, rts, ledger)
         means = {}
         for metric in EPISODE_MEANS:
@@ -454,6 +488,9 @@ class Metrics:
             raise ConservationError(f"tick {tick}: generated={int(generated)} but {parts} "
                                     f"account for {int(accounted)}: a task was lost or invented (a custom role "
                                     "must hand every task on, keep it, or drop it with Role.drop)")
+        if self.jobs and t[JOBS] != sum(t[F[name]] for name in JOBS_CONSERVED):
+            parts = ", ".join(f"{name}={int(t[F[name]])}" for name in JOBS_CONSERVED)
+            raise ConservationError(f"tick {tick}: jobs={int(t[JOBS])} but {parts}: a job was lost or invented")
 
     # ----- episode results -----
 
@@ -472,23 +509,23 @@ class Metrics:
             "penalty_s": self.penalty,  # what penalised_response_time charges a task that did not complete
         }
         means = {k: network / self.n_ticks for k, (network, _) in self._mean_sums.items()}
-        for m in shown(Out.SUMMARY):
+        for m in shown(Out.SUMMARY, self.jobs):
             section, _, key = m.key(Out.SUMMARY).rpartition(".")
             where = out.setdefault(section, {}) if section else out
             self._episode(where, key, m, Out.SUMMARY, self.last_totals, self.n_ticks, means.get(m.name),
-                          self.capacity.sum(), self.response_times)
+                          self.capacity.sum(), self.response_times, self.moving)
         out["nodes"] = {}
         for i, nid in enumerate(self.node_ids):
             where = out["nodes"][nid] = {}
             node_means = {k: per_node[i] / self.n_ticks for k, (_, per_node) in self._mean_sums.items()}
-            for m in shown(Out.SUMMARY_NODES):
+            for m in shown(Out.SUMMARY_NODES, self.jobs):
                 self._episode(where, m.key(Out.SUMMARY_NODES), m, Out.SUMMARY_NODES, self.last_nodes[i],
                               self.n_ticks, node_means.get(m.name), self.capacity[i], self.rt_by_node.get(nid, []))
         return out
 
     @staticmethod
     def _episode(into: dict[str, Any], key: str, m: Metric, out: Out, end: np.ndarray, ticks: int,
-                 mean: float | None, capacity: float, times: list[float]) -> None:
+                 mean: float | None, capacity: float, times: list[float], moving: bool = False) -> None:
         """``m`` over the episode, from the row of FIELDS at its ``end`` and, for an episode_mean metric,
         its ``mean`` over the ``ticks``: a count's total, a level at the end (or its mean), the share of the
         episode's capacity; for samples the count, mean, p50, p95 and max, or the mean alone in a node's row."""
@@ -509,15 +546,16 @@ class Metrics:
         elif m.episode_mean:
             into[key] = float(mean)
         else:
-            put(into, key, m, m.form(out), end)
+            put(into, key, m, m.form(out), end, moving)
 
     def tick_header(self) -> list[str]:
         one = self.last_totals[None, :]
-        return ["tick", "time_s", *output_values(Out.TICKS, one, one, self.capacity.sum(), samples=lambda m: [])]
+        return ["tick", "time_s", *output_values(Out.TICKS, one, one, self.capacity.sum(), samples=lambda m: [],
+                                                 jobs=self.jobs, moving=self.moving)]
 
     def node_header(self) -> list[str]:
         one = self.last_nodes[None]
-        return ["tick", "node", *output_values(Out.NODES, one, one, self.capacity)]
+        return ["tick", "node", *output_values(Out.NODES, one, one, self.capacity, jobs=self.jobs)]
 
     def tick_table(self) -> tuple[list[str], list[list[Any]]]:
         """ticks.csv from the history (``history=True``)."""
@@ -530,14 +568,15 @@ class Metrics:
     def _tick_rows(self, rows: _Rows) -> list[list[Any]]:
         levels = np.array(rows.totals)
         change = levels - np.vstack([rows.before_totals, levels[:-1]])
-        table = output_values(Out.TICKS, levels, change, self.capacity.sum(), samples=lambda m: rows.means)
+        table = output_values(Out.TICKS, levels, change, self.capacity.sum(), samples=lambda m: rows.means,
+                              jobs=self.jobs, moving=self.moving)
         dt = self.scenario.dt
         return [[tick, tick * dt, *row] for tick, *row in zip(rows.ticks, *table.values(), strict=True)]
 
     def _node_rows(self, rows: _Rows) -> list[list[Any]]:
         levels = np.array(rows.nodes)
         change = levels - np.concatenate([rows.before_nodes[None], levels[:-1]])
-        columns = list(output_values(Out.NODES, levels, change, self.capacity).values())
+        columns = list(output_values(Out.NODES, levels, change, self.capacity, jobs=self.jobs).values())
         out = []
         for k, tick in enumerate(rows.ticks):
             at = [column[k] for column in columns]

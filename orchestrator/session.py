@@ -327,7 +327,9 @@ class Simulation:
         self.metrics.reset()
         self.last = self.clock.reset(self.seed, external, policy)
         self.seen, self.heard, self.fresh, self.reports = {}, {}, {}, {}
-        self.retimed = {r for r in external or () if getattr(role_class(r, self.plan), "retimed", False)}
+        # a moving scenario's controllers observe every epoch (their links change): none is re-timed
+        self.retimed = {r for r in external or () if getattr(role_class(r, self.plan), "retimed", False)
+                        and self.scenario.radio is None}
         self._remember()
         self._run_started = time.perf_counter()
         self._ticks_run = 1

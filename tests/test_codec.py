@@ -8,6 +8,7 @@ import pytest
 from node_runtime.model.messages import Decision, Envelope, Kind, NodeState, Pending, Report, Result, Task, TaskSize
 from node_runtime.model.view import NodeView, Observation, TaskView
 from node_runtime.runtime import codec
+from node_runtime.runtime.codec import N_STATS
 from node_runtime.runtime.protocol import SCHEMA_VERSION, Batch, Done, Tick
 
 
@@ -48,9 +49,10 @@ def test_tick_and_done_roundtrip():
     obs = Observation(5, "a", NodeView("a", 1, 2, 3, 4e6, 0, 0.0, 1, True), 2,
                       [TaskView(7, TaskSize(8e7, 1.0, 2.0, 1.0, 100.0), 95.0, 2, "a")],
                       [NodeView("b", 0, 0, 26, 4e6, 1, 3e7, 1, True, 2.5)])
-    stats = [1, 0, 0, 0, 0, 0, 0, 0, 0, 0, 2.5, 0.0, 0.0, 0.0, 0.0, 1, 0, 0]
+    stats = [1, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 2.5, 0.0, 0.0, 0.0, 0.0, 1, 0, 0] + [0] * (N_STATS - 19)
     done = Done("node-a", 2, 17, {1: 1}, {0: stats}, {1: [7.0]}, {0: {19: 2, 21: 1}}, 18, {2: obs},
-                ledger={1: [(7, 0, 7.0), (9, 2, 0.25)], 0: [(12, 1, 0.0)]}, drift={0: [0.0] * 10 + [4e6] + [0.0] * 7},
+                ledger={1: [(7, 0, 7.0), (9, 2, 0.25)], 0: [(12, 1, 0.0)]},
+                drift={0: [0.0] * 11 + [4e6] + [0.0] * (N_STATS - 12)},
                 held={3: (1, None), 4: (2, 21)}, states={0: (2, 3, 11)},
                 reports={2: (18, 1, [19.0, 0.0]), 5: (18, 0, None)})
     assert codec.decode(codec.encode(done)) == done
@@ -84,11 +86,12 @@ def test_states_with_a_tick_are_of_their_shape(value):
         codec.decode(msgpack.packb({**wire, "v": SCHEMA_VERSION}))
 
 
-@pytest.mark.parametrize("row", [[0.0] * 17 + [-1.0], [0.0] * 17 + [float("nan")], [0.0] * 17 + [float("inf")],
-                                 [0.0] * 17, [0.0] * 17 + ["1"]])
+@pytest.mark.parametrize("row", [[0.0] * (N_STATS - 1) + [-1.0], [0.0] * (N_STATS - 1) + [float("nan")],
+                                 [0.0] * (N_STATS - 1) + [float("inf")], [0.0] * (N_STATS - 1),
+                                 [0.0] * (N_STATS - 1) + ["1"]])
 def test_a_drift_is_a_row_of_stats_that_only_ever_adds(row):
     """A drift moves a sleeping role's counters every tick: a forged one must not take from them or poison them."""
-    wire = codec.to_wire(Done("node-a", 2, 17, {}, {0: [0] * 18}, drift={0: [0.0] * 18}))
+    wire = codec.to_wire(Done("node-a", 2, 17, {}, {0: [0] * N_STATS}, drift={0: [0.0] * N_STATS}))
     wire["dr"] = {0: row}
     with pytest.raises(codec.CodecError, match="field 'dr'"):
         codec.decode(msgpack.packb({**wire, "v": SCHEMA_VERSION}))

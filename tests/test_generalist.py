@@ -87,8 +87,14 @@ def test_trained_on_two_regimes_it_runs_zero_shot_on_another_family(suites, tmp_
     assert {r["regime"] for r in log} <= {"train-000-ring", "train-001-grid"}
     assert all(int(r["episode_seed"]) in EPISODES["train"] for r in log)
     assert float(log[-1]["updates"]) >= 2  # it learnt: at least two PPO updates of the one shared network
+    agents = {r.name: len(load_scenario(r.path).controllers) for r in generalist.read_suite(suites["train"])}
+    frames = np.cumsum([int(r["steps"]) * agents[r["regime"]] for r in log])  # agent-steps, the curves' x axis
+    assert [int(r["agents"]) for r in log] == [agents[r["regime"]] for r in log]
+    assert [int(r["frames"]) for r in log] == frames.tolist()
     checks = read_rows(out / "validation.csv")
     assert [r["checkpoint"] for r in checks] == ["ckpt-00002.pt", "ckpt-00004.pt"]
+    assert [int(r["frames"]) for r in checks] == [frames[1], frames[3]]
+    assert all(float(r["wall_s"]) > 0 and float(r["penalised_response_time"]) > 0 for r in checks)
     best = max(checks, key=lambda r: float(r["completion_ratio"]))  # the first of equals, as training keeps it
     assert (out / "best.pt").read_bytes() == (out / best["checkpoint"]).read_bytes()
     learner = load_learner(out / "best.pt")

@@ -1,5 +1,7 @@
 """experiments.report rebuilds its tables from the raw per-episode CSVs: the whole pipeline on a small test
-suite (suite, bound and baselines, report), a table that follows an edited row, and bad input in one line."""
+suite (suite, bound and baselines, report), a table that follows an edited row, a learner against every
+baseline and regime by regime, the learning curves of real training runs, the wall-clock table, and bad input
+in one line."""
 
 from __future__ import annotations
 
@@ -10,7 +12,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from experiments import bound, evaluate, raw, report, suite
+from experiments import bound, curves, evaluate, generalist, raw, report, suite
 from tests.conftest import ROOT
 
 pytestmark = pytest.mark.slow
@@ -91,6 +93,21 @@ def test_a_learner_with_several_runs_joins_the_bound_of_its_episodes(pipeline, t
     assert cell(text, "learner", 1) == "2"  # two runs
     # the normalised score from the joined bound: greedy's episodes, so greedy's IQM
     assert cell(text, "learner", 2).split()[0] == cell(text, "greedy", 2).split()[0]
+    # a copy of greedy against every baseline: P = 1/2 against greedy, no paired difference, every episode a tie
+    against = text.split("### `learner` against every baseline")[1].split("###")[0]
+    line = next(line for line in against.splitlines() if line.startswith("| `greedy` |"))
+    cells = [c.strip() for c in line.strip("|").split("|")]
+    episodes = len({(r["regime"], r["seed"]) for r in rows})
+    assert cells[1].startswith("0.500") and cells[2] == "overlap"
+    assert cells[3] == "0.0 [0.0, 0.0]" and cells[4] == f"0/{episodes}/0"
+    assert sum(line.startswith("| `") for line in against.splitlines()) == len({r["policy"] for r in rows})
+    # regime by regime: the best baseline's completion there, from the rows
+    by_regime = text.split("### `learner` regime by regime")[1].split("###")[0]
+    for regime in sorted({r["regime"] for r in rows}):
+        best = max(np.mean([float(r["completion_ratio"]) for r in rows if r["regime"] == regime
+                            and r["policy"] == p]) for p in {r["policy"] for r in rows})
+        line = next(line for line in by_regime.splitlines() if line.startswith(f"| {regime} |"))
+        assert float(line.split("|")[4].split()[-1]) == pytest.approx(100 * best, abs=0.05)
     scored = report.with_scores(raw.read([pipeline / "raw.csv", tmp_path / "learner.csv"]))
     for r in scored:
         if r["policy"] == "learner" and r["bound"] > r["local"]:
@@ -137,3 +154,76 @@ def test_the_committed_page_is_what_the_committed_rows_give(tmp_path, monkeypatc
     monkeypatch.chdir(ROOT)
     report.main(["--out", str(tmp_path / "benchmark-results.md"), "--no-progress"])
     assert (tmp_path / "benchmark-results.md").read_text() == (ROOT / report.OUT).read_text()
+
+
+@pytest.fixture(scope="module")
+def training(tmp_path_factory) -> list[Path]:
+    """Two real generalist training runs (seeds 0 and 1) of 4 episodes of 20 steps, a checkpoint every 2."""
+    folder = tmp_path_factory.mktemp("training")
+    suite.write(suite.suite("train", 2, steps=20), folder / "train")
+    suite.write(suite.suite("validation", 1, steps=20), folder / "validation")
+    runs = []
+    for seed in (0, 1):
+        runs.append(folder / f"seed-{seed}")
+        generalist.main(["train", "--suite", str(folder / "train"), "--validation", str(folder / "validation"),
+                         "--episodes", "4", "--checkpoint-every", "2", "--set", "rollout_steps=16", "--seed",
+                         str(seed), "--out", str(runs[-1]), "--no-progress"])
+    return runs
+
+
+def test_learning_curves_and_wall_clock_follow_their_csv(pipeline, training, tmp_path, capsys):
+    timing = tmp_path / "protocol.csv"
+    write(timing, [{"step": "suites", "command": "python -m experiments.suite", "processes": "1", "wall_s": "90",
+                    "cpu_s": "", "note": "all three"},
+                   {"step": "train seed 0", "command": "python -m experiments.generalist train", "processes": "2",
+                    "wall_s": "600", "cpu_s": "330", "note": ""}])
+    out = tmp_path / "page" / "results.md"
+    report.main([str(pipeline / "raw.csv"), "--training", *map(str, training), "--wall-clock", str(timing),
+                 "--out", str(out), "--reps", "200", "--no-progress"])
+    text = out.read_text()
+    assert (tmp_path / "page" / "figures" / "generalist-learning-curves.png").stat().st_size > 1000
+    assert "2 training runs (seeds 0, 1)" in text and "4 training episodes each" in text
+    checks = [rows_of(run / "validation.csv") for run in training]
+    table = text.split("## Learning curves of the generalist")[1].split("##")[0]
+    lines = [line for line in table.splitlines() if re.match(r"\| \d+ \|", line)]
+    assert [int(line.split("|")[1]) for line in lines] == [2, 4]
+    chosen = 0
+    for k, line in enumerate(lines):
+        cells = [c.strip() for c in line.strip("|").split("|")]
+        frames = np.mean([float(c[k]["frames"]) for c in checks])
+        completion = np.mean([float(c[k]["completion_ratio"]) for c in checks])
+        assert cells[1] == f"{frames:,.0f}" and float(cells[2].split()[0]) == pytest.approx(100 * completion, abs=0.05)
+        chosen += int(cells[5])
+    assert chosen == 2  # one best.pt per run
+    assert "| suites | `python -m experiments.suite` | 1 | 1.5 | — | all three |" in text
+    assert "| train seed 0 | `python -m experiments.generalist train` | 2 | 10.0 | 5.5 |  |" in text
+
+    # the training curve: the seeds' means of their episodes binned by frames, the first bin from the logs
+    runs = curves.read(training)
+    x, cis = curves.binned(runs, "completion_ratio", reps=50, bins=1)
+    last = min(float(rows_of(run / "train.csv")[-1]["frames"]) for run in training)
+    assert x.tolist() == [last / 2] and cis[0].point == pytest.approx(np.mean(
+        [np.mean([float(r["completion_ratio"]) for r in rows_of(run / "train.csv") if float(r["frames"]) <= last])
+         for run in training]))
+
+    bad = {"no_frames": ("train.csv", "frames", "no column frames"),
+           "not_a_number": ("validation.csv", "completion_ratio", "validation.csv:2: column completion_ratio")}
+    for name, (file, column, expected) in bad.items():
+        run = tmp_path / name / "seed-0"
+        run.mkdir(parents=True)
+        (run / "config.json").write_text((training[0] / "config.json").read_text())
+        for f in ("train.csv", "validation.csv"):
+            rows = rows_of(training[0] / f)
+            if f == file:
+                rows = ([{k: v for k, v in r.items() if k != column} for r in rows] if name == "no_frames"
+                        else [{**r, column: "high"} for r in rows])
+            write(run / f, rows)
+        with pytest.raises(SystemExit) as e:
+            report.main([str(pipeline / "raw.csv"), "--training", str(run), "--out", str(out), "--no-progress"])
+        err = capsys.readouterr().err
+        assert e.value.code == 2 and err.count("\n") == 1 and expected in err, err
+    write(timing, [{"step": "suites", "command": "x", "processes": "1", "wall_s": "soon", "cpu_s": "", "note": ""}])
+    with pytest.raises(SystemExit) as e:
+        report.main([str(pipeline / "raw.csv"), "--wall-clock", str(timing), "--out", str(out), "--no-progress"])
+    err = capsys.readouterr().err
+    assert e.value.code == 2 and "protocol.csv:2: wall_s and cpu_s: expected numbers" in err

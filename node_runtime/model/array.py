@@ -15,6 +15,10 @@ relayed back along the task's path), clients on worker nodes, every arrival sche
 built-in task source, FIFO links with loss (each worker's radio stream), failures, energy. Not yet:
 payloads, clients without a worker, and user-defined roles, policies or task sources.
 
+Controllers an agent drives (``drive``) observe every decision epoch (``observation``: the ``Observation`` a
+``Controller`` builds) and place what ``act`` gives them; every tick then keeps the roles' per-task ledger in
+their own order, from which the environment's credits and metrics come (docs/array.md, "The environments on it").
+
 One tick runs the roles in an order that their one-tick message delay makes equivalent to the emulator's:
 controllers (they read the worker's state at the end of the previous tick), clients (results in, new
 tasks out), then workers (failure, overload, results relayed, expiry, decisions, admission, CPU, results
@@ -31,14 +35,15 @@ from itertools import pairwise
 import numpy as np
 
 from node_runtime.model.client import arrivals_of
-from node_runtime.model.controller import CONTROLLER
+from node_runtime.model.controller import CONTROLLER, always_fresh, backlog, heard_at
 from node_runtime.model.energy import compute_energy, idle_energy
 from node_runtime.model.messages import Task, TaskSize
 from node_runtime.model.policies import DriftPlusPenalty, Threshold
 from node_runtime.model.radio import dbm_to_watts
 from node_runtime.model.rng import stream
-from node_runtime.model.role import STAT_FIELDS, role_id
+from node_runtime.model.role import CHARGED, COMPLETED, LOST, STAT_FIELDS, role_id
 from node_runtime.model.spec import Scenario
+from node_runtime.model.view import NodeView, Observation, TaskView
 from node_runtime.model.worker import EPS_CYCLES, WORKER
 
 # the node-side policies it runs, vectorised: every built-in one of policies.py
@@ -55,6 +60,9 @@ F = {name: i for i, name in enumerate(FIELDS)}
 NEW, TO_WORKER, UNDECIDED, QUEUED, TO_CLIENT, GONE = range(6)
 TO_RELAY = 6  # max_hops above 1: a result on its way to the previous worker of its task's path
 SEQ_STRIDE = 1 << 20  # message numbers: send call * stride + position in the call (per sender, in send order)
+# the parts of a worker's tick that write its ledger, in the order the worker runs them (``Worker.tick``):
+# going down, results relayed (max_hops above 1), expiry, decisions, admission, service
+FAILURE, RELAY, EXPIRY, DECISIONS, ADMISSION, SERVICE = range(6)
 
 
 class Streams:
@@ -81,8 +89,9 @@ class Unsupported(ValueError):
     """A scenario needs what the array backend does not model (yet)."""
 
 
-def refusal(sc: Scenario, policy: str | None = None) -> str | None:
-    """Why the array backend cannot run ``sc`` (one line naming the feature and the backend to use), or None."""
+def refusal(sc: Scenario, policy: str | None = None, agents: bool = False) -> str | None:
+    """Why the array backend cannot run ``sc`` (one line naming the feature and the backend to use), or None;
+    ``agents``: with controllers driven by agents (``ArraySim.drive``, the environment)."""
     def why() -> str | None:
         kinds = dict(sc.kinds)
         for name, path in kinds.items():
@@ -100,8 +109,19 @@ def refusal(sc: Scenario, policy: str | None = None) -> str | None:
                 return f"client {n.id} hands its tasks to other workers ({', '.join(sc.targets[n.id])})"
         if sc.workload.source:
             return f"user task source {sc.workload.source}"
+        if sc.workload.jobs is not None:
+            return "jobs (workload.jobs: DAGs of tasks)"
         if any(t.payload is not None for t in sc.workload.task_types):
             return "payloads"
+        if sc.moving:
+            return f"moving nodes ({', '.join(sorted(sc.moving, key=sc.index.__getitem__))})"
+        if agents:  # what the driven controllers' observations and the ledger are not proven exact for yet
+            if sc.failures:
+                return "failures while agents drive controllers"
+            if sc.admission != "decide_first":
+                return f"admission {sc.admission!r} while agents drive controllers"
+            if sc.control_latency != 2:
+                return f"control_latency {sc.control_latency} while agents drive controllers"
         for n in sc.nodes:  # an offloaded task's result comes back over the link it went by, reversed
             for j in sc.neighbours[n.id] if n.has("controller") and sc.max_hops else ():
                 if sc.node[j].has("worker") and (j, n.id) not in sc.link:
@@ -193,11 +213,38 @@ class ArraySim:
         for i in range(n):
             acts = np.flatnonzero(self.valid[i])
             self.valid_list[i, :len(acts)] = acts
-        self.policy_of = np.array([POLICIES.index(policy or nd.policy) if nd.has("controller") else -1
-                                   for nd in nodes])
+        self.driven = np.zeros(n, dtype=bool)  # controllers whose actions come from ``act`` (an agent's)
+        # what a controller's view takes from the scenario: each node's static facts, each controller's links
+        # (neighbour indices, rates) and whether all it hears is always one tick old
+        self._static = [(nd.id, nd.buffer, nd.capacity, nd.tier, nd.has("worker")) for nd in nodes]
+        self._links = [([sc.index[j] for j in sc.neighbours[nd.id]],
+                        [sc.link[(nd.id, j)].rate_bps for j in sc.neighbours[nd.id]]) for nd in nodes]
+        self._fresh = [always_fresh(sc, (nd.id, *sc.neighbours[nd.id])) for nd in nodes]
+        self.recording = False  # keep the per-task ledger and the driven controllers' observations (``drive``)
+        self.use_policy(policy)
         self.per_epoch = 1 if sc.mode == "binary" else sc.batch_size
         self.queue_first = sc.admission == "queue_first"
+
+    def use_policy(self, policy: str | None) -> None:
+        """The node-side policy of the controllers no agent drives: ``policy`` for all, or each node's own."""
+        reason = refusal(self.sc, policy, agents=self.recording)
+        if reason is not None:
+            raise Unsupported(reason)
+        self.policy = policy
+        self.policy_of = np.array([POLICIES.index(policy or nd.policy) if nd.has("controller") and not driven else -1
+                                   for nd, driven in zip(self.sc.nodes, self.driven, strict=True)])
         self.randoms = np.flatnonzero(self.policy_of == POLICIES.index("random"))  # the controllers that draw
+
+    def drive(self, nodes: Sequence[str]) -> None:
+        """From the next ``reset`` on, the controllers of ``nodes`` observe every decision epoch and place what
+        ``act`` gives them, as an externally driven ``Controller`` does, and every tick keeps the roles' ledger
+        (``ledger``, ``completions``): what the environment reads (orchestrator/array_session.py)."""
+        reason = refusal(self.sc, self.policy, agents=True)
+        if reason is not None:
+            raise Unsupported(reason)
+        self.driven = np.isin(np.arange(self.n), [self.sc.index[n] for n in nodes])
+        self.recording = True
+        self.use_policy(self.policy)
 
     # ----- episode -----
 
@@ -208,6 +255,7 @@ class ArraySim:
         sc, k = self.sc, self.k
         ticks = sc.episode_ticks if ticks is None else ticks
         drawn = arrivals_of(sc, [int(s) for s in seeds], ticks)
+        self.sizes = [[size for _, _, size in tasks] for tasks in drawn]
         m = max(1, max(len(d) for d in drawn))
         self.m = m
         shape = (k, m)
@@ -221,6 +269,7 @@ class ArraySim:
         self.latest = np.zeros(shape)  # the last tick (a float) a transmission of it may start
         self.urgency = np.zeros(shape)
         self.deadline = np.zeros(shape)  # seconds, as created (a controller's time left derives from it)
+        self.task_id = np.zeros(shape, dtype=np.int64)  # the client's id of it (``Client.task_id``)
         expiry: dict[tuple[int, TaskSize], int] = {}
         for c, tasks in enumerate(drawn):
             if not tasks:
@@ -237,6 +286,10 @@ class ArraySim:
             self.latest[c, :n] = [t + size.deadline / sc.dt for t, _, size in tasks]
             self.urgency[c, :n] = [1.0 / max(size.deadline, sc.dt) for _, _, size in tasks]
             self.deadline[c, :n] = [size.deadline for _, _, size in tasks]
+            made = [0] * self.n  # tasks each client made so far
+            for j, (_, node, _) in enumerate(tasks):
+                made[node] += 1
+                self.task_id[c, j] = (node << 32) | made[node]
         self.state = np.zeros(shape, dtype=np.int8)
         self.node = np.zeros(shape, dtype=np.int64)  # where it is held, or where its message goes
         self.arrive = np.zeros(shape, dtype=np.int64)
@@ -279,6 +332,7 @@ class ArraySim:
         self.undecided = np.zeros((k, self.n), dtype=np.int64)
         self.serving = np.full((k, self.n), -1, dtype=np.int64)
         self.counters = np.zeros((k, len(self.roles), len(FIELDS)))
+        self._reset_driven()
         self.t = 0
         self.ticks = ticks
         # the live window of the task arrays: before ``lo`` every task is gone in every copy, from ``hi_at[t]`` on
@@ -315,14 +369,110 @@ class ArraySim:
         c, i = self.arriving
         self.flying -= np.bincount(c * len(self.roles) + self.sender[c, i], minlength=self.flying.size).reshape(
             self.flying.shape)
+        self._entries: list[tuple[np.ndarray, ...]] = []
+        if self.recording:
+            self.bumped[:] = False
         self._controllers(t)
         self._clients(t)
         self._workers(t)
         self._levels(t)
+        if self.recording:
+            self._settle_ledger()
         gone = (self.state[:, self.win] == GONE).all(axis=0)  # tasks before the window are gone in every copy
         self.lo += len(gone) if gone.all() else int(np.argmin(gone))
         self.t += 1
         return self.counters
+
+    # ----- what the environment reads and gives: driven controllers, the ledger -----
+
+    def _reset_driven(self) -> None:
+        k, n = self.k, self.n
+        self.arrived = np.zeros_like(self.created)  # tick it entered its worker's buffer
+        self.given = np.zeros(self.created.shape, dtype=bool)  # an agent answered for it (``act``)
+        self.bumped = np.zeros((k, n), dtype=bool)  # the worker reports to its controller at the end of this tick
+        # each worker's links' busy-until ticks (by neighbour, as the actions: action a is link a - 1), as its
+        # controller was last told
+        self.told_busy = np.zeros((k, n, self.target.shape[1] - 1))
+        self.seen = -1  # the last decision epoch, and what the driven controllers knew at it
+        self._known = None
+        self.slots = np.full((k, n, self.per_epoch), -1)  # the tasks each was shown, by task slot
+        self.ledger: list[list[tuple[int, int, float]]] = [[] for _ in range(k)]  # each copy's, the last tick
+        self.completions: list[list[tuple[int, float]]] = [[] for _ in range(k)]  # (client role, response time)
+
+    def _remember_view(self, t: int) -> None:
+        """What the driven controllers know at epoch ``t``: all of it was heard by the end of tick t - 1."""
+        self.seen = t
+        self._known = None
+        self.seen_heard, self.seen_occupancy = self.heard.copy(), self.heard_occupancy.copy()
+        self.seen_undecided, self.seen_busy = self.undecided.copy(), self.told_busy.copy()
+        self.slots[:] = -1
+
+    def observation(self, copy: int, node: int) -> Observation:
+        """What the driven controller of node index ``node`` observed at the last decision epoch in copy
+        ``copy``: the ``Observation`` that ``Controller.observe`` builds, from the same facts."""
+        sc, t, dt = self.sc, self.seen, self.dt
+        if self._known is None:  # once per epoch: what every copy knew, as Python numbers
+            self._known = (self.seen_heard.tolist(), self.seen_occupancy.tolist(), self.seen_undecided.tolist(),
+                           [[1 if fresh else t - heard_at(sc, sc.nodes[j].id, t) for j in range(self.n)]
+                            for fresh in (False, True)])
+        heard, occupancy, undecided, ages = self._known
+        queue, occupied, age = heard[copy], occupancy[copy], ages[self._fresh[node]]
+
+        def view(j: int, rate: float, queued: float) -> NodeView:
+            nid, buffer, capacity, tier, worker = self._static[j]
+            return NodeView(nid, queue[j], occupied[j], buffer, capacity, tier, rate, age[j], worker, queued)
+
+        to, rates = self._links[node]
+        busy = self.seen_busy[copy, node, :len(to)].tolist()
+        tasks = []
+        for i in self.slots[copy, node].tolist():
+            if i < 0:
+                break
+            size = self.sizes[copy][i]
+            left = size.deadline - (t - int(self.created[copy, i])) * dt
+            tasks.append(TaskView(int(self.task_id[copy, i]), size, left, t - int(self.arrived[copy, i]),
+                                  self._static[self.origin[copy, i]][0]))
+        return Observation(t, self._static[node][0], view(node, 0.0, 0.0), undecided[copy][node], tasks,
+                           [view(j, rate, backlog(b, t, dt)) for j, rate, b in zip(to, rates, busy, strict=True)],
+                           busy)
+
+    def act(self, copy: int, node: int, actions: Sequence[int]) -> None:
+        """The agent's answer for the driven controller of node index ``node`` in copy ``copy``: one action per
+        task of its last observation, in order (0 keeps a task, a >= 1 sends it to neighbour a - 1, valid ones
+        only), placed by the controller in the next tick. Without one it places nothing, as a ``Controller``."""
+        i = self.slots[copy, node, :len(actions)]
+        shown = i >= 0
+        self.ask_action[copy, i[shown]] = np.asarray(actions)[shown]
+        self.given[copy, i[shown]] = True
+
+    def _enter(self, phase: int, step: int = 0) -> None:
+        """The part of its tick a role is in: its ledger entries are ordered by it, then by their key."""
+        self._stage = (phase, step)
+
+    def _record(self, c: np.ndarray, roles: np.ndarray, key: np.ndarray | int, i: np.ndarray, kind: int,
+                value: np.ndarray | float) -> None:
+        """Ledger entries (``role.Counters.ledger``) of tasks ``i`` by ``roles``, in the current stage."""
+        n = len(c)
+        if n:
+            phase, step = self._stage
+            self._entries.append((c, roles, np.full(n, phase), np.full(n, step), np.broadcast_to(key, (n,)),
+                                  self.task_id[c, i], np.full(n, kind), np.broadcast_to(value, (n,)).astype(float)))
+
+    def _settle_ledger(self) -> None:
+        """The tick's ledger of each copy, in canonical role order and, within a role, in the order its tick
+        wrote it; and the response times of its completions, in the same order."""
+        self.ledger = [[] for _ in range(self.k)]
+        self.completions = [[] for _ in range(self.k)]
+        if not self._entries:
+            return
+        c, role, phase, step, key, task, kind, value = (np.concatenate(a) for a in zip(*self._entries, strict=True))
+        by = np.lexsort((key, step, phase, role, c))
+        for copy, r, entry in zip(c[by].tolist(), role[by].tolist(),
+                                  zip(task[by].tolist(), kind[by].tolist(), value[by].tolist(), strict=True),
+                                  strict=True):
+            self.ledger[copy].append(entry)
+            if entry[1] == COMPLETED:
+                self.completions[copy].append((r, entry[2]))
 
     # ----- helpers -----
 
@@ -348,10 +498,13 @@ class ArraySim:
         self.flying += np.bincount(c * len(self.roles) + sender, minlength=self.flying.size).reshape(
             self.flying.shape)
 
-    def _drop(self, c: np.ndarray, i: np.ndarray, roles: np.ndarray, cause: str) -> None:
-        """Tasks leave the system, counted under ``cause`` by ``roles`` (a drop cause, or "completed")."""
+    def _drop(self, c: np.ndarray, i: np.ndarray, roles: np.ndarray, cause: str, key: np.ndarray | int = 0) -> None:
+        """Tasks leave the system, counted under ``cause`` by ``roles`` (a drop cause, or "completed"); ``key``
+        orders their ledger entries within the role's current stage (``_enter``)."""
         self.state[c, i] = GONE
         self._add(c, roles, cause)
+        if self.recording and cause != "completed":
+            self._record(c, roles, key, i, LOST, 0.0)
 
     def _next_order(self, count: int) -> np.ndarray:
         first = self._counter
@@ -370,6 +523,8 @@ class ArraySim:
         seen = t - colocated
         if seen < 0 or seen % self.sc.decision_interval:
             return
+        if self.driven.any():
+            self._remember_view(seen)
         # the oldest tasks the controller may place (queue_first: queued tasks it may divert)
         w = self.win
         offered = self._divertible(w) if self.queue_first else self.state[:, w] == UNDECIDED
@@ -389,6 +544,10 @@ class ArraySim:
         extra = np.zeros((k, self.n, self.target.shape[1]), dtype=np.int64)
         self.asking = (c[rank < self.per_epoch], i[rank < self.per_epoch])
         self.dec_node[self.asking] = nd[rank < self.per_epoch]
+        if self.driven.any():
+            shown = (rank < self.per_epoch) & self.driven[nd]
+            self.slots[c[shown], nd[shown], rank[shown]] = i[shown]
+            self.given[c[shown], i[shown]] = False
         for b in range(self.per_epoch):
             sel = rank == b
             cb, ib, nb = c[sel], i[sel], nd[sel]
@@ -427,6 +586,8 @@ class ArraySim:
         c, i = self.asking
         self.asking = (NONE, NONE)
         up = ~self.down[t, self.dec_node[c, i]]  # a controller that is down drops its answer
+        if self.driven.any():  # a driven controller places what its agent answered (``act``)
+            up &= ~self.driven[self.dec_node[c, i]] | self.given[c, i]
         c, i = c[up], i[up]
         if len(c):
             self.dec_arrive[c, i] = arrive
@@ -528,12 +689,21 @@ class ArraySim:
             roles = self.client[nd]
             imposed = self.imposed[c, i] != 0.0
             self._add(c[imposed], roles[imposed], "delay_imposed", self.imposed[c[imposed], i[imposed]])
+            # the ledger, result by result: its charge, then what became of it
+            self._enter(0)  # a client's tick has one part
+            key = 2 * np.arange(len(c))
+            if self.recording:
+                self._record(c[imposed], roles[imposed], key[imposed], i[imposed], CHARGED,
+                             self.imposed[c[imposed], i[imposed]])
             failed = self.down[t, nd]
-            self._drop(c[failed], i[failed], roles[failed], "node_failure")
+            self._drop(c[failed], i[failed], roles[failed], "node_failure", key[failed] + 1)
             late = (t >= self.expires[c, i]) & ~failed
-            self._drop(c[late], i[late], roles[late], "expired")
+            self._drop(c[late], i[late], roles[late], "expired", key[late] + 1)
             ok = ~late & ~failed
             self._drop(c[ok], i[ok], roles[ok], "completed")
+            if self.recording:
+                self._record(c[ok], roles[ok], key[ok] + 1, i[ok], COMPLETED,
+                             (t - self.created[c[ok], i[ok]]) * self.dt)
             times = np.zeros(self.counters.shape[:2])
             np.add.at(times, (c[ok], roles[ok]), (t - self.created[c[ok], i[ok]]) * self.dt)
             self.counters[:, :, F["response_time_sum"]] += times
@@ -564,9 +734,13 @@ class ArraySim:
         c, i = c[held], i[held]
         if len(c):
             nd = self.node[c, i]
-            np.subtract.at(self.queued, (c, nd), self.state[c, i] == QUEUED)
-            np.subtract.at(self.undecided, (c, nd), self.state[c, i] == UNDECIDED)
-            self._drop(c, i, self.worker[nd], "expired")
+            undecided = self.state[c, i] == UNDECIDED
+            np.subtract.at(self.queued, (c, nd), ~undecided)
+            np.subtract.at(self.undecided, (c, nd), undecided)
+            if self.recording:
+                self.bumped[c[undecided], nd[undecided]] = True
+            self._enter(EXPIRY)  # the queue's tasks in queue order, then the undecided ones in arrival order
+            self._drop(c, i, self.worker[nd], "expired", self.order[c, i] + undecided * (1 << 40))
         self._decisions(t)
         self._admit(t)
         self._serve(t)
@@ -590,7 +764,9 @@ class ArraySim:
                 self.ghosts[int(node)] = (c[mine], i[mine])
         self.queued[:, went] = 0
         self.undecided[:, went] = 0
-        self._drop(c, i, self.worker[self.node[c, i]], "node_failure")
+        self._enter(FAILURE)  # ``Worker.drop_all``: the queue in queue order, then the undecided in arrival order
+        undecided = self.state[c, i] == UNDECIDED
+        self._drop(c, i, self.worker[self.node[c, i]], "node_failure", self.order[c, i] + undecided * (1 << 40))
         self.busy[:, went, :] = 0.0
         charged = self.olink[:, w] >= 0
         self.olink[:, w][charged & went[self.olink[:, w] // self.n]] = -1
@@ -602,6 +778,8 @@ class ArraySim:
         nd = self.dec_node[c, i]
         up = ~self.down[t, nd]  # a node that is down ignores them
         c, i, nd = c[up], i[up], nd[up]
+        if self.recording:
+            self.bumped[c, nd] = True
         if self.queue_first:  # it must still be divertible: queued, not started, not kept
             stale = ((self.state[c, i] != QUEUED) | self.kept[c, i] | (self.rem[c, i] != self.cycles[c, i])
                      | (self.serving[c, nd] == i))
@@ -632,12 +810,15 @@ class ArraySim:
             if len(co):
                 self.hops[co, io] += 1
                 self._add(co, self.worker[no], "offloaded")
+                self._enter(DECISIONS, b)
                 self._transmit(t, co, io, no, self.target[no, action[~local]], self.in_bits[co, io], TO_WORKER)
 
     def _transmit(self, t: int, c: np.ndarray, i: np.ndarray, src: np.ndarray, dst: np.ndarray, bits: np.ndarray,
                   kind: int) -> None:
         """Queue messages on links src -> dst (one per link and call), as ``Radio.send`` and ``Role.transmit`` do."""
         roles = self.worker[src]
+        if self.recording:  # a worker tells its controller of a link's change while it has tasks to place
+            self.bumped[c, src] |= self.undecided[c, src] > 0
         start = np.maximum(float(t), self.busy[c, src, dst])
         late = start > self.latest[c, i]  # it could only start after its deadline: never sent
         self._drop(c[late], i[late], roles[late], "expired")
@@ -666,6 +847,8 @@ class ArraySim:
             s, j, cs = s[by], j[by], cs[by]
             waited = (self.ofinish[cs, j] - np.maximum(float(t), self.ostart[cs, j])) * self.dt
             self._add(cs, roles[s], "delay_imposed", waited * self.urgency[cs, i[s]])
+            if self.recording:  # each charged offload ahead, in sending order
+                self._record(cs, roles[s], np.arange(len(s)), j, CHARGED, waited * self.urgency[cs, i[s]])
         if kind == TO_WORKER:  # an offload: charged for what it makes later messages wait
             self.olink[c, i], self.ostart[c, i], self.ofinish[c, i] = link, start, finish
         if lost.any():
@@ -684,25 +867,30 @@ class ArraySim:
         by = np.lexsort((self.seq[c, i], self.src_rank[c, i], nd, c))
         c, i, nd = c[by], i[by], nd[by]
         roles = self.worker[nd]
-        failed = self.down[t, nd]
-        self._drop(c[failed], i[failed], roles[failed], "node_failure")
+        self._enter(ADMISSION)
+        key = np.arange(len(c))  # mail order
+        failed = self.down[t, nd]  # a worker that is down drops what reaches it (after its results: ``_relay``)
+        self._drop(c[failed], i[failed], roles[failed], "node_failure", key[failed])
         late = (t >= self.expires[c, i]) & ~failed
-        self._drop(c[late], i[late], roles[late], "expired")
+        self._drop(c[late], i[late], roles[late], "expired", key[late])
         late |= failed
-        c, i, nd, roles = c[~late], i[~late], nd[~late], roles[~late]
+        c, i, nd, roles, key = c[~late], i[~late], nd[~late], roles[~late], key[~late]
         if not len(c):
             return
         before = group_rank(c, nd)  # admitted ahead of it in this tick
         room = before < self.buffer[nd] - (self.queued[c, nd] + self.undecided[c, nd])
-        self._drop(c[~room], i[~room], roles[~room], "queue_full")
+        self._drop(c[~room], i[~room], roles[~room], "queue_full", key[~room])
         c, i, nd = c[room], i[room], nd[room]
         self.order[c, i] = self._next_order(len(c))
+        self.arrived[c, i] = t
         self.dec_arrive[c, i], self.kept[c, i] = -1, False  # a task offloaded here is this controller's to place
         if self.sc.max_hops > 1:
             self.path[c, i, self.plen[c, i]] = nd
             self.hop[c, i] = self.plen[c, i]
             self.plen[c, i] += 1
         wait = self.decides[nd] & (self.hops[c, i] < self.sc.max_hops) & (not self.queue_first)
+        if self.recording:
+            self.bumped[c[wait], nd[wait]] = True
         self.state[c, i] = np.where(wait, UNDECIDED, QUEUED)
         np.add.at(self.undecided, (c[wait], nd[wait]), 1)
         np.add.at(self.queued, (c[~wait], nd[~wait]), 1)
@@ -721,6 +909,7 @@ class ArraySim:
         by = np.argsort(((qc * self.n + qn) << 32) + self.order[qc, qi], kind="stable")  # by copy, node, order
         qc, qi, qn = qc[by], qi[by], qn[by]
         queued = qc, qi
+        finishing = 0  # the how-manieth task each worker finishes in this tick
         while active.any():  # a queue that stops being served, or a task that leaves one, does not come back
             keep = active[qc, qn] & (self.state[qc, qi] == QUEUED)
             qc, qi, qn = c, i, nd = qc[keep], qi[keep], qn[keep]
@@ -744,6 +933,8 @@ class ArraySim:
             self.rem[c[~done], i[~done]] = remaining[~done] - left[~done]
             cd, id_, nd_ = c[done], i[done], nd[done]
             self.queued[cd, nd_] -= 1
+            self._enter(SERVICE, finishing)
+            finishing += 1
             self._results(t, cd, id_, nd_)
             active = (self.queued > 0) & (budget > 0.0)
         c, i = queued
@@ -786,10 +977,12 @@ class ArraySim:
         by = np.lexsort((self.seq[c, i], self.src_rank[c, i], nd, c))
         c, i, nd = c[by], i[by], nd[by]
         failed = self.down[t, nd]
-        self._drop(c[failed], i[failed], self.worker[nd[failed]], "node_failure")
+        self._enter(RELAY)
+        self._drop(c[failed], i[failed], self.worker[nd[failed]], "node_failure", np.arange(len(c))[failed])
         c, i, nd = c[~failed], i[~failed], nd[~failed]
         rank = group_rank(c, nd)
-        for r in range(int(rank.max(initial=-1)) + 1):
+        for r in range(int(rank.max(initial=-1)) + 1):  # each worker's r-th result, in its own step of the stage
+            self._enter(RELAY, r)
             self._results(t, c[rank == r], i[rank == r], nd[rank == r])
 
     # ----- end of the tick -----
@@ -800,6 +993,11 @@ class ArraySim:
         cnt[:, :, F["queue"]][:, self.worker[w]] = self.queued[:, w]
         cnt[:, :, F["undecided"]][:, self.worker[w]] = self.undecided[:, w]
         cnt[:, :, F["in_flight"]] = self.flying
+        if self.recording:  # a worker's report tells its controller how long its links stay busy
+            c, nd = np.nonzero(self.bumped & (self.controller >= 0))
+            if len(c):
+                to = np.maximum(self.target[nd, 1:], 0)  # (a missing neighbour's column is never read)
+                self.told_busy[c, nd] = self.busy[c[:, None], nd[:, None], to]
         if self.sc.colocated_control:  # what a co-located controller has heard at the end of the next tick
             self.heard_late[:], self.heard_occupancy_late[:] = self.heard, self.heard_occupancy
         if t % self.sc.state_interval == 0 and self.sc.failures:  # a node that is down is silent

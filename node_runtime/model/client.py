@@ -2,13 +2,15 @@
 
 A client on a worker node hands its tasks to that worker (next tick, no radio). A client on a node
 without a worker owns the node's links and transmits to one of its worker neighbours, picked
-uniformly at random per task.
+uniformly at random per task. With ``workload.jobs`` it creates jobs instead, holds each until it ends
+and releases its tasks as they become ready (``jobs.JobBook``), each then sent as a new task.
 """
 
 from __future__ import annotations
 
 from collections.abc import Sequence
 
+from node_runtime.model.jobs import Job, JobBook
 from node_runtime.model.messages import Envelope, Kind, Task, TaskSize
 from node_runtime.model.plugins import load
 from node_runtime.model.radio import Radio
@@ -28,7 +30,8 @@ class Client(Role):
         super().__init__(node, scenario)
         self.targets = scenario.targets[node.id]
         self.local = node.has("worker")  # hands tasks to its own worker
-        self.radio = None if self.local else Radio.for_node(scenario, node.id, self.targets)
+        rates = None if self.positions is None else self.positions.rate  # of links with a moving end
+        self.radio = None if self.local else Radio.for_node(scenario, node.id, self.targets, rates)
         self.reset(scenario.seed)
 
     def reset(self, seed: int) -> None:
@@ -41,6 +44,7 @@ class Client(Role):
             self.source.deadlines_rng = stream(seed, self.index, CLIENT.stream, DEADLINES)
         self.target_rng = stream(seed, self.index, CLIENT.stream, TARGETS)
         self.seq = 0
+        self.book = JobBook(self.scenario.dt) if self.scenario.workload.jobs is not None else None
         if self.radio is not None:
             self.radio.reset(stream(seed, self.index, CLIENT.stream, LINKS))
 
@@ -52,6 +56,8 @@ class Client(Role):
         st = self.stats
         dt = self.scenario.dt
         failed = self.down(t)
+        book = self.book
+        ready: list[tuple[Job, int]] = []
         for env in inbox:
             if env.kind != Kind.RESULT:
                 raise ValueError(f"{self.id}: unexpected {env.kind.name} from {env.src}")
@@ -70,25 +76,50 @@ class Client(Role):
                 st.ledger.append((task.id, COMPLETED, response))
                 out.emit("completed", self.node.id, task=task.id, response_time=response,
                          executor=env.body.executor)
+                if book is not None and task.job is not None:
+                    ready.extend(book.finished(task.job, t, st))
+        if book is not None:
+            book.expire(t, st)
         if failed:
             return
         me = self.node.id
+        if book is not None:
+            for job, index in ready:
+                self.send(t, book.task(job, index, self.task_id(), me, t), out)
+            for spec in self.source.draw_jobs(t):
+                for job, index in book.start(self.task_id(), spec, t, st):
+                    self.send(t, book.task(job, index, self.task_id(), me, t), out)
+            return
         for size in self.source.draws(t):
-            task = Task(self.task_id(), me, t, TaskSize(*size))
-            st.generated += 1
-            out.emit("created", me, task=task.id, **task.size._asdict())
-            if self.local:
-                out.send(Kind.TASK, role_id("worker", me), task)
-                continue
-            target = self.targets[0]
-            if len(self.targets) > 1:
-                target = self.targets[int(self.target_rng.integers(len(self.targets)))]
-            self.transmit(t, Kind.TASK, target, role_id("worker", target), task, task.size.input_bytes * 8.0, out)
+            self.send(t, Task(self.task_id(), me, t, TaskSize(*size)), out)
+
+    def send(self, t: int, task: Task, out: Outbox) -> None:
+        """A new task: to the own worker, or over the radio to a target worker in range."""
+        self.stats.generated += 1
+        out.emit("created", self.node.id, task=task.id, **task.size._asdict())
+        if self.local:
+            out.send(Kind.TASK, role_id("worker", self.node.id), task)
+            return
+        targets = self.reachable(t)
+        target = targets[0]
+        if len(targets) > 1:
+            target = targets[int(self.target_rng.integers(len(targets)))]
+        self.transmit(t, Kind.TASK, target, role_id("worker", target), task, task.size.input_bytes * 8.0, out)
+
+    def reachable(self, t: int) -> tuple[str, ...]:
+        """Its targets in range in tick ``t`` (all of them if none is, or if no node moves)."""
+        if self.positions is None:
+            return self.targets
+        me, near = self.node.id, self.positions.in_range
+        return tuple(j for j in self.targets if not self.scenario.moving_link(me, j) or near(me, j, t)) \
+            or self.targets
 
     def wake(self, t: int) -> float:
         """At its next arrival: results come by mail, and nothing else happens in between."""
         if self.outages:  # a failed client draws nothing, so its draws depend on the failure schedule
             return t + 1
+        if self.book is not None:  # and when a job it holds misses its deadline
+            return min(self.source.next_arrival(t), self.book.next_expiry())
         return self.source.next_arrival(t)
 
 
@@ -99,12 +130,15 @@ def arrivals(sc: Scenario, seed: int, ticks: int) -> list[tuple[int, int, TaskSi
     """(tick, client node index, size) of every task the clients of ``sc`` create in ticks 0 .. ``ticks`` - 1
     of the episode with ``seed``, in the order they are created. It is the clients' own code and random
     streams, which no decision moves, so it is every run's workload task for task: the array backend's, and
-    the arrival trace the clairvoyant bound sees."""
+    the arrival trace the clairvoyant bound sees. Jobs have no such trace: which of their tasks arrive, and
+    when, depends on where the earlier ones ran."""
     return arrivals_of(sc, (seed,), ticks)[0]
 
 
 def arrivals_of(sc: Scenario, seeds: Sequence[int], ticks: int) -> list[list[tuple[int, int, TaskSize]]]:
     """``arrivals`` of each seed, the clients made once and reset for each."""
+    if sc.workload.jobs is not None:
+        raise ValueError(f"{sc.name}: a scenario of jobs (workload.jobs) has no arrival trace of its tasks")
     clients = [Client(node, sc) for node in sc.nodes if node.has("client")]
     runs = []
     for seed in seeds:

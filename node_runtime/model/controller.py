@@ -20,7 +20,7 @@ undecided tasks, oldest first.
 from __future__ import annotations
 
 import math
-from collections.abc import Iterable, Mapping, Sequence
+from collections.abc import Callable, Iterable, Mapping, Sequence
 from itertools import chain
 from types import MappingProxyType
 from typing import TYPE_CHECKING, ClassVar
@@ -101,6 +101,9 @@ class Controller(Role):
                             0.0 if n == me else sc.link[(me, n)].rate_bps, sc.node[n].has("worker"))
                         for n in self.states}
         self._always_fresh = always_fresh(sc, self.states)
+        # neighbours over a link that follows positions: heard only in range, seen at the rate of the moment
+        self._moving = frozenset(n for n in self.neighbours if sc.moving_link(me, n))
+        self._heard: dict[str, tuple[int, int]] = {}  # moving neighbour -> (last instant searched, heard_at then)
 
     # ----- the tick -----
 
@@ -113,7 +116,8 @@ class Controller(Role):
             return  # nothing heard, nothing to place, nothing to observe
         for env in inbox:
             if env.kind == Kind.STATE:
-                self.states[env.body.node] = env.body
+                if self.hears(env.body.node, env.sent):
+                    self.states[env.body.node] = env.body
             elif env.kind == Kind.REPORT:
                 self.heard(env.body.pending)
                 if env.body.busy_until is not None:
@@ -136,6 +140,29 @@ class Controller(Role):
             self.stale = False
         else:
             self.stale = self.external
+
+    def hears(self, node: str, tick: int) -> bool:
+        """Whether a state ``node`` broadcast in ``tick`` reaches this controller: always, unless their link
+        follows positions and they were out of range then."""
+        return node not in self._moving or self.positions.in_range(self.node.id, node, tick)
+
+    def heard_at(self, node: str, t: int) -> int:
+        """``heard_at`` of ``node``, for a moving neighbour searched back only to where the last search of this
+        episode began (observations come at growing ticks, and what was heard by then stays heard)."""
+        if node not in self._moving:
+            return heard_at(self.scenario, node, t)
+        interval = self.scenario.state_interval
+        top = t - 1 - (t - 1) % interval
+        searched, found = self._heard.get(node, (-interval, -interval))
+        if top < searched:  # an earlier tick than the last asked: search it all
+            return heard_at(self.scenario, node, t, self.hears)
+        s = top
+        while s > searched and (self.scenario.is_failed(node, s) or not self.hears(node, s)):
+            s -= interval
+        if s > searched:
+            found = s
+        self._heard[node] = (top, found)
+        return found
 
     def reads_later(self, env: Envelope) -> bool:
         """A state, and a report whose tasks it has all placed already: that brings nothing to place, it only
@@ -161,8 +188,9 @@ class Controller(Role):
         """Next tick while an answer is to be placed; at the next decision epoch while undecided tasks
         wait, or when an agent drives it and it ran since it last observed; otherwise only mail (a report,
         a state) wakes it. A driven controller that sleeps through an epoch would observe exactly its last
-        observation re-timed (``observation_at``): the environment does that instead of waking it."""
-        if self.asked or self.outages or (self.external and not self.retimed):
+        observation re-timed (``observation_at``): the environment does that instead of waking it, except where
+        nodes move (links change with every tick: it observes every epoch)."""
+        if self.asked or self.outages or (self.external and (not self.retimed or self.scenario.radio is not None)):
             return t + 1
         if self.has_candidates() or self.stale:
             interval = self.scenario.decision_interval
@@ -195,7 +223,9 @@ class Controller(Role):
         """What it knows of ``node``; ``backlog``: seconds queued on the link to it."""
         buffer, capacity, tier, rate, worker = self._static[node]
         state = self.states[node]
-        age = 1 if self._always_fresh else t - heard_at(self.scenario, node, t)
+        if node in self._moving:
+            rate = self.positions.rate(self.node.id, node, t)
+        age = 1 if self._always_fresh else t - self.heard_at(node, t)
         return NodeView(node, state.queue, state.occupancy, buffer, capacity, tier, rate, age, worker, backlog)
 
     def own_view(self, t: int) -> NodeView:
@@ -213,7 +243,7 @@ class Controller(Role):
             if p.id in self.decided:
                 continue
             age = (t - p.created) * dt
-            tasks.append(TaskView(p.id, p.size, p.size.deadline - age, t - p.arrived, p.origin))
+            tasks.append(TaskView(p.id, p.size, p.size.deadline - age, t - p.arrived, p.origin, p.job))
             if len(tasks) == self.per_epoch:
                 break
         return Observation(
@@ -228,24 +258,26 @@ class Controller(Role):
         )
 
 
-def heard_at(scenario: Scenario, node: str, t: int) -> int:
+def heard_at(scenario: Scenario, node: str, t: int, hears: Callable[[str, int], bool] | None = None) -> int:
     """The tick whose end-state of ``node`` a controller knows at the end of tick ``t``.
 
     Broadcasts leave at ticks that are multiples of the state interval while the node is up,
     and arrive one tick later; unchanged states are not re-sent but still count as heard.
+    ``hears(node, s)``: whether a broadcast of ``s`` reaches the controller (a moving node's, in range).
     """
     interval = scenario.state_interval
     s = t - 1
     s -= s % interval
-    while s >= 0 and scenario.is_failed(node, s):
+    while s >= 0 and (scenario.is_failed(node, s) or (hears is not None and not hears(node, s))):
         s -= interval
     return s
 
 
 def always_fresh(scenario: Scenario, nodes: Iterable[str]) -> bool:
-    """With no failures in view and a broadcast every tick, every state heard is exactly one tick old."""
+    """With no failures in view, no moving node and a broadcast every tick, every state heard is exactly one
+    tick old."""
     windows = scenario.failure_windows  # ``nodes`` is read only when some node has failures
-    return scenario.state_interval == 1 and (not windows or windows.keys().isdisjoint(nodes))
+    return scenario.state_interval == 1 and scenario.radio is None and (not windows or windows.keys().isdisjoint(nodes))
 
 
 def backlog(busy: float, t: int, dt: float) -> float:

@@ -28,6 +28,17 @@ class TaskSize(NamedTuple):
         return self.instructions * self.cpi
 
 
+class JobRef(NamedTuple):
+    """What a task of a job (docs/model.md, "Jobs as DAGs") carries of it: which job and which of its tasks,
+    and what a DAG scheduler weighs: the cycles on the longest path from this task to the job's end (this
+    task's own included), and the bytes its successors need from it."""
+
+    job: int  # the job's id
+    index: int  # the task's index in its job
+    critical_cycles: float  # remaining critical path: the most cycles on a path from this task to an exit task
+    successor_bytes: float  # the data of its out-edges, which its result carries back to the job's origin
+
+
 @dataclass(slots=True)
 class Task:
     """tau = <id, size>, plus where it comes from and where it went.
@@ -42,6 +53,7 @@ class Task:
     size: TaskSize
     hops: int = 0  # offloads so far
     path: tuple[str, ...] = ()
+    job: JobRef | None = None  # a task of a job, or a task on its own
 
     def expired(self, tick: int, dt: float) -> bool:
         """Older than its deadline: (now - created) > delta."""
@@ -92,10 +104,11 @@ class Pending:
     created: int
     size: TaskSize
     arrived: int  # tick it entered the worker's buffer
+    job: JobRef | None = None
 
     @classmethod
     def of(cls, task: Task, arrived: int) -> Pending:
-        return cls(task.id, task.origin, task.created, task.size, arrived)
+        return cls(task.id, task.origin, task.created, task.size, arrived, task.job)
 
 
 @dataclass(slots=True)

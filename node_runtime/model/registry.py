@@ -21,6 +21,7 @@ from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
 from node_runtime.model.plugins import PluginError, load
+from node_runtime.model.rng import MOBILITY
 from node_runtime.model.role import Role
 
 if TYPE_CHECKING:
@@ -77,6 +78,8 @@ def register(kind: RoleKind) -> RoleKind:
     known = ROLE_KINDS.get(name)
     if known is not None and known.path != kind.path:
         raise ValueError(f"role kind {name!r} is already registered, by {known.path}")
+    if kind.stream == MOBILITY:
+        raise ValueError(f"role kind {name!r}: stream {MOBILITY} is the moving nodes' (rng.MOBILITY)")
     for other in ROLE_KINDS.values():
         for number in ("order", "stream"):
             if getattr(other, number) == getattr(kind, number) and other.name != name:

@@ -11,6 +11,8 @@ import numpy as np
 
 # A seed travels with every reset as a msgpack integer (64 bits at most), and a launch adds the episode to it
 MAX_SEED = 2**62 - 1
+# The role number of the streams of moving nodes' walks (``node_runtime.model.mobility``): no role kind takes it
+MOBILITY = 2**31 - 1
 
 
 def stream(seed: int, node_index: int, role: int, purpose: int = 0) -> np.random.Generator:

@@ -12,6 +12,7 @@ from typing import ClassVar
 
 from node_runtime.model.energy import transmit_energy
 from node_runtime.model.messages import Body, Envelope, Kind, Task
+from node_runtime.model.positions import Positions
 from node_runtime.model.radio import Radio
 from node_runtime.model.spec import NodeSpec, Scenario
 
@@ -34,7 +35,7 @@ def state_topic(node: str) -> str:
     return f"state/{node}"
 
 
-DROP_CAUSES = ("queue_full", "expired", "node_failure", "link_loss")
+DROP_CAUSES = ("queue_full", "expired", "node_failure", "link_loss", "link_broken")
 
 # what a ``Counters.ledger`` entry (task id, kind, value) says of its task
 COMPLETED = 0  # its result reached its origin; value: the response time in seconds
@@ -57,6 +58,7 @@ class Counters:
     expired: int = 0
     node_failure: int = 0
     link_loss: int = 0
+    link_broken: int = 0  # on a link whose moving end went out of range (docs/model.md, "Moving nodes")
     offloaded: int = 0
     decisions: int = 0
     stale_decisions: int = 0
@@ -73,6 +75,14 @@ class Counters:
     queue: int = 0
     undecided: int = 0
     overloaded: int = 0  # 1 if the buffer was full at the start of this tick
+    # jobs (docs/model.md, "Jobs as DAGs"), counted by the client that created them: created, completed (every
+    # task's result back in time), missed (past the deadline first), the sum of the completed ones' makespans
+    # in seconds, and the level of those still running
+    jobs: int = 0
+    jobs_completed: int = 0
+    jobs_missed: int = 0
+    makespan_sum: float = 0.0
+    jobs_active: int = 0
     # this tick's entries per task, (task id, COMPLETED | LOST | CHARGED, value), drained by the host every
     # tick: the response times of the tick's completions, and what follows a task to the decision that placed
     # it (the environment's per-task credit)
@@ -152,6 +162,7 @@ class Role:
         self.index = scenario.index[node.id]
         self.stats = Counters()
         self.outages = scenario.failure_windows.get(node.id, ())  # [start, end) tick windows
+        self.positions = None if scenario.radio is None else Positions(scenario)  # where nodes are, if some move
 
     def down(self, t: int) -> bool:
         """Whether this role's node has failed at tick ``t`` (scheduled in the scenario)."""
@@ -159,6 +170,8 @@ class Role:
 
     def reset(self, seed: int) -> None:
         self.stats = Counters()
+        if self.positions is not None:
+            self.positions.reset(seed)
 
     def drop(self, out: Outbox, cause: str, task_id: int) -> None:
         """Account for one lost task, by exactly one cause (conservation depends on it)."""

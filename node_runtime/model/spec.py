@@ -20,7 +20,9 @@ import numpy as np
 from pydantic import Discriminator, Field, Tag, field_validator, model_validator
 
 from node_runtime.model.arrival import Arrival, Constant
+from node_runtime.model.dag import Jobs
 from node_runtime.model.messages import TaskSize
+from node_runtime.model.mobility import Mobility, RadioRange
 from node_runtime.model.plugins import is_import_path
 from node_runtime.model.policies import POLICIES
 from node_runtime.model.rng import MAX_SEED
@@ -70,6 +72,7 @@ class NodeSpec(Hardware):
     profile: str = ""  # hardware profile name, for display
     impls: tuple[tuple[str, str], ...] = ()  # kind -> import path of a user subclass of the kind's class
     params: tuple[tuple[str, Any], ...] = ()  # free parameters for user extensions (``params:`` key)
+    mobility: Mobility | None = None  # how it moves from ``position`` (None: it stays there)
 
     def has(self, kind: str) -> bool:
         return kind in self.roles
@@ -210,6 +213,7 @@ class Workload(Strict):
     client_targets: tuple[tuple[str, tuple[str, ...]], ...] = ()  # client node -> worker nodes
     trace: tuple[TraceRow, ...] | None = None
     source: str = ""  # import path of a user TaskSource subclass ("" = Poisson / trace)
+    jobs: Jobs | None = None  # every arrival is a job, a DAG of tasks (None: a task, of ``task_types``)
 
 
 class Failure(Strict):
@@ -278,6 +282,7 @@ class Scenario(SimulationSettings):
     source: str = ""  # the file it came from, for messages only
     extra: dict[str, Any] = Field(default_factory=dict)  # free-form metadata (description ...)
     payload_log: PayloadLog = PayloadLog()  # the run's payload times: measured, recorded or replayed (not hashed)
+    radio: RadioRange | None = None  # the links of moving nodes: range, break rule, radio (None: no node moves)
 
     def replace(self, **changes: Any) -> Scenario:
         """A copy with ``changes``, validated again (its derived views are computed afresh)."""
@@ -305,6 +310,15 @@ class Scenario(SimulationSettings):
     @cached_property
     def link(self) -> dict[tuple[str, str], LinkSpec]:
         return {(lk.src, lk.dst): lk for lk in self.links}
+
+    @cached_property
+    def moving(self) -> frozenset[str]:
+        """The nodes that move."""
+        return frozenset(n.id for n in self.nodes if n.mobility is not None)
+
+    def moving_link(self, src: str, dst: str) -> bool:
+        """Whether the link src -> dst follows positions (an end moves): it exists only within range."""
+        return src in self.moving or dst in self.moving
 
     @cached_property
     def targets(self) -> dict[str, tuple[str, ...]]:
@@ -393,9 +407,11 @@ def _hashed(sc: Scenario) -> dict[str, Any]:
             "trace": None if wl.trace is None else [{"time": r.time, "client": r.client, **r.size._asdict()}
                                                     for r in wl.trace],
             "source": wl.source,
+            **({} if wl.jobs is None else {"jobs": wl.jobs.model_dump(mode="json")}),
         },
         "failures": [{"node": f.node, "start": f.at, "end": f.end} for f in sc.failures],
         "admission": sc.admission, "control_latency": sc.control_latency,
+        "radio": None if sc.radio is None else sc.radio.model_dump(),
     }
     for part, later in [(d, LATER_SETTINGS), (d["workload"]["arrival"], LATER_ARRIVAL),
                         *((t, LATER_TASK_TYPE) for t in d["workload"]["task_types"])]:
@@ -422,8 +438,9 @@ def _hashed_node(node: dict[str, Any]) -> dict[str, Any]:
     """A node as the digest has always hashed it: ``<kind>: bool`` and ``<kind>_impl: str`` for the
     ``DIGEST_KINDS`` and for every other kind the node has or names a class for."""
     node = dict(node)
-    if node.get("payload_hz") is None:  # added later: left out while unset
-        node.pop("payload_hz", None)
+    for later in ("payload_hz", "mobility"):  # added later: left out while unset
+        if node.get(later) is None:
+            node.pop(later, None)
     roles, impls = node.pop("roles"), dict(node.pop("impls"))
     for kind in dict.fromkeys((*DIGEST_KINDS, *roles, *impls)):
         node[kind] = kind in roles
@@ -433,6 +450,6 @@ def _hashed_node(node: dict[str, Any]) -> dict[str, Any]:
 
 # Settings added after scenarios were first hashed, with their defaults: left out of the digest while
 # they hold them, so a scenario that does not use them keeps its hash.
-LATER_SETTINGS: dict[str, Any] = {"admission": "decide_first", "control_latency": 2}
+LATER_SETTINGS: dict[str, Any] = {"admission": "decide_first", "control_latency": 2, "radio": None}
 LATER_ARRIVAL: dict[str, Any] = {"process": "poisson"}
 LATER_TASK_TYPE: dict[str, Any] = {"deadline_high": None, "grace": 0.0}

@@ -10,7 +10,7 @@ from dataclasses import dataclass, field, fields
 from operator import attrgetter
 from typing import Any
 
-from node_runtime.model.messages import TaskSize
+from node_runtime.model.messages import JobRef, TaskSize
 
 
 @dataclass(slots=True)
@@ -20,6 +20,7 @@ class TaskView:
     time_left: float  # seconds until the deadline passes
     waited: int  # ticks spent undecided
     origin: str
+    job: JobRef | None = None  # a task of a job: its remaining critical path and its successors' data
 
 
 @dataclass(slots=True)
@@ -32,7 +33,7 @@ class NodeView:
     buffer: int
     capacity: float  # cycles per second
     tier: int
-    rate_bps: float  # link rate from the observing node (0 for itself)
+    rate_bps: float  # link rate from the observing node now (0 for itself, and for a moving neighbour out of range)
     age: int  # ticks since the state it reports was current
     worker: bool  # can take tasks
     backlog_s: float = 0.0  # seconds of transfer already queued on the link from the observing node to it
@@ -49,18 +50,21 @@ class Observation:
     busy_until: list[float] = field(default_factory=list)  # per neighbour link: the tick its queue empties at
 
     def valid_actions(self) -> list[bool]:
-        """Action 0 keeps a task locally; action i sends it to neighbour i - 1 if that one is a worker."""
-        return [True, *(n.worker for n in self.neighbours)]
+        """Action 0 keeps a task locally; action i sends it to neighbour i - 1 if that one is a worker and
+        their link exists now (a moving neighbour out of range has rate 0)."""
+        return [True, *(n.worker and n.rate_bps > 0.0 for n in self.neighbours)]
 
     def to_wire(self) -> list[Any]:
         """Compact arrays (field order of the dataclasses), documented in docs/bus.md."""
         return [self.tick, self.node, _node_fields(self.own), self.undecided,
-                [[t.id, *t.size, t.time_left, t.waited, t.origin] for t in self.tasks],
+                [[t.id, *t.size, t.time_left, t.waited, t.origin, None if t.job is None else list(t.job)]
+                 for t in self.tasks],
                 [_node_fields(n) for n in self.neighbours], self.busy_until]
 
     @classmethod
     def from_wire(cls, a: list[Any]) -> Observation:
-        tasks = [TaskView(t[0], TaskSize(*t[1:6]), t[6], t[7], t[8]) for t in a[4]]
+        tasks = [TaskView(t[0], TaskSize(*t[1:6]), t[6], t[7], t[8], None if t[9] is None else JobRef(*t[9]))
+                 for t in a[4]]
         return cls(a[0], a[1], NodeView(*a[2]), a[3], tasks, [NodeView(*n) for n in a[5]], a[6])
 
 

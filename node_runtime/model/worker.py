@@ -51,7 +51,10 @@ class Worker(Role):
         super().__init__(node, scenario)
         self.dt = scenario.dt
         self.neighbours = scenario.neighbours[node.id]
-        self.radio = Radio.for_node(scenario, node.id, self.neighbours)
+        self.radio = Radio.for_node(scenario, node.id, self.neighbours,
+                                    None if self.positions is None else self.positions.rate)
+        # neighbours whose link to this node follows positions: a state is re-sent to one that comes into range
+        self.moving = tuple(j for j in self.neighbours if scenario.moving_link(node.id, j))
         self.decides = node.has("controller") and scenario.max_hops > 0
         self.controller = role_id("controller", node.id) if node.has("controller") else ""
         # a co-located controller (control_latency 0) reads this worker itself; any other is sent reports
@@ -222,7 +225,7 @@ class Worker(Role):
         if self.outages or self.stats.overloaded != full:
             return t + 1
         wake = self.next_expiry if self.queue or self.undecided else math.inf
-        if (self.stats.queue, self.occupancy) != self._last_state:
+        if (self.stats.queue, self.occupancy) != self._last_state or self.moving:
             interval = self.scenario.state_interval
             wake = min(wake, t + interval - t % interval)
         if self.queue:
@@ -391,7 +394,7 @@ class Worker(Role):
             return
         state = (st.queue, self.occupancy)
         interval = self.scenario.state_interval
-        if state != self._last_state and t % interval == 0:
+        if t % interval == 0 and (state != self._last_state or (self.moving and self.arrived(t, interval))):
             self._last_state = state
             out.broadcast(Kind.STATE, self.topic, NodeState(self.node.id, st.queue, self.occupancy))
         if self.tracks_divertible:
@@ -404,6 +407,13 @@ class Worker(Role):
             busy = self.radio.busy_until() if self._links_changed else None
             self._links_changed = False
             out.send(Kind.REPORT, self.controller, Report(self.pending(), busy))
+
+    def arrived(self, t: int, interval: int) -> bool:
+        """Whether a moving neighbour is in range at this broadcast instant and was not at the last one: it
+        missed what was said meanwhile, so an unchanged state is said again (the neighbour hears only what is
+        sent while it is in range; docs/model.md, "Moving nodes")."""
+        me, near = self.node.id, self.positions.in_range
+        return any(near(me, j, t) and (t < interval or not near(me, j, t - interval)) for j in self.moving)
 
 
 def own_state(node: NodeSpec, scenario: Scenario) -> tuple[str, ...]:

@@ -15,6 +15,7 @@ from functools import lru_cache
 import numpy as np
 
 from node_runtime.model.arrival import Schedule
+from node_runtime.model.dag import JobSpec
 from node_runtime.model.messages import TaskSize
 from node_runtime.model.spec import Scenario, TaskType, TraceRow
 
@@ -24,7 +25,8 @@ LOOKAHEAD = BLOCK  # ticks ``next_arrival`` searches ahead before giving up
 
 def nominal_arrivals(sc: Scenario) -> dict[str, float]:
     """Tasks per second each worker receives from clients on average: a client's mean rate (its own
-    constant, the schedule's mean, or its trace rows over the episode), split evenly over its targets."""
+    constant, the schedule's mean, or its trace rows over the episode), split evenly over its targets; with
+    jobs, that rate of jobs times the tasks of a job on average."""
     mean = sc.workload.arrival.mean
     fixed = dict(sc.workload.client_rates)
     rows: dict[str, int] = {}
@@ -34,6 +36,8 @@ def nominal_arrivals(sc: Scenario) -> dict[str, float]:
     out: dict[str, float] = {}
     for client, targets in sc.targets.items():
         rate = rows.get(client, 0) / horizon if sc.workload.trace is not None else fixed.get(client, mean)
+        if sc.workload.jobs is not None:
+            rate *= sc.workload.jobs.mean_tasks
         for node in targets:
             out[node] = out.get(node, 0.0) + rate / len(targets)
     return out
@@ -77,6 +81,11 @@ class TaskSource:
         self.types: tuple[TaskType, ...] = scenario.workload.task_types
         weights = np.array([t.weight for t in self.types], dtype=float)
         self.probs = weights / weights.sum()
+        self.jobs = scenario.workload.jobs
+        self.job_probs: np.ndarray | None = None  # of the listed jobs, by weight
+        if self.jobs is not None and self.jobs.dags:
+            weights = np.array([d.weight for d in self.jobs.dags], dtype=float)
+            self.job_probs = weights / weights.sum()
         self.counts_rng = counts_rng
         self.types_rng = types_rng
         self.deadlines_rng: np.random.Generator | None = None  # set by the client when a type draws deadlines
@@ -153,6 +162,11 @@ class TaskSource:
         else:
             picks = [self.types[i] for i in self.types_rng.choice(len(self.types), size=n, p=self.probs)]
         return [t.size(t.draw_deadline(self.deadlines_rng)) for t in picks]
+
+    def draw_jobs(self, tick: int) -> list[JobSpec]:
+        """The DAG of every job created at ``tick`` (``workload.jobs``): as many as ``count`` says, each drawn
+        from the task-type stream."""
+        return [self.jobs.draw(self.types_rng, self.job_probs) for _ in range(self.count(tick))]
 
     def next_arrival(self, after: int) -> int:
         """The first tick after ``after`` with a task, or the end of the search window.

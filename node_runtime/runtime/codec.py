@@ -22,7 +22,18 @@ from typing import Any, NoReturn
 
 import msgpack
 
-from node_runtime.model.messages import Decision, Envelope, Kind, NodeState, Pending, Report, Result, Task, TaskSize
+from node_runtime.model.messages import (
+    Decision,
+    Envelope,
+    JobRef,
+    Kind,
+    NodeState,
+    Pending,
+    Report,
+    Result,
+    Task,
+    TaskSize,
+)
 from node_runtime.model.role import STAT_FIELDS
 from node_runtime.model.view import Observation
 from node_runtime.runtime.origin import MAC_BYTES, mac
@@ -47,14 +58,15 @@ def _malformed(what: str) -> NoReturn:
 # ----- shapes: what each array and map may hold (bool passes for int, as in Python) -----
 
 NUM = (int, float)
-TASK = (int, str, int, NUM, NUM, NUM, NUM, NUM, int, list)
+TASK = (int, str, int, NUM, NUM, NUM, NUM, NUM, int, list, object)
 RESULT = (list, str, int, int, NUM)
 DECISION = (int, str)
-PENDING = (int, str, int, NUM, NUM, NUM, NUM, NUM, int)
+PENDING = (int, str, int, NUM, NUM, NUM, NUM, NUM, int, object)
 STATE = (str, NUM, NUM)
 ENVELOPE = (int, str, str, int, int, int, object)
 NODE_VIEW = (str, NUM, NUM, NUM, NUM, NUM, NUM, NUM, bool, NUM)
-TASK_VIEW = (int, NUM, NUM, NUM, NUM, NUM, NUM, NUM, str)
+TASK_VIEW = (int, NUM, NUM, NUM, NUM, NUM, NUM, NUM, str, object)
+JOB_REF = (int, int, NUM, NUM)
 OBSERVATION = (int, str, list, int, list, list, list)
 N_STATS = len(STAT_FIELDS)
 
@@ -149,7 +161,7 @@ def _flights(m: Any) -> bool:
 
 def _observations(m: Any) -> bool:
     return type(m) is dict and (not m or (all(map(_is_int, m)) and all(
-        _fits(o, OBSERVATION) and _fits(o[2], NODE_VIEW) and all(_fits(t, TASK_VIEW) for t in o[4])
+        _fits(o, OBSERVATION) and _fits(o[2], NODE_VIEW) and all(_fits(t, TASK_VIEW) and _is_job(t[9]) for t in o[4])
         and all(_fits(n, NODE_VIEW) for n in o[5]) and _number_rows([o[6]]) for o in m.values())))
 
 
@@ -198,14 +210,28 @@ def _diagnose(d: dict[str, Any], kind: str, fields: tuple) -> NoReturn:
 
 # ----- model bodies -----
 
+def _job(j: JobRef | None) -> list | None:
+    return None if j is None else list(j)
+
+
+def _is_job(a: Any) -> bool:
+    """nil (a task on its own), or [job id, index, critical cycles, successor bytes]."""
+    return a is None or _fits(a, JOB_REF)
+
+
+def _unjob(a: Any) -> JobRef | None:
+    return None if a is None else JobRef(*a)
+
+
 def _task(t: Task) -> list:
-    return [t.id, t.origin, t.created, *t.size, t.hops, list(t.path)]
+    return [t.id, t.origin, t.created, *t.size, t.hops, list(t.path), _job(t.job)]
 
 
 def _untask(a: Any) -> Task:
-    if not (_fits(a, TASK) and _str_list(a[9])):
-        _malformed("a task that is not [id, origin, created, instructions, input, output, cpi, deadline, hops, path]")
-    return Task(a[0], a[1], a[2], TaskSize(a[3], a[4], a[5], a[6], a[7]), a[8], tuple(a[9]))
+    if not (_fits(a, TASK) and _str_list(a[9]) and _is_job(a[10])):
+        _malformed("a task that is not [id, origin, created, instructions, input, output, cpi, deadline, hops, path, "
+                   "job]")
+    return Task(a[0], a[1], a[2], TaskSize(a[3], a[4], a[5], a[6], a[7]), a[8], tuple(a[9]), _unjob(a[10]))
 
 
 def _body(kind: Kind, body: Any) -> Any:
@@ -216,7 +242,7 @@ def _body(kind: Kind, body: Any) -> Any:
     if kind == Kind.DECISION:
         return [[d.task_id, d.target] for d in body]
     if kind == Kind.REPORT:
-        return [[[p.id, p.origin, p.created, *p.size, p.arrived] for p in body.pending], body.busy_until]
+        return [[[p.id, p.origin, p.created, *p.size, p.arrived, _job(p.job)] for p in body.pending], body.busy_until]
     if kind == Kind.STATE:
         return [body.node, body.queue, body.occupancy]
     raise CodecError(f"no encoding for message kind {kind!r}")
@@ -234,10 +260,11 @@ def _unbody(kind: Kind, a: Any) -> Any:
             _malformed("decisions that are not [[task id, target], ...]")
         return [Decision(i, target) for i, target in a]
     if kind == Kind.REPORT:
-        if not (type(a) is list and len(a) == 2 and type(a[0]) is list and all(_fits(p, PENDING) for p in a[0])
+        if not (type(a) is list and len(a) == 2 and type(a[0]) is list
+                and all(_fits(p, PENDING) and _is_job(p[9]) for p in a[0])
                 and (a[1] is None or (type(a[1]) is list and all(isinstance(x, NUM) for x in a[1])))):
             _malformed("a report that is not [[pending task, ...], link busy-until ticks or nil]")
-        return Report([Pending(p[0], p[1], p[2], TaskSize(*p[3:8]), p[8]) for p in a[0]], a[1])
+        return Report([Pending(p[0], p[1], p[2], TaskSize(*p[3:8]), p[8], _unjob(p[9])) for p in a[0]], a[1])
     if not _fits(a, STATE):  # Kind.STATE: the kinds are exhausted
         _malformed("a state that is not [node, queue, occupancy]")
     return NodeState(a[0], a[1], a[2])

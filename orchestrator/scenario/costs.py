@@ -71,6 +71,11 @@ def report(sc: Scenario) -> list[str]:
     on a device that receives it, and per task target that receives more work than it can serve."""
     if sc.workload.trace is not None:
         return [f"trace workload: {len(sc.workload.trace)} tasks, each sized by its row (no task types to cost)"]
+    if (jobs := sc.workload.jobs) is not None:
+        source = (f"{len(jobs.dags)} listed DAG(s), {sum(len(d.tasks) for d in jobs.dags)} tasks in all"
+                  if jobs.dags else "DAGs drawn by the layered generator")
+        return [f"jobs workload: every arrival is a job, one of {source}, due in at most {jobs.longest_deadline:g} s "
+                "(no task types to cost)"]
     arriving = {n for targets in sc.targets.values() for n in targets}
     reached = within(sc, arriving, sc.max_hops)
     kinds = devices(sc)

@@ -8,6 +8,7 @@ from typing import Any
 from pydantic import BaseModel, Tag
 
 from node_runtime.model.arrival import KIND_ERROR, KINDS
+from node_runtime.model.mobility import MODEL_ERROR
 
 
 class ScenarioError(ValueError):
@@ -23,6 +24,8 @@ def error_path(err: dict[str, Any]) -> str:
     loc = err["loc"]
     if err["type"] == KIND_ERROR and isinstance(err.get("input"), dict):
         loc = (*loc, "kind")
+    elif err["type"] == MODEL_ERROR and isinstance(err.get("input"), dict):
+        loc = (*loc, "model")
     return key_path(loc)
 
 
@@ -74,6 +77,10 @@ def describe(err: dict[str, Any], model: type[BaseModel]) -> str:
             return f"expected a mapping (got {got!r})"
         *first, last = map(repr, KINDS)
         return f"expected {', '.join(first)} or {last} (got {got.get('kind')!r})"
+    if kind == MODEL_ERROR:
+        if not isinstance(got, dict):
+            return f"expected a mapping with a model (got {got!r})"
+        return f"{err['msg']} (got {got.get('model')!r})"
     if kind == "extra_forbidden":
         field = str(err["loc"][-1])
         known = _fields_at(model, err["loc"][:-1])

@@ -17,9 +17,12 @@ from typing import Any
 import networkx as nx
 from pydantic import ConfigDict, ValidationError, validate_call
 
+from node_runtime.model.dag import Jobs
 from node_runtime.model.messages import LONGEST_DEADLINE_TICKS, TaskSize
+from node_runtime.model.mobility import RadioRange, Trace
 from node_runtime.model.payload import size_key
 from node_runtime.model.plugins import PluginError, extend_path, is_import_path, load
+from node_runtime.model.positions import bounds, box_distance, link_rate
 from node_runtime.model.radio import free_space_loss_db, log_distance_gain_db, shannon_rate
 from node_runtime.model.registry import ROLE_KINDS
 from node_runtime.model.role import Role
@@ -34,9 +37,12 @@ from orchestrator.scenario.schema import (
     file_format,
 )
 from topologies import bundled_file
+from topologies.alibaba import Conversion, TraceError
+from topologies.alibaba_dag import read_dags
 from topologies.draft import Draft, DraftLink, DraftNode
 from topologies.ether import DEVICE_TYPES, EtherError, load_ether
 from topologies.generators import GENERATORS, GeneratorError
+from topologies.mobility import MobilityError, Samples, read_fcd, read_trace
 
 # Tasks are objects of their own: a mean of a million per tick and source is far past what runs (and
 # past it, numpy's Poisson draw fails outright near 1e19)
@@ -99,6 +105,7 @@ class _Resolver:
         self.also = also
         self.label = label
         self.errors: list[str] = []
+        self.traces: dict[tuple[str, Path], Samples] = {}  # position files read, by (model, path)
 
     def error(self, path: str, message: str) -> None:
         self.errors.append(f"{self.label}: {path}: {message}")
@@ -123,7 +130,9 @@ class _Resolver:
         self.fail_if_errors()
         nodes = self.nodes(draft)
         self.fail_if_errors()
-        links = self.links(draft, nodes)
+        radio = self.radio(nodes)
+        self.fail_if_errors()
+        links = self.links(draft, nodes, radio)
         self.fail_if_errors()
         self.check_graph(nodes, links)
         self.check_failures({n.id for n in nodes})
@@ -140,6 +149,7 @@ class _Resolver:
             failures=tuple(cfg.failures),
             kinds=tuple((name, kind.path) for name, kind in ROLE_KINDS.items() if any(n.has(name) for n in nodes)),
             source=self.label,
+            radio=radio,
             extra={"description": cfg.description, "reward": cfg.reward or "", "observation": cfg.observation or ""},
         )
 
@@ -312,6 +322,9 @@ class _Resolver:
                 params.update(override.params or {})
                 if "position" in override.model_fields_set:
                     position = override.position
+            mobility = self.mobility(node.id, where, position, override, profile_name)
+            if isinstance(mobility, Trace):
+                position = mobility.samples[0][1:]  # a trace says where the node starts
             kinds = tuple(name for name in ROLE_KINDS if values[name])
             for name in kinds:
                 for need in ROLE_KINDS[name].needs:
@@ -322,7 +335,8 @@ class _Resolver:
                 out.append(NodeSpec(
                     **{key: values[key] for key in Hardware.model_fields}, id=node.id,
                     position=(float(position[0]), float(position[1])), roles=kinds, policy=values["policy"],
-                    profile=profile_name or "", impls=impls, params=tuple(sorted(params.items()))))
+                    profile=profile_name or "", impls=impls, params=tuple(sorted(params.items())),
+                    mobility=mobility))
             except ValidationError as exc:  # the file's values are valid: hardware a topology source gave is not
                 for e in exc.errors():
                     self.error(f"{where}.{key_path(e['loc'])}",
@@ -334,12 +348,12 @@ class _Resolver:
             self.error("topology", "the topology has no nodes")
         return out
 
-    def links(self, draft: Draft, nodes: list[NodeSpec]) -> list[LinkSpec]:
+    def links(self, draft: Draft, nodes: list[NodeSpec], radio: RadioRange | None) -> list[LinkSpec]:
         net = self.cfg.network
-        noise = net.noise_dbm if net.noise_dbm is not None else -174.0 + 10 * math.log10(net.bandwidth_hz)
+        noise, ref_loss = self.noise_dbm(), self.ref_loss_db()
         pl = net.path_loss
-        ref_loss = pl.ref_loss_db if pl.frequency_hz is None else free_space_loss_db(pl.ref_distance_m, pl.frequency_hz)
         by_id = {n.id: n for n in nodes}
+        moving = {n.id for n in nodes if n.mobility is not None}
         explicit = {frozenset(lk.between): (i, lk) for i, lk in enumerate(self.cfg.topology.links)}
         seen: set[frozenset[str]] = set()
         out = []
@@ -356,6 +370,11 @@ class _Resolver:
                 continue
             seen.add(key)
             override = explicit.get(key, (0, None))[1]
+            if key & moving:  # its links are every pair in range, added below
+                if override is not None:
+                    self.error(f"{where}.between", f"{sorted(key & moving)[0]!r} moves: its links follow its position "
+                               "(every node within network.range_m); remove this link")
+                continue
             rate = link.rate_bps if override is None or override.rate_bps is None else override.rate_bps
             loss = net.loss if override is None or override.loss is None else override.loss
             for src, dst in ((link.a, link.b), (link.b, link.a)):
@@ -369,7 +388,83 @@ class _Resolver:
                 if not r > 0:  # nan too: e.g. an Ether file's NaN coordinates (Python's json reads them)
                     self.error(f"{where}", f"link {src}->{dst} has no capacity (rate {r:g} bit/s)")
                 out.append(LinkSpec(src, dst, r, loss))
+        if radio is not None:
+            out.extend(self.moving_links(nodes, radio, seen))
         return out
+
+    def moving_links(self, nodes: list[NodeSpec], radio: RadioRange, listed: set[frozenset[str]]) -> list[LinkSpec]:
+        """A link between every two nodes, one of them moving, that can ever come within range (by where each
+        can be: a point, its area or its trace's box), whatever the seed: the links a controller may act on.
+        Each carries the rate it has at the edge of the range, the least it has while it exists."""
+        out = []
+        loss = self.cfg.network.loss
+        for i, a in enumerate(nodes):
+            for b in nodes[i + 1:]:
+                if (a.mobility is None and b.mobility is None) or frozenset((a.id, b.id)) in listed:
+                    continue
+                if box_distance(bounds(a.mobility, a.position), bounds(b.mobility, b.position)) <= radio.range_m:
+                    out.append(LinkSpec(a.id, b.id, link_rate(radio, a.tx_power_dbm, radio.range_m), loss))
+                    out.append(LinkSpec(b.id, a.id, link_rate(radio, b.tx_power_dbm, radio.range_m), loss))
+        return out
+
+    def noise_dbm(self) -> float:
+        net = self.cfg.network
+        return net.noise_dbm if net.noise_dbm is not None else -174.0 + 10 * math.log10(net.bandwidth_hz)
+
+    def ref_loss_db(self) -> float:
+        pl = self.cfg.network.path_loss
+        return pl.ref_loss_db if pl.frequency_hz is None else free_space_loss_db(pl.ref_distance_m, pl.frequency_hz)
+
+    def radio(self, nodes: list[NodeSpec]) -> RadioRange | None:
+        """The radio of moving nodes' links, when a node moves; a range with no moving node is a mistake."""
+        net = self.cfg.network
+        moving = [n for n in nodes if n.mobility is not None]
+        if not moving:
+            for key in ("range_m", "on_break"):
+                if key in net.model_fields_set:
+                    self.error(f"network.{key}", "no node moves: give a node or profile a 'mobility'")
+            return None
+        if net.range_m is None:
+            self.error("network.range_m", f"node {moving[0].id!r} moves: expected the radio range of moving nodes' "
+                       "links, in metres")
+            return None
+        pl = net.path_loss
+        return RadioRange(range_m=net.range_m, on_break=net.on_break, bandwidth_hz=net.bandwidth_hz,
+                          noise_dbm=self.noise_dbm(), ref_loss_db=self.ref_loss_db(),
+                          ref_distance_m=pl.ref_distance_m, exponent=pl.exponent)
+
+    def mobility(self, node: str, where: str, position: tuple[float, float], override: Any,
+                 profile: str | None) -> Any:
+        """The node's movement (its own entry's, else its profile's), with a trace or FCD file read into samples;
+        None if it stays where it is."""
+        cfg = self.cfg
+        if override is not None and override.mobility is not None:
+            model, key = override.mobility, f"{where}.mobility"
+        elif profile in cfg.profiles and cfg.profiles[profile].mobility is not None:
+            model, key = cfg.profiles[profile].mobility, f"profiles.{profile}.mobility"
+        else:
+            return None
+        if model.model in ("trace", "fcd"):
+            name = (model.node if model.model == "trace" else model.vehicle) or node
+            path = self.file(model.file)
+            if (model.model, path) not in self.traces:
+                try:
+                    self.traces[(model.model, path)] = (read_trace if model.model == "trace" else read_fcd)(path)
+                except MobilityError as exc:
+                    self.traces[(model.model, path)] = {}
+                    self.error(f"{key}.file", str(exc))
+                    return None
+            samples = self.traces[(model.model, path)].get(name)
+            if samples is None:
+                if self.traces[(model.model, path)]:
+                    what = "node" if model.model == "trace" else "vehicle"
+                    self.error(f"{key}.file", f"{path} has no {what} {name!r} (node {node!r})")
+                return None
+            return Trace(samples=tuple(samples))
+        if not model.area.contains(position):
+            self.error(f"{key}.area", f"node {node!r} starts at {tuple(position)}, outside the area: expected its "
+                       "position inside it")
+        return model
 
     def check_graph(self, nodes: list[NodeSpec], links: list[LinkSpec]) -> None:
         g = nx.Graph()
@@ -426,7 +521,27 @@ class _Resolver:
             client_targets=tuple((c, tuple(ts)) for c, ts in sorted(wl.targets.items())),
             trace=trace,
             source=wl.source or "",
+            jobs=self.jobs(wl),
         )
+
+    def jobs(self, wl: WorkloadCfg) -> Jobs | None:
+        """``workload.jobs``: the listed DAGs, those of an Alibaba trace, or the generator."""
+        cfg = wl.jobs
+        if cfg is None:
+            return None
+        if cfg.alibaba is not None:
+            where = "workload.jobs.alibaba.file"
+            try:
+                dags = read_dags(self.file(cfg.alibaba.file), Conversion(**cfg.alibaba.model_dump(exclude={"file"})))
+            except TraceError as exc:
+                self.error(where, f"{exc} (expected a batch_task.csv of the Alibaba trace v2018)")
+                return None
+            jobs = Jobs(dags=tuple(dags))
+        else:
+            jobs = Jobs(dags=tuple(cfg.dags or ()), generator=cfg.generator)
+        if why := self.too_long(jobs.longest_deadline):
+            self.error("workload.jobs", why)
+        return jobs
 
     def check_payload_sizes(self, wl: WorkloadCfg) -> None:
         """A task carries its size, not its type: a type with a payload needs a size no other type has."""

@@ -14,9 +14,11 @@ from __future__ import annotations
 from functools import cache
 from typing import Annotated, Any, Literal
 
-from pydantic import BaseModel, ConfigDict, Field, create_model, field_validator, model_validator
+from pydantic import BaseModel, ConfigDict, Discriminator, Field, Tag, create_model, field_validator, model_validator
 
 from node_runtime.model.arrival import Arrival, Constant
+from node_runtime.model.dag import JobSpec, LayeredDag
+from node_runtime.model.mobility import MODEL_ERROR, GaussMarkov, RandomWaypoint, model_of
 from node_runtime.model.spec import Failure, Hardware, SimulationSettings, TaskType, known_policy
 from node_runtime.model.values import Decibels, NonNeg, Pos, Prob, Strict, optional
 from node_runtime.runtime.keys import CHUNK
@@ -43,6 +45,68 @@ class NetworkCfg(Strict):
     noise_dbm: Decibels | None = None  # default: thermal noise over the bandwidth, -174 + 10 log10(B) dBm
     path_loss: PathLossCfg = PathLossCfg()
     loss: Prob = 0.0
+    range_m: Pos | None = None  # the radio range of moving nodes' links (needed when a node moves)
+    on_break: Literal["drop", "retry"] = "drop"  # a transfer on a link that breaks: lost, or sent again
+
+
+class TraceCfg(Strict):
+    """``mobility: {model: trace, file: …}``: the node's rows of a CSV ``t,node,x,y`` (those of ``node``, by
+    default the node's own id)."""
+
+    model: Literal["trace"] = "trace"
+    file: str
+    node: str | None = None
+
+
+class FcdCfg(Strict):
+    """``mobility: {model: fcd, file: …}``: a vehicle of SUMO FCD output (``vehicle``, by default the node's id)."""
+
+    model: Literal["fcd"] = "fcd"
+    file: str
+    vehicle: str | None = None
+
+
+FILE_MODELS = ("random_waypoint", "gauss_markov", "trace", "fcd")
+# A node's or profile's ``mobility``: the model names the class; a trace or FCD file is read when resolved.
+MobilityCfg = Annotated[
+    Annotated[RandomWaypoint, Tag("<random_waypoint>")] | Annotated[GaussMarkov, Tag("<gauss_markov>")]
+    | Annotated[TraceCfg, Tag("<trace>")] | Annotated[FcdCfg, Tag("<fcd>")],
+    Discriminator(model_of, custom_error_type=MODEL_ERROR,
+                  custom_error_message=f"expected a model among {', '.join(map(repr, FILE_MODELS))}"),
+]
+
+
+class AlibabaJobsCfg(Strict):
+    """``workload.jobs.alibaba``: the DAGs of the jobs of an Alibaba v2018 ``batch_task.csv``
+    (``topologies.alibaba_dag``; each value as ``topologies.alibaba.Conversion`` documents it)."""
+
+    file: str
+    limit: Annotated[int, Field(ge=1)] | None = None  # the earliest jobs only
+    frequency: Pos = 4.0e6
+    memory_bytes: Pos = 1.0e9
+    output_ratio: Pos = 1.0
+    deadline_factor: Pos = 3.0
+    min_deadline: Pos = 10.0
+    time_scale: Pos = 1.0
+    cpi: Pos = 1.0
+
+
+class JobsCfg(Strict):
+    """``workload.jobs``: every arrival is a job, a DAG of tasks: one of ``dags`` (drawn by weight), of the
+    DAGs imported from ``alibaba``, or drawn by ``generator``."""
+
+    dags: list[JobSpec] | None = None
+    generator: LayeredDag | None = None
+    alibaba: AlibabaJobsCfg | None = None
+
+    @model_validator(mode="after")
+    def one_source(self) -> JobsCfg:
+        given = [k for k in ("dags", "generator", "alibaba") if getattr(self, k) is not None]
+        if len(given) != 1:
+            raise ValueError(f"expected exactly one of dags, generator, alibaba (got {', '.join(given) or 'none'})")
+        if self.dags is not None and not self.dags:
+            raise ValueError("dags: expected at least one job")
+        return self
 
 
 class WorkloadCfg(Strict):
@@ -52,9 +116,14 @@ class WorkloadCfg(Strict):
     tasks: Annotated[list[TaskType], Field(min_length=1)] = Field(default_factory=lambda: [TaskType()])
     trace: str | None = None
     source: str | None = None  # import path of a TaskSource subclass
+    jobs: JobsCfg | None = None  # every arrival is a job (a DAG of tasks) rather than a task of ``tasks``
 
     @model_validator(mode="after")
     def one_workload(self) -> WorkloadCfg:
+        if self.jobs is not None and (self.trace is not None or self.source is not None):
+            raise ValueError("jobs come from the arrival process: remove trace and source, or jobs")
+        if self.jobs is not None and any(t.payload is not None for t in self.tasks):
+            raise ValueError("the tasks of jobs run no payload: remove the payload of tasks, or jobs")
         if self.trace is not None:
             ignored = sorted({"arrival", "rates", "source"} & self.model_fields_set)
             if ignored:
@@ -84,6 +153,7 @@ class ProfileCfg(HardwareCfg):
     policy: str | None = None
     roles: RolesCfg | None = None
     params: dict[str, float | int | bool | str] | None = None  # free parameters for user extensions
+    mobility: MobilityCfg | None = None  # how the node moves (docs/scenario.md, "Moving nodes")
 
     @field_validator("policy")
     @classmethod

@@ -4,6 +4,9 @@ Nodes sit at their positions in metres (a seeded spring layout when the scenario
 by tier, shaped by role (controller / worker only / no worker), outlined when they are task sources,
 sized by the log of their capacity; links are drawn once per node pair, wider for faster links.
 Labels are placed greedily around their nodes so that pairs of devices a metre apart stay legible.
+
+With moving nodes, ``--frames N`` draws instead a strip of N frames: where the nodes are at evenly spaced ticks
+of an episode (its seed's walks), the links that exist then, and each moving node's path so far.
 """
 
 from __future__ import annotations
@@ -25,6 +28,7 @@ from matplotlib.axes import Axes
 from matplotlib.legend import Legend
 from matplotlib.lines import Line2D
 
+from node_runtime.model.positions import Positions
 from node_runtime.model.spec import NodeSpec, Scenario
 
 DPI = 150
@@ -72,6 +76,73 @@ def draw_topology(scenario: Scenario, path: Path, *, title: str | None = None) -
             ax.set_xticks([])
             ax.set_yticks([])
             ax.set_xlabel("schematic layout (the scenario gives no distinct positions)")
+        path.parent.mkdir(parents=True, exist_ok=True)
+        fig.savefig(path, dpi=DPI, facecolor="white", format="png")
+    finally:
+        plt.close(fig)
+    return path
+
+
+# ----- moving nodes: a strip of frames -----
+
+FRAME_COLUMNS = 3
+FRAME_WIDTH = 5.2  # inches per frame
+TRAIL = "#7a7a7a"
+
+
+def frame_ticks(scenario: Scenario, frames: int, every: int | None = None) -> list[int]:
+    """``frames`` ticks from 0, ``every`` apart (by default spread over the episode), none past its last."""
+    last = scenario.episode_ticks - 1
+    step = every if every is not None else max(1, last // max(frames - 1, 1))
+    return sorted({min(k * step, last) for k in range(frames)})
+
+
+def draw_frames(scenario: Scenario, path: Path, ticks: list[int], *, seed: int | None = None,
+                title: str | None = None) -> Path:
+    """Write a PNG of the nodes' positions at each of ``ticks`` (the walks of ``seed``, by default the
+    scenario's), one frame each: the links that exist at that tick and each moving node's path so far."""
+    path = Path(path)
+    seed = scenario.seed if seed is None else seed
+    where = Positions(scenario)
+    where.reset(seed)
+    ids = [n.id for n in scenario.nodes]
+    track = {n: [where.at(n, k) for k in range(ticks[-1] + 1)] for n in ids}
+    points = np.array([xy for n in ids for xy in (track[n] if n in scenario.moving else track[n][:1])])
+    lo, hi = points.min(axis=0), points.max(axis=0)
+    pad = 0.06 * float(max((hi - lo).max(), 1.0))
+    areas = {k: v / 3 for k, v in _node_areas(scenario.nodes).items()}
+    pairs = {frozenset((lk.src, lk.dst)) for lk in scenario.links}
+    rows = math.ceil(len(ticks) / FRAME_COLUMNS)
+    cols = min(len(ticks), FRAME_COLUMNS)
+    span = hi - lo + 2 * pad
+    height = FRAME_WIDTH * min(max(float(span[1] / span[0]), 0.3), 2.0) + 0.6  # a frame's axes keep metres square
+    fig, axes = plt.subplots(rows, cols, figsize=(FRAME_WIDTH * cols, height * rows + 0.5), dpi=DPI, squeeze=False)
+    try:
+        for ax, tick in zip(axes.flat, ticks, strict=False):
+            at = {n: track[n][tick] for n in ids}
+            for a, b in (sorted(p, key=scenario.index.__getitem__) for p in pairs):
+                if not scenario.moving_link(a, b) or where.in_range(a, b, tick):
+                    ax.plot(*zip(at[a], at[b], strict=True), color="#6b6b6b", linewidth=0.8, alpha=0.6, zorder=1)
+            for n in scenario.moving:
+                ax.plot(*zip(*track[n][:tick + 1], strict=True), color=TRAIL, linewidth=0.7, alpha=0.5,
+                        linestyle=":", zorder=2)
+            for node in scenario.nodes:
+                _draw_node(ax, node, at[node.id], areas[node.id])
+                ax.annotate(node.id, at[node.id], xytext=(4, 4), textcoords="offset points", fontsize=7, zorder=4)
+            ax.set_xlim(lo[0] - pad, hi[0] + pad)
+            ax.set_ylim(lo[1] - pad, hi[1] + pad)
+            ax.set_aspect("equal", adjustable="box")
+            ax.set_title(f"tick {tick} ({tick * scenario.dt:g} s)", fontsize=10)
+            ax.tick_params(labelsize=7)
+            ax.grid(True, color="#eeeeee", linewidth=0.6)
+            ax.set_axisbelow(True)
+        for ax in list(axes.flat)[len(ticks):]:
+            ax.set_axis_off()
+        radio = scenario.radio
+        fig.suptitle(f"{title or scenario.name} — positions over time, seed {seed}; links of moving nodes within "
+                     f"{radio.range_m:g} m; dotted: paths so far", x=0.02, ha="left", fontsize=12,
+                     fontweight="bold")
+        fig.tight_layout(rect=(0, 0, 1, 1 - 0.5 / fig.get_size_inches()[1]))
         path.parent.mkdir(parents=True, exist_ok=True)
         fig.savefig(path, dpi=DPI, facecolor="white", format="png")
     finally:
@@ -318,9 +389,17 @@ def cmd_topology(args: argparse.Namespace, run_dir: Callable[[str], Path]) -> in
     from orchestrator.scenario import load_scenario
 
     scenario = load_scenario(args.scenario)
+    if args.frames is not None and not scenario.moving:
+        print(f"orchestrator topology: --frames: no node of {scenario.name} moves (frames show moving nodes)",
+              file=sys.stderr, flush=True)
+        return 2
     png = Path(args.png) if args.png else run_dir(scenario.name) / "topology.png"
     try:
-        out = draw_topology(scenario, png, title=args.title)
+        if args.frames is not None:
+            out = draw_frames(scenario, png, frame_ticks(scenario, args.frames, args.every), seed=args.seed,
+                              title=args.title)
+        else:
+            out = draw_topology(scenario, png, title=args.title)
     except OSError as exc:
         print(f"orchestrator topology: cannot write {png}: {exc.strerror or exc}", file=sys.stderr, flush=True)
         return 2

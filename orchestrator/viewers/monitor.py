@@ -298,10 +298,10 @@ def breakdown(m: Metric, totals: dict[str, Any]) -> str:
         parts = totals[key]
         whole = sum(parts.values())
     else:
-        parts = {p.key: totals[f"{key}_{p.key}"] for p in m.parts}
+        parts = {p.key: totals[f"{key}_{p.key}"] for p in m.parts if f"{key}_{p.key}" in totals}
         whole = totals[key]
     return f"{quantity(whole, m.unit)} = " + " + ".join(f"{p.label} {quantity(parts[p.key], m.unit)}"
-                                                        for p in m.parts)
+                                                        for p in m.parts if p.key in parts)
 
 
 def _percentiles(state: DashboardState, m: Metric, totals: dict[str, Any]) -> str:

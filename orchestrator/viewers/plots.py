@@ -45,7 +45,8 @@ MAX_HEATMAP_COLUMNS = 1200  # longer runs are binned (max per bin) so that no ti
 C_GENERATED, C_COMPLETED, C_DROPPED, C_SYSTEM = "#7f7f7f", "#2ca02c", "#d62728", "#1f77b4"
 C_QUEUED, C_UNDECIDED, C_IN_FLIGHT = "#1f77b4", "#ff7f0e", "#9ecae1"
 C_RESPONSE, C_ENERGY, C_UTIL, C_OVERLOAD = "#6a3d9a", "#b15928", "#17becf", "#e377c2"
-CAUSE_COLOURS = {"queue_full": "#e6550d", "expired": "#756bb1", "node_failure": "#8c564b", "link_loss": "#e7298a"}
+CAUSE_COLOURS = {"queue_full": "#e6550d", "expired": "#756bb1", "node_failure": "#8c564b", "link_loss": "#e7298a",
+                 "link_broken": "#17becf"}
 
 
 class PlotError(ValueError):

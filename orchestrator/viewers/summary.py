@@ -26,9 +26,9 @@ def at(summary: dict[str, Any], path: str) -> Any:
 
 
 def rows(summary: dict[str, Any]) -> list[tuple[str, str]]:
-    """(label, value) rows of the catalogue's TABLE metrics."""
+    """(label, value) rows of the catalogue's TABLE metrics (the job metrics where the summary has jobs)."""
     out = []
-    for m in shown(Out.TABLE):
+    for m in shown(Out.TABLE, jobs="jobs" in summary):
         value = at(summary, m.key(Out.SUMMARY))
         if value is MISSING:
             continue
@@ -43,7 +43,7 @@ def rows(summary: dict[str, Any]) -> list[tuple[str, str]]:
             text += f"  ({100 * whole / max(base, 1):.1f} %)"
         out.append((f"{m.label} (mean)" if m.episode_mean else m.label, text))
         if isinstance(value, dict):
-            out.extend((f"  {p.label}", quantity(value.get(p.key), m.unit)) for p in m.parts)
+            out.extend((f"  {p.label}", quantity(value[p.key], m.unit)) for p in m.parts if p.key in value)
     return out
 
 

@@ -1,0 +1,169 @@
+"""``ZenohEdgeEnv(backend="array")`` gives the in-process environment's steps, step for step.
+
+Both environments run the same scenario with the same seed; every step both get the same actions, drawn
+from one random stream among the choices the (reference) action masks allow. After the reset and every
+step the observations (masks included), rewards, terminations, truncations and infos (the node counters,
+the reward terms, the per-task credits, the episode's summary at the end) must be equal: exactly, floats
+included, since the array backend adds its floats in the emulator's order. CI runs a small set;
+``--all`` runs aot1-aot4 and the other bundled scenarios the backend takes over whole episodes, and more
+settings. A deliberately broken rule (a deadline one tick late) must make the comparison fail.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+import pytest
+from pettingzoo.test import parallel_api_test
+
+from env import ZenohEdgeEnv
+from env.overrides import ScenarioOverrides
+from node_runtime.model import array
+from node_runtime.model.array import Unsupported, refusal
+from orchestrator.scenario import load_scenario
+from tests.conftest import same
+from topologies import bundled_scenarios
+
+
+def draw(rng: np.random.Generator, obs: dict[str, Any]) -> dict[str, Any]:
+    """An action per agent, among those its mask allows (one per task slot in batch mode)."""
+    actions = {}
+    for agent, o in obs.items():
+        mask = o["action_mask"]
+        if isinstance(mask, tuple) or mask.ndim == 2:
+            actions[agent] = [int(rng.choice(np.flatnonzero(m))) for m in mask]
+        else:
+            actions[agent] = int(rng.choice(np.flatnonzero(mask)))
+    return actions
+
+
+def first_difference(scenario: Any, seed: int, steps: int, actions_seed: int = 0, policy: str | None = None,
+                     **kwargs: Any) -> str | None:
+    """Step both environments (``policy``: the node-side policy of the controllers no agent drives); where they
+    first differ (step, what, agent), or None."""
+    envs = [ZenohEdgeEnv(scenario, seed=seed, backend=backend, transport="inproc", max_steps=steps, **kwargs)
+            for backend in ("emulator", "array")]
+    rng = np.random.default_rng(actions_seed)
+    try:
+        results = [env.reset(options={"policy": policy} if policy else None) for env in envs]
+        for step in range(steps + 1):
+            names = ("observations", "rewards", "terminations", "truncations", "infos")[-len(results[0]):]
+            for what, mine, theirs in zip(names, results[1], results[0], strict=True):
+                if not same(mine, theirs):
+                    agent = next((a for a in theirs if not same(mine.get(a), theirs[a])), None)
+                    return f"step {step}: {what} of {agent}: {mine.get(agent)!r} != {theirs.get(agent)!r}"
+            if step == steps:
+                return None
+            actions = draw(rng, results[0][0])
+            results = [env.step(actions) for env in envs]
+    finally:
+        for env in envs:
+            env.close()
+
+
+# (scenario, seed, steps, environment arguments): aot1-aot4, then settings beyond the bundled ones and agents
+# driving some controllers only (the others with a node-side policy); CI runs the first four
+SMALL = [("aot1", 3, 120, {}), ("aot2", 7, 100, {}), ("aot3", 2, 80, {}), ("aot4", 5, 60, {}),
+         ("aot1_urgent", 4, 100, {"reward": "marginal"}),
+         ("aot2", 1, 60, {"overrides": ScenarioOverrides(mode="batch", batch_size=3), "observation": "flat"}),
+         ("aot2", 2, 60, {"overrides": ScenarioOverrides(decision_interval=3), "reward": "team"}),
+         ("aot3", 3, 80, {"agents": ["rpi3_0", "rpi3_2", "rpi3_4"], "policy": "least_queue"}),
+         ("aot2", 4, 60, {"overrides": ScenarioOverrides(mode="batch", batch_size=2, decision_interval=2),
+                          "reward": "marginal", "neighbour_slots": 20})]
+CI = 4
+
+
+@pytest.mark.parametrize(("name", "seed", "steps", "kwargs"), SMALL, ids=lambda v: v if isinstance(v, str) else None)
+def test_the_array_env_steps_as_the_inprocess_env(name, seed, steps, kwargs, request):
+    if SMALL.index((name, seed, steps, kwargs)) >= CI and not request.config.getoption("--all"):
+        pytest.skip("the full set runs with --all")
+    assert first_difference(name, seed, steps, **kwargs) is None
+
+
+def full_set() -> list[str]:
+    return [name for name in bundled_scenarios() if refusal(load_scenario(name)) is None]
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("name", full_set())
+def test_every_bundled_scenario_it_takes_over_a_whole_episode(name, request):
+    if not request.config.getoption("--all"):
+        pytest.skip("the full set runs with --all")
+    sc = load_scenario(name)
+    assert first_difference(name, 1, sc.steps, reward="marginal") is None
+
+
+def test_a_deadline_one_tick_late_is_caught(monkeypatch):
+    """The comparison can fail: with every task expiring one tick late the array env differs."""
+    expiry = array.expiry_tick
+    monkeypatch.setattr(array, "expiry_tick", lambda created, size, dt: expiry(created, size, dt) + 1)
+    assert first_difference("aot1_urgent", 4, 100) is not None
+
+
+def test_a_ledger_out_of_order_is_caught(monkeypatch):
+    """Credits follow the ledger's order: the array backend's entries of a tick reversed are caught."""
+    settle = array.ArraySim._settle_ledger
+
+    def reversed_ledger(self):
+        settle(self)
+        self.ledger = [entries[::-1] for entries in self.ledger]
+
+    monkeypatch.setattr(array.ArraySim, "_settle_ledger", reversed_ledger)
+    found = first_difference("aot2", 7, 100, reward="marginal")
+    assert found is not None and "credits" in found
+
+
+def test_pettingzoo_parallel_api():
+    env = ZenohEdgeEnv("aot2", backend="array", max_steps=30)
+    parallel_api_test(env, num_cycles=20)
+    env.close()
+
+
+def test_what_it_does_not_model_is_refused_in_one_line():
+    with pytest.raises(Unsupported) as info:
+        ZenohEdgeEnv("aot2_reference", backend="array")
+    message = str(info.value)
+    assert "\n" not in message and "queue_first" in message and "in-process or Zenoh backend" in message
+
+
+def test_a_backend_it_does_not_know_is_refused():
+    with pytest.raises(ValueError, match="backend must be 'emulator'"):
+        ZenohEdgeEnv("aot2", backend="jax")
+
+
+def vector_difference(name: str, k: int, steps: int, max_steps: int, **kwargs: Any) -> str | None:
+    """``ZenohEdgeVectorEnv`` over the array backend against K in-process simulations, through episode ends
+    (each resets when done): where their tensors first differ, or None."""
+    import torch
+
+    from env.vector import GROUP, ZenohEdgeVectorEnv
+
+    envs = [ZenohEdgeVectorEnv(name, num_envs=k, seed=11, backend=backend, max_steps=max_steps, **kwargs)
+            for backend in ("emulator", "array")]
+    rng = np.random.default_rng(0)
+    try:
+        tds = [env.reset() for env in envs]
+        for step in range(steps):
+            for key in tds[0].keys(include_nested=True, leaves_only=True):
+                if not torch.equal(tds[0].get(key), tds[1].get(key)):
+                    return f"step {step}: {key}"
+            mask = tds[0].get((GROUP, "action_mask")).numpy()
+            action = torch.from_numpy(np.apply_along_axis(lambda m: rng.choice(np.flatnonzero(m)), -1, mask))
+            outs = []
+            for env, td in zip(envs, tds, strict=True):
+                td.set((GROUP, "action"), action.clone())
+                out, td = env.step_and_maybe_reset(td)
+                outs.append(out.get("next"))
+            for key in outs[0].keys(include_nested=True, leaves_only=True):
+                if not torch.equal(outs[0].get(key), outs[1].get(key)):
+                    return f"step {step}: next {key}"
+        return None
+    finally:
+        for env in envs:
+            env.close()
+
+
+def test_the_array_vector_env_steps_as_k_inprocess_envs():
+    pytest.importorskip("torchrl")
+    assert vector_difference("aot1", 2, 30, 12) is None
