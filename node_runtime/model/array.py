@@ -18,6 +18,8 @@ payloads, clients without a worker, and user-defined roles, policies or task sou
 Controllers an agent drives (``drive``) observe every decision epoch (``observation``: the ``Observation`` a
 ``Controller`` builds) and place what ``act`` gives them; every tick then keeps the roles' per-task ledger in
 their own order, from which the environment's credits and metrics come (docs/array.md, "The environments on it").
+With agents driving (``refusal(..., agents=True)``) failures, ``queue_first`` and control latency 0 are refused:
+the driven controller's side of them is not proven against the in-process environment yet.
 
 One tick runs the roles in an order that their one-tick message delay makes equivalent to the emulator's:
 controllers (they read the worker's state at the end of the previous tick), clients (results in, new
