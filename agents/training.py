@@ -21,13 +21,20 @@ from agents.common import AgentPolicy, has_decision
 from agents.learner import Learner
 
 EVAL_SEED = 100_000  # evaluation episodes use seeds EVAL_SEED + k, never met in training (seeds 0, 1, ...)
+JOB_METRICS = {"jobs": "generated", "jobs_completed": "completed", "jobs_missed": "missed",
+               "job_completion_ratio": "completion_ratio", "makespan_mean": "makespan_mean",
+               "penalised_makespan": "penalised_makespan"}
+"""The job metrics of an episode's row (a scenario of jobs only), and their keys in its summary's "jobs"."""
 
 
 def episode_metrics(episode: Mapping[str, Any] | None) -> dict[str, float]:
-    """The paper's metrics (and a few more) from ``infos[agent]["episode"]`` at the end of an episode."""
+    """The paper's metrics (and a few more) from ``infos[agent]["episode"]`` at the end of an episode; the drops
+    on broken links where nodes move, and the job metrics (``JOB_METRICS``) in a scenario of jobs."""
     if not episode:
         return {}
-    totals, rt = episode["totals"], episode["response_time"]
+    totals, rt, jobs = episode["totals"], episode["response_time"], episode.get("jobs")
+    moving = {"dropped_link_broken": totals["dropped"]["link_broken"]} if "link_broken" in totals["dropped"] else {}
+    job = {column: math.nan if jobs[key] is None else jobs[key] for column, key in JOB_METRICS.items()} if jobs else {}
     return {
         "generated": totals["generated"], "completed": totals["completed"], "offloaded": totals["offloaded"],
         "dropped": totals["dropped"]["total"], "dropped_queue_full": totals["dropped"]["queue_full"],
@@ -37,7 +44,7 @@ def episode_metrics(episode: Mapping[str, Any] | None) -> dict[str, float]:
         "overloaded_mean_nodes": episode["overloaded"]["mean_nodes"], "energy_j": episode["energy_j"]["total"],
         "completion_ratio": _number(episode["completion_ratio"]),
         "completion_ratio_settled": _number(episode["completion_ratio_settled"]),
-        "penalised_response_time": _number(episode["penalised_response_time"]),
+        "penalised_response_time": _number(episode["penalised_response_time"]), **moving, **job,
     }
 
 

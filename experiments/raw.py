@@ -9,6 +9,9 @@ One row per policy, training run and episode (docs/benchmark.md, "Raw per-episod
 - ``regime``, ``episode`` (its index), ``seed`` (what ``env.reset`` took), ``steps``;
 - the episode's metrics: ``generated``, ``completed``, ``completion_ratio``, ``penalised_response_time``,
   ``response_time_mean``, ``dropped``;
+- the job metrics (``agents.training.JOB_METRICS``): ``jobs``, ``jobs_completed``, ``jobs_missed``,
+  ``job_completion_ratio``, ``makespan_mean``, ``penalised_makespan``; in every row, empty where the scenario has
+  no jobs (a file written before them has no such columns, and reads the same: NaN);
 - optional, where the bound was computed: ``local`` (what ``local`` completed on the episode), ``bound``,
   ``bound_kind`` and ``normalised_score``. The report joins them by (suite, regime, seed) onto every policy.
 
@@ -23,10 +26,12 @@ from collections.abc import Iterable, Mapping
 from pathlib import Path
 from typing import Any
 
+from agents.training import JOB_METRICS
 from experiments.protocol import split_of
 
 KEYS = ("policy", "train_seed", "suite", "split", "regime", "episode", "seed", "steps")
 METRICS = ("generated", "completed", "completion_ratio", "penalised_response_time", "response_time_mean", "dropped")
+JOBS = tuple(JOB_METRICS)
 OPTIONAL = ("local", "bound", "bound_kind", "normalised_score")
 TEXT = ("policy", "suite", "split", "regime", "bound_kind")
 INTEGERS = ("episode", "seed", "steps")
@@ -44,17 +49,20 @@ def suite_of(scenario: str | Path) -> str:
 
 def row(policy: str, train_seed: int | None, scenario: str | Path, regime: str, episode: Mapping[str, Any],
         extra: Mapping[str, Any] | None = None) -> dict[str, Any]:
-    """A raw row from an ``agents.training.evaluate`` row of ``policy`` on ``regime`` (of ``scenario``'s suite);
-    then ``extra`` (the optional columns, or a caller's own), then the rest of the episode's columns."""
+    """A raw row from an ``agents.training.evaluate`` row of ``policy`` on ``regime`` (of ``scenario``'s suite), the
+    job columns empty where it has none; then ``extra`` (the optional columns, or a caller's own), then the rest
+    of the episode's columns."""
     head = {"policy": policy, "train_seed": "" if train_seed is None else train_seed, "suite": suite_of(scenario),
             "split": split_of(int(episode["seed"])) or "", "regime": regime, "episode": episode["episode"],
-            "seed": episode["seed"], "steps": episode["steps"], **{m: episode[m] for m in METRICS}}
+            "seed": episode["seed"], "steps": episode["steps"], **{m: episode[m] for m in METRICS},
+            **{m: episode.get(m, "") for m in JOBS}}
     return {**head, **(extra or {}), **{k: v for k, v in episode.items() if k not in head and k != "wall_s"}}
 
 
 def read(paths: Iterable[str | Path]) -> list[dict[str, Any]]:
-    """Every row of the files, typed: numbers as float (NaN when empty), ``episode``, ``seed`` and ``steps``
-    as int, ``train_seed`` as int or None. A file or a value outside the schema raises RawError."""
+    """Every row of the files, typed: numbers as float (NaN when empty, or absent in an optional column),
+    ``episode``, ``seed`` and ``steps`` as int, ``train_seed`` as int or None. A file or a value outside the
+    schema raises RawError."""
     rows = []
     for path in paths:
         try:
@@ -72,7 +80,7 @@ def read(paths: Iterable[str | Path]) -> list[dict[str, Any]]:
 
 def _typed(r: Mapping[str, str | None], where: str) -> dict[str, Any]:
     out: dict[str, Any] = {}
-    for key in (*KEYS, *METRICS, *OPTIONAL):
+    for key in (*KEYS, *METRICS, *JOBS, *OPTIONAL):
         value = r.get(key)
         value = "" if value is None else value.strip()
         try:

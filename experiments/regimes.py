@@ -28,18 +28,32 @@ from experiments import raw
 from experiments.common import Parser, check_scenario, make_env, positive_int
 from experiments.plot import mean_ci
 
+Column = tuple[str, str, float, str | None]
+"""A column of a card: metric, header, scale, and which way is better (None: not judged alone, see the card)."""
+
 
 @dataclass(frozen=True)
 class Family:
     """A bundled scenario standing for a family, and the arrival rates its card is measured at (None: the
-    scenario's own schedule, as for the regimes of ``experiments.suite``)."""
+    scenario's own schedule, as for the regimes of ``experiments.suite``). ``columns``: what its card shows
+    after the task metrics (``METRICS``), for what only its scenario has (jobs, broken links)."""
 
     name: str
     scenario: str
     lambdas: tuple[float | None, ...]
     about: str
+    columns: tuple[Column, ...] = ()
 
 
+JOB_COLUMNS: tuple[Column, ...] = (
+    ("jobs", "jobs", 1.0, None), ("job_completion_ratio", "jobs done %", 100.0, "max"),
+    ("jobs_missed", "jobs missed", 1.0, "min"), ("makespan_mean", "makespan [s]", 1.0, None),
+    ("penalised_makespan", "job score [s]", 1.0, "min"))
+"""A scenario of jobs: the job metrics (``agents.training.JOB_METRICS``), jobs created to the penalised makespan."""
+DROP_COLUMNS: tuple[Column, ...] = (
+    ("dropped_queue_full", "queue full", 1.0, "min"), ("dropped_expired", "expired", 1.0, "min"),
+    ("dropped_link_broken", "link broken", 1.0, "min"))
+"""Moving nodes: the drops by cause, those lost on a link that broke among them."""
 FAMILIES = (
     Family("paper", "aot3", (0.17, 0.35),
            "The paper's Table as this project reads it: 8e7 instructions, 150 MiB in and out, 100 s deadlines, "
@@ -57,10 +71,29 @@ FAMILIES = (
            "Urgent alerts beside tolerant batch work: compute's task (2e8 instructions, 2 MB in, 200 kB out), "
            "half with deadlines U[10, 20) s, which only the server or a nuc meets, half U[100, 200) s, which an "
            "idle rpi3 meets too. The nucs and the server run out near lambda = 0.05."),
+    Family("dag", "examples/dag_jobs", (0.01, 0.02),
+           "Jobs as DAGs (docs/model.md): aot2's 19 nodes, each arrival (lambda jobs/s per rpi3) a random layered "
+           "DAG of 3-15 tasks of 1-3e7 instructions whose edges carry 5-20 MB, 150 s for the whole job. A task "
+           "is placed when it is ready, so one job's tasks spread over nodes. The task columns count the tasks "
+           "of every job; jobs done % and the job score (mean makespan, the 150 s deadline for a job not "
+           "completed) judge the jobs.", JOB_COLUMNS),
+    Family("mobile", "examples/mobile", (0.1, 0.3),
+           "Moving nodes (docs/model.md): six devices (1e7 instructions/s) move through a 600 m x 300 m "
+           "district past three wired servers (2e7 x 4), offloading over the radio within 150 m; a transfer "
+           "whose link breaks is lost (link broken). Tasks of 4e7 instructions (4 s on a device), 1 MB in, "
+           "20 s deadlines; 600 steps. A device's own CPU runs out at lambda = 0.25.", DROP_COLUMNS),
 )
-METRICS = (("completion_ratio", "completion %", 100.0, "max"), ("response_time_mean", "response [s]", 1.0, None),
-           ("dropped", "dropped", 1.0, "min"), ("penalised_response_time", "score [s]", 1.0, "min"))
-"""Columns of a card: metric, header, scale, and which way is better (None: not judged alone, see the card)."""
+NO_CARD = ("Payloads (`examples/payload_classifier`, [docs/extending.md](../extending.md#real-work-in-the-loop)) "
+           "have no card: their service times are the CPU times a run measures, so the same seeds give other "
+           "numbers on another machine or under another load, where a card holds only what the seeds fix. A "
+           "record of the measured times replays only the recorded run's own placements, not another "
+           "baseline's, and measuring takes about 15 s an episode (41 ticks/s), some 14 minutes for a card's "
+           "54 episodes.")
+"""What the page says of the feature without a family."""
+METRICS: tuple[Column, ...] = (
+    ("completion_ratio", "completion %", 100.0, "max"), ("response_time_mean", "response [s]", 1.0, None),
+    ("dropped", "dropped", 1.0, "min"), ("penalised_response_time", "score [s]", 1.0, "min"))
+"""The columns of every card."""
 
 
 def rate_label(lam: float | None) -> str:
@@ -107,22 +140,23 @@ def card(family: Family, rows: Sequence[dict[str, Any]]) -> str:
     lines = [f"## {family.name}: `{family.scenario}`", "", family.about, "",
              f"{len(names)} baselines, {episodes} evaluation episodes of {steps} steps each (mean ± 95% CI). "
              "Score: mean time per generated task, a task not completed counts its deadline (lower is better).", ""]
-    header = ["λ", "baseline", *(title for _, title, _, _ in METRICS)]
+    columns = (*METRICS, *family.columns)
+    header = ["λ", "baseline", *(title for _, title, _, _ in columns)]
     lines += ["| " + " | ".join(header) + " |", "|" + " --- |" * len(header)]
     for lam in family.lambdas:
         at = [r for r in rows if _same(r["lambda"], lam)]
         stats = {(b, m): mean_ci([r[m] * scale for r in at if r["policy"] == b])
-                 for b in names for m, _, scale, _ in METRICS}
+                 for b in names for m, _, scale, _ in columns}
         best = {m: (max if way == "max" else min)(names, key=lambda b, m=m: stats[b, m][0])
-                for m, _, _, way in METRICS if way}
+                for m, _, _, way in columns if way}
         for b in names:
             cells = []
-            for m, _, _, _ in METRICS:
+            for m, _, _, _ in columns:
                 mean, ci = stats[b, m]
                 text = f"{mean:.1f} ± {ci:.1f}"
                 cells.append(f"**{text}**" if best.get(m) == b else text)
             lines.append(f"| {rate_label(lam)} | {b} | " + " | ".join(cells) + " |")
-        lines.append(f"| {rate_label(lam)} | | {verdict(stats, best)} | | | |")
+        lines.append(f"| {rate_label(lam)} | | {verdict(stats, best)} |" + " |" * (len(columns) - 1))
     return "\n".join(lines) + "\n"
 
 
@@ -183,7 +217,7 @@ def main(argv: Sequence[str] | None = None) -> None:
     (args.out / "README.md").write_text(
         "# Regime cards\n\nMade by `python -m experiments.regimes` from the CSV files beside this page "
         "(one row per rate, baseline and episode).\n[docs/scenario.md](../scenario.md#scenario-families) "
-        "describes the families.\n\n" + "\n".join(cards))
+        f"describes the families.\n\n{NO_CARD}\n\n" + "\n".join(cards))
     print(f"wrote {len(chosen)} cards to {args.out / 'README.md'}")
 
 

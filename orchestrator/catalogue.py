@@ -56,9 +56,9 @@ NODE_VIEWS = Out.NODES | Out.BUS_NODES | Out.ENV
 ROWS = Out.TICKS | Out.NODES | Out.SUMMARY_NODES
 CHANGES = Out.TICKS | Out.NODES | Out.BUS_DELTA | Out.ENV_DELTA  # where a COUNT shows its change, not its total
 # where the job metrics show: the job counts where the task counts are, the job ratios where theirs are
-JOB_COUNTS = (Out.SUMMARY | Out.SUMMARY_NODES | Out.TICKS | Out.NODES | Out.BUS | Out.BUS_DELTA | Out.TABLE | Out.ENV
-              | Out.ENV_DELTA)
-JOB_RATIOS = Out.SUMMARY | Out.SUMMARY_NODES | Out.TICKS | Out.BUS | Out.TABLE
+JOB_COUNTS = (Out.SUMMARY | Out.SUMMARY_NODES | Out.TICKS | Out.NODES | Out.BUS | Out.BUS_DELTA | Out.MONITOR
+              | Out.TABLE | Out.ENV | Out.ENV_DELTA)
+JOB_RATIOS = Out.SUMMARY | Out.SUMMARY_NODES | Out.TICKS | Out.BUS | Out.MONITOR | Out.TABLE
 
 
 class Form(Enum):

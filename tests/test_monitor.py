@@ -50,20 +50,26 @@ def stop_server(run: Launch, children: list) -> None:
 
 # ----- the dashboard, from recorded messages (no Zenoh) -----
 
-@pytest.fixture(scope="module")
-def recorded() -> tuple[list[dict], list[dict]]:
-    """Metrics records and offload events of 150 ticks, as they go on the wire (encoded, decoded).
+def record(example: str, ticks: int) -> tuple[list[dict], list[dict]]:
+    """Metrics records and offload events of an example's first ``ticks`` ticks, as they go on the wire
+    (encoded, decoded).
 
     The in-process bus carries the same messages a Zenoh run publishes; subscribing to it switches
     them on exactly as a monitor's subscription does."""
     records, offloads = [], []
-    with Simulation.inproc(load_scenario(ROOT / "topologies" / "examples" / "failures.yaml")) as sim:
+    with Simulation.inproc(load_scenario(ROOT / "topologies" / "examples" / f"{example}.yaml")) as sim:
         sim.transport.subscribe(sim.keys.metrics(), lambda key, m: records.append(codec.decode(codec.encode(m))))
         sim.transport.subscribe(sim.keys.events("offloaded"),
                                 lambda key, e: offloads.append(codec.decode(codec.encode(e))))
-        sim.run(150)
-    assert [r["tick"] for r in records] == list(range(150))
+        sim.run(ticks)
+    assert [r["tick"] for r in records] == list(range(ticks))
     return records, offloads
+
+
+@pytest.fixture(scope="module")
+def recorded() -> tuple[list[dict], list[dict]]:
+    """150 ticks of the failures example."""
+    return record("failures", 150)
 
 
 def replay(records: list[dict], offloads: list[dict], ticks_per_s: float = 20.0) -> DashboardState:
@@ -155,6 +161,37 @@ def test_response_time_says_what_the_episode_completed_before_attaching(recorded
     state = DashboardState("5ca1ab1e", "failures")
     state.add_metrics(records[0], now=0.0)
     assert records[0]["totals"]["completed"] == 0 and "response time  no completion yet" in screen(state, now=0.0)
+
+
+def test_dashboard_shows_the_jobs_of_a_scenario_of_jobs(recorded):
+    """Where the records carry the job metrics (docs/bus.md), the dashboard shows them: their rates, counts and
+    ratios; a scenario without jobs shows none."""
+    records, offloads = record("dag_jobs", 150)
+    last = records[-1]
+    totals = last["totals"]
+    assert totals["jobs_completed"] > 0, "150 ticks complete some jobs"
+    text = screen(replay(records, offloads), now=(len(records) - 1) / 20.0)
+    window = records[-WINDOW_TICKS:]
+    rates = {k: sum(r["delta"][k] for r in window) / (len(window) * last["time_s"] / last["tick"])
+             for k in ("jobs", "jobs_completed", "jobs_missed")}
+    assert (f"jobs {rates['jobs']:.2f}  jdone {rates['jobs_completed']:.2f}  jmiss {rates['jobs_missed']:.2f}  "
+            f"(last {WINDOW_TICKS} ticks)") in text
+    assert (f"jobs           jobs {totals['jobs']}  jobs completed {totals['jobs_completed']}  jobs missed "
+            f"{totals['jobs_missed']}") in text
+    assert (f"jobs so far    job completion ratio {100 * totals['job_completion_ratio']:.1f} %  makespan (mean) "
+            f"{totals['makespan']:.2f} s  penalised makespan {totals['penalised_makespan']:.2f} s") in text
+    assert "job" not in screen(replay(*recorded), now=(len(recorded[0]) - 1) / 20.0)
+
+
+def test_dashboard_counts_the_drops_on_broken_links_where_nodes_move():
+    """Moving nodes' records carry drops on broken links: the breakdown of drops names them; elsewhere not."""
+    records, offloads = record("mobile", 400)
+    broken = next(i for i, r in enumerate(records) if r["totals"]["dropped"]["link_broken"])
+    dropped = records[broken]["totals"]["dropped"]
+    text = screen(replay(records[:broken + 1], offloads), now=broken / 20.0)
+    assert (f"dropped        {sum(dropped.values())} = queue full {dropped['queue_full']} + expired "
+            f"{dropped['expired']} + node failure {dropped['node_failure']} + link loss {dropped['link_loss']} + "
+            f"link broken {dropped['link_broken']}") in text
 
 
 def test_new_episode_restarts_the_windows(recorded):

@@ -2,12 +2,16 @@
 
 from __future__ import annotations
 
+import math
+
 import pytest
 
 from agents import BASELINES, evaluate
+from agents.training import write_csv
 from experiments import raw, regimes
 from experiments.common import make_env
 from orchestrator.scenario import load_scenario
+from tests.conftest import ROOT
 
 
 def _stats(completion: dict[str, float], score: dict[str, float], dropped: dict[str, float]) -> dict:
@@ -59,9 +63,12 @@ def test_cards_only_without_the_csv_is_one_line(tmp_path, capsys):
 
 
 def test_every_family_is_a_bundled_scenario_with_two_rates():
+    """The paper's families on aot3's 28 nodes; a feature's family on its example, its card showing its metrics."""
+    features = {"dag": (19, regimes.JOB_COLUMNS), "mobile": (9, regimes.DROP_COLUMNS)}
     for family in regimes.FAMILIES:
         env = make_env(family.scenario, None, 5)
-        assert len(env.scenario.nodes) == 28 and len(family.lambdas) == 2
+        assert (len(env.scenario.nodes), family.columns) == features.get(family.name, (28, ()))
+        assert len(family.lambdas) == 2
         env.close()
 
 
@@ -96,3 +103,40 @@ def test_in_aot3_urgent_the_rule_that_completes_most_is_not_the_fastest():
     env.close()
     assert first["completion_ratio"] > greedy["completion_ratio"]
     assert greedy["penalised_response_time"] < first["penalised_response_time"]
+
+
+def test_a_feature_family_card_shows_its_own_columns_and_is_rebuilt_from_its_csv(tmp_path):
+    """dag's card has the job columns, mobile's the drops by cause (link broken among them); both CSVs keep
+    the raw schema, the job columns empty where the scenario has no jobs."""
+    regimes.main(["--families", "dag", "mobile", "--episodes", "1", "--max-steps", "60", "--out", str(tmp_path),
+                  "--no-progress"])
+    card = (tmp_path / "README.md").read_text()
+    for family in ("dag", "mobile"):
+        columns = next(f for f in regimes.FAMILIES if f.name == family).columns
+        header = next(line for line in card.splitlines() if line.startswith("| λ |") and columns[0][1] in line)
+        assert header.endswith(" | ".join(title for _, title, _, _ in columns) + " |")
+    dag, mobile = (raw.read([tmp_path / f"{name}.csv"]) for name in ("dag", "mobile"))
+    assert all(r["jobs"] > 0 and 0 <= r["job_completion_ratio"] <= 1 and r["jobs_completed"] + r["jobs_missed"]
+               <= r["jobs"] for r in dag)
+    assert all(math.isnan(r[c]) for r in mobile for c in raw.JOBS)
+    assert all(r["dropped_link_broken"] >= 0 for r in regimes.read_rows(tmp_path / "mobile.csv"))
+    (tmp_path / "README.md").unlink()
+    regimes.main(["--families", "dag", "mobile", "--out", str(tmp_path), "--cards-only"])
+    assert (tmp_path / "README.md").read_text() == card
+
+
+def test_the_raw_rows_of_scenarios_with_and_without_jobs_share_one_file(tmp_path):
+    """One CSV may hold both (a suite, a report's inputs): the job columns are in every row, empty where the
+    scenario has no jobs; a file written before them reads as if they were empty."""
+    rows = []
+    for scenario in ("aot1", "examples/dag_jobs"):
+        env = make_env(scenario, None, 40)
+        rows += [raw.row("local", None, scenario, scenario, r) for r in evaluate(env, BASELINES["local"](0), 1)]
+        env.close()
+    assert rows[0]["jobs"] == "" and rows[1]["jobs"] > 0
+    write_csv(tmp_path / "both.csv", rows)
+    plain, jobs = raw.read([tmp_path / "both.csv"])
+    assert all(math.isnan(plain[c]) for c in raw.JOBS) and jobs["jobs"] == rows[1]["jobs"]
+    assert jobs["penalised_makespan"] == rows[1]["penalised_makespan"]
+    committed = raw.read([ROOT / "docs" / "regimes" / "compute.csv"])
+    assert committed and all(math.isnan(r[c]) for r in committed for c in raw.JOBS)

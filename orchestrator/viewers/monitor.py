@@ -247,8 +247,9 @@ class DashboardState:
         """Each change the record's "delta" carries (tasks generated, completed, ...) per simulated second
         over the recent ticks."""
         seconds = len(self.deltas) * self.dt
+        jobs = self.record is not None and carries_jobs(self.record)
         return {key: sum(d[key] for d in self.deltas) / seconds if seconds else 0.0
-                for key in (m.key(Out.BUS_DELTA) for m in monitored(Out.BUS_DELTA))}
+                for key in (m.key(Out.BUS_DELTA) for m in monitored(Out.BUS_DELTA, jobs))}
 
     def percentiles(self, key: str) -> tuple[float, float] | None:
         """p50 and p95 of the recent samples of ``key`` (response times, in seconds)."""
@@ -286,9 +287,15 @@ def _num(x: float) -> str:
     return f"{x:.3g}" if abs(x) < 1000 else f"{x:,.0f}"
 
 
-def monitored(out: Out) -> list[Metric]:
-    """The catalogue's metrics that the dashboard shows, of those ``out`` (a part of the record) carries."""
-    return [m for m in shown(out) if Out.MONITOR in m.show]
+def monitored(out: Out, jobs: bool = False) -> list[Metric]:
+    """The catalogue's metrics that the dashboard shows, of those ``out`` (a part of the record) carries; the
+    job metrics with ``jobs`` (the record is of a scenario of jobs, ``carries_jobs``)."""
+    return [m for m in shown(out, jobs) if Out.MONITOR in m.show]
+
+
+def carries_jobs(record: dict[str, Any]) -> bool:
+    """A record of a scenario of jobs: its totals carry the job metrics (docs/bus.md)."""
+    return METRIC["jobs"].key(Out.BUS) in record["totals"]
 
 
 def breakdown(m: Metric, totals: dict[str, Any]) -> str:
@@ -331,17 +338,20 @@ def render(state: DashboardState, now: float) -> RenderableType:
         pace = Text(f"no tick for {idle:.0f} s: episode over or paused", style="yellow")
     else:
         pace = Text("measuring ticks/s" if rate is None else f"{rate:.1f} ticks/s")
-    rates = state.rates()
+    rates, jobs = state.rates(), carries_jobs(rec)
     head = Table.grid(padding=(0, 2))
     head.add_column(style="bold", no_wrap=True)
     head.add_column()
     head.add_row("tick", Text.assemble(f"{rec['tick']} ({_num(rec['time_s'])} s simulated), episode "
                                        f"{rec['episode']} · ", pace))
-    head.add_row("per sim s", "  ".join(f"{m.short} {rates[m.key(Out.BUS_DELTA)]:.2f}"
-                                        for m in monitored(Out.BUS_DELTA)) + f"  (last {len(state.deltas)} ticks)")
-    metrics = monitored(Out.BUS)
+    head.add_row("per sim s", "  ".join(f"{m.short} {rates[m.key(Out.BUS_DELTA)]:.2f}" for m in
+                                        monitored(Out.BUS_DELTA, jobs)) + f"  (last {len(state.deltas)} ticks)")
+    def values(chosen: list[Metric]) -> str:
+        return "  ".join(f"{m.label} {quantity(tot[m.key(Out.BUS)], m.unit)}" for m in chosen)
+
+    metrics = [m for m in monitored(Out.BUS, jobs) if not m.jobs]  # the jobs' own rows follow the episode's
     plain = [m for m in metrics if m.agg is Agg.COUNT and m.form(Out.BUS) is Form.TOTAL]
-    head.add_row("totals", "  ".join(f"{m.label} {quantity(tot[m.key(Out.BUS)], m.unit)}" for m in plain))
+    head.add_row("totals", values(plain))
     for m in metrics:
         if m.form(Out.BUS) is not Form.TOTAL:
             head.add_row(m.label, breakdown(m, tot))
@@ -353,7 +363,11 @@ def render(state: DashboardState, now: float) -> RenderableType:
             head.add_row(m.label, _percentiles(state, m, tot))
     ratios = [m for m in metrics if m.agg is Agg.RATIO]  # beside response time, so that drops are not hidden
     if ratios:
-        head.add_row("episode", "  ".join(f"{m.label} {quantity(tot[m.key(Out.BUS)], m.unit)}" for m in ratios))
+        head.add_row("episode", values(ratios))
+    job_metrics = [m for m in monitored(Out.BUS, jobs) if m.jobs]  # a scenario of jobs: counts, then ratios
+    if job_metrics:
+        head.add_row("jobs", values([m for m in job_metrics if m.agg is Agg.COUNT]))
+        head.add_row("jobs so far", values([m for m in job_metrics if m.agg is Agg.RATIO]))
     if state.missed:
         head.add_row("missed", Text(f"{state.missed} tick(s) lost on the way (best effort)", style="yellow"))
 
