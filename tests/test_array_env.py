@@ -6,11 +6,14 @@ step the observations (masks included), rewards, terminations, truncations and i
 the reward terms, the per-task credits, the episode's summary at the end) must be equal: exactly, floats
 included, since the array backend adds its floats in the emulator's order. CI runs a small set;
 ``--all`` runs aot1-aot4 and the other bundled scenarios the backend takes over whole episodes, and more
-settings. A deliberately broken rule (a deadline one tick late) must make the comparison fail.
+settings, link loss and results relayed along paths (``max_hops`` above 1). Deliberately broken rules (a
+deadline one tick late, a tick's ledger reversed, a lost message kept out of the ledger) must make the
+comparison fail.
 """
 
 from __future__ import annotations
 
+import dataclasses
 from typing import Any
 
 import numpy as np
@@ -20,7 +23,8 @@ from pettingzoo.test import parallel_api_test
 from env import ZenohEdgeEnv
 from env.overrides import ScenarioOverrides
 from node_runtime.model import array
-from node_runtime.model.array import Unsupported, refusal
+from node_runtime.model.array import ArraySim, Unsupported, refusal
+from node_runtime.model.spec import Scenario
 from orchestrator.scenario import load_scenario
 from tests.conftest import same
 from topologies import bundled_scenarios
@@ -62,27 +66,48 @@ def first_difference(scenario: Any, seed: int, steps: int, actions_seed: int = 0
             env.close()
 
 
-# (scenario, seed, steps, environment arguments): aot1-aot4, then settings beyond the bundled ones and agents
-# driving some controllers only (the others with a node-side policy); CI runs the first four
+def lossy(name: str, loss: float, **changes: Any) -> Scenario:
+    """``name`` with every link losing each message with probability ``loss`` (and ``changes``)."""
+    sc = load_scenario(name)
+    return sc.replace(links=[dataclasses.replace(lk, loss=loss) for lk in sc.links], **changes)
+
+
+# (scenario, seed, steps, environment arguments): aot1-aot4 and aot4 with lossy links and results relayed
+# along paths of up to 3 hops, then settings beyond the bundled ones, agents driving some controllers only
+# (the others with a node-side policy), link loss and max_hops 2; CI runs the first five
 SMALL = [("aot1", 3, 120, {}), ("aot2", 7, 100, {}), ("aot3", 2, 80, {}), ("aot4", 5, 60, {}),
+         (lossy("aot4", 0.1, max_hops=3), 3, 80, {"reward": "marginal"}),
          ("aot1_urgent", 4, 100, {"reward": "marginal"}),
          ("aot2", 1, 60, {"overrides": ScenarioOverrides(mode="batch", batch_size=3), "observation": "flat"}),
          ("aot2", 2, 60, {"overrides": ScenarioOverrides(decision_interval=3), "reward": "team"}),
          ("aot3", 3, 80, {"agents": ["rpi3_0", "rpi3_2", "rpi3_4"], "policy": "least_queue"}),
          ("aot2", 4, 60, {"overrides": ScenarioOverrides(mode="batch", batch_size=2, decision_interval=2),
-                          "reward": "marginal", "neighbour_slots": 20})]
-CI = 4
+                          "reward": "marginal", "neighbour_slots": 20}),
+         (lossy("aot2", 0.1), 3, 100, {}),
+         (lossy("aot4", 0.2), 5, 60, {"reward": "marginal", "observation": "flat"}),
+         (load_scenario("aot2").replace(max_hops=2), 2, 100, {"reward": "marginal"}),
+         (load_scenario("aot2").replace(max_hops=2, mode="batch", batch_size=3), 4, 80,
+          {"reward": "marginal", "agents": ["rpi3_0", "rpi3_2", "rpi3_4"], "policy": "random"}),
+         ("aot3", 5, 80, {"agents": ["rpi3_1", "rpi3_3"], "policy": "drift_plus_penalty", "reward": "marginal"})]
+CI = 5
 
 
-@pytest.mark.parametrize(("name", "seed", "steps", "kwargs"), SMALL, ids=lambda v: v if isinstance(v, str) else None)
+def case_id(value: Any) -> str | None:
+    if isinstance(value, Scenario):  # a changed scenario: what was changed
+        lossy_links = any(lk.loss for lk in value.links)
+        return f"{value.name}{'-loss' if lossy_links else ''}{f'-hops{value.max_hops}' if value.max_hops > 1 else ''}"
+    return value if isinstance(value, str) else None
+
+
+@pytest.mark.parametrize(("name", "seed", "steps", "kwargs"), SMALL, ids=case_id)
 def test_the_array_env_steps_as_the_inprocess_env(name, seed, steps, kwargs, request):
-    if SMALL.index((name, seed, steps, kwargs)) >= CI and not request.config.getoption("--all"):
+    if [case[1:] for case in SMALL].index((seed, steps, kwargs)) >= CI and not request.config.getoption("--all"):
         pytest.skip("the full set runs with --all")
     assert first_difference(name, seed, steps, **kwargs) is None
 
 
 def full_set() -> list[str]:
-    return [name for name in bundled_scenarios() if refusal(load_scenario(name)) is None]
+    return [name for name in bundled_scenarios() if refusal(load_scenario(name), agents=True) is None]
 
 
 @pytest.mark.slow
@@ -114,17 +139,39 @@ def test_a_ledger_out_of_order_is_caught(monkeypatch):
     assert found is not None and "credits" in found
 
 
+def test_a_lost_message_kept_out_of_the_ledger_is_caught(monkeypatch):
+    """A message lost on its link is a loss of its task in the worker's ledger, and its credits follow."""
+    drop = ArraySim._drop
+
+    def unrecorded_loss(self, c, i, roles, cause, key=0):
+        recording, self.recording = self.recording, self.recording and cause != "link_loss"
+        drop(self, c, i, roles, cause, key)
+        self.recording = recording
+
+    monkeypatch.setattr(ArraySim, "_drop", unrecorded_loss)
+    found = first_difference(lossy("aot4", 0.1, max_hops=3), 3, 80, reward="marginal")
+    assert found is not None and "credits" in found
+
+
 def test_pettingzoo_parallel_api():
     env = ZenohEdgeEnv("aot2", backend="array", max_steps=30)
     parallel_api_test(env, num_cycles=20)
     env.close()
 
 
-def test_what_it_does_not_model_is_refused_in_one_line():
+@pytest.mark.parametrize(("scenario", "feature"), [
+    ("aot2_reference", "admission 'queue_first' while agents drive"),
+    ("examples/failures", "failures while agents drive"),
+    (load_scenario("aot2").replace(control_latency=0), "control_latency 0 while agents drive")],
+    ids=["queue_first", "failures", "control_latency_0"])
+def test_what_it_does_not_model_with_agents_is_refused_in_one_line(scenario, feature):
+    """The node-side backend runs these; with agents driving, the environment refuses them in one line."""
+    sc = load_scenario(scenario) if isinstance(scenario, str) else scenario
+    assert refusal(sc) is None
     with pytest.raises(Unsupported) as info:
-        ZenohEdgeEnv("aot2_reference", backend="array")
+        ZenohEdgeEnv(scenario, backend="array")
     message = str(info.value)
-    assert "\n" not in message and "queue_first" in message and "in-process or Zenoh backend" in message
+    assert "\n" not in message and feature in message and "in-process or Zenoh backend" in message
 
 
 def test_a_backend_it_does_not_know_is_refused():

@@ -8,40 +8,51 @@ functions (``Task.expires_at`` for a task's expiry tick, the link rates of the s
 ``Client`` with its own random streams, and ``tests/test_array_backend.py`` proves it gives the in-process
 emulator's counters tick for tick.
 
-Covered today (``refusal`` names the first thing a scenario needs beyond it, in one line): decide-first
-admission with the default control latency of 2 ticks, binary or batch mode, any decision or state
-interval, node-side policies ``local``, ``round_robin``, ``least_queue`` and ``greedy``, ``max_hops`` 0 or 1,
-clients on worker nodes, every arrival schedule and task mix of the built-in task source, FIFO links without
-loss, energy. Not yet: failures, link loss, payloads, ``queue_first``, ``control_latency: 0``, multi-hop
-results, clients without a worker, the other policies, and user-defined roles, policies or task sources.
+Covered today (``refusal`` names the first thing a scenario needs beyond it, in one line): admission
+decide-first or queue-first, control latency 2 or 0, binary or batch mode, any decision or state interval,
+every built-in node-side policy (``random`` on each controller's own stream), any ``max_hops`` (results
+relayed back along the task's path), clients on worker nodes, every arrival schedule and task mix of the
+built-in task source, FIFO links with loss (each worker's radio stream), failures, energy. Not yet:
+payloads, clients without a worker, and user-defined roles, policies or task sources.
 
 Controllers an agent drives (``drive``) observe every decision epoch (``observation``: the ``Observation`` a
 ``Controller`` builds) and place what ``act`` gives them; every tick then keeps the roles' per-task ledger in
 their own order, from which the environment's credits and metrics come (docs/array.md, "The environments on it").
+With agents driving (``refusal(..., agents=True)``) failures, ``queue_first`` and control latency 0 are refused:
+the driven controller's side of them is not proven against the in-process environment yet.
 
 One tick runs the roles in an order that their one-tick message delay makes equivalent to the emulator's:
 controllers (they read the worker's state at the end of the previous tick), clients (results in, new
-tasks out), then workers (overload, expiry, decisions, admission, CPU, results back).
+tasks out), then workers (failure, overload, results relayed, expiry, decisions, admission, CPU, results
+back). A co-located controller (control latency 0) observes its worker at the end of the previous tick in
+the same slot and hands its answer over at once, which the worker applies in this tick, as the emulator's
+host does.
 """
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from itertools import pairwise
 
 import numpy as np
 
-from node_runtime.model.client import arrivals
-from node_runtime.model.controller import always_fresh, backlog, heard_at
+from node_runtime.model.client import arrivals_of
+from node_runtime.model.controller import CONTROLLER, always_fresh, backlog, heard_at
 from node_runtime.model.energy import compute_energy, idle_energy
 from node_runtime.model.messages import Task, TaskSize
+from node_runtime.model.policies import DriftPlusPenalty, Threshold
 from node_runtime.model.radio import dbm_to_watts
+from node_runtime.model.rng import stream
 from node_runtime.model.role import CHARGED, COMPLETED, LOST, STAT_FIELDS, role_id
 from node_runtime.model.spec import Scenario
 from node_runtime.model.view import NodeView, Observation, TaskView
-from node_runtime.model.worker import EPS_CYCLES
+from node_runtime.model.worker import EPS_CYCLES, WORKER
 
-POLICIES = ("local", "round_robin", "least_queue", "greedy")  # the node-side policies it runs, vectorised
+# the node-side policies it runs, vectorised: every built-in one of policies.py
+POLICIES = ("local", "round_robin", "least_queue", "greedy", "random", "greedy_backlog", "local_first", "threshold",
+            "drift_plus_penalty")
+BACKLOG = POLICIES[5:]  # the policies that read the links' backlogs
+CHUNK = 64  # numbers of a random stream drawn at once (the same numbers as drawn one at a time)
 BUILTIN = {"worker": "node_runtime.model.worker:Worker", "client": "node_runtime.model.client:Client",
            "controller": "node_runtime.model.controller:Controller"}
 FIELDS = (*STAT_FIELDS, "in_flight", "response_time_sum")  # per role, as the orchestrator's metrics keep them
@@ -49,17 +60,40 @@ F = {name: i for i, name in enumerate(FIELDS)}
 # where a task is: not created yet; a task message on its way to a worker; held undecided or queued by a
 # worker; its result on its way to its client; gone (completed or dropped)
 NEW, TO_WORKER, UNDECIDED, QUEUED, TO_CLIENT, GONE = range(6)
+TO_RELAY = 6  # max_hops above 1: a result on its way to the previous worker of its task's path
 SEQ_STRIDE = 1 << 20  # message numbers: send call * stride + position in the call (per sender, in send order)
-# the parts of a worker's tick that write its ledger, in the order the worker runs them (``Worker.tick``)
-EXPIRY, DECISIONS, ADMISSION, SERVICE = range(4)
+# the parts of a worker's tick that write its ledger, in the order the worker runs them (``Worker.tick``):
+# going down, results relayed (max_hops above 1), expiry, decisions, admission, service
+FAILURE, RELAY, EXPIRY, DECISIONS, ADMISSION, SERVICE = range(6)
+
+
+class Streams:
+    """One random stream per (copy, node), as a role draws it one number at a time, drawn CHUNK at a time."""
+
+    def __init__(self, streams: dict[tuple[int, int], np.random.Generator],
+                 draw: Callable[[np.random.Generator, int], np.ndarray], k: int, n: int, dtype: type) -> None:
+        self.streams, self.draw = streams, draw  # draw(stream, node): its next CHUNK numbers
+        self.chunk = np.zeros((k, n, CHUNK), dtype=dtype)
+        self.used = np.full((k, n), CHUNK)
+
+    def take(self, c: np.ndarray, nd: np.ndarray) -> np.ndarray:
+        """The next number of each stream (copy c, node nd); each pair at most once per call."""
+        spent = self.used[c, nd] >= CHUNK
+        for cc, node in zip(c[spent].tolist(), nd[spent].tolist(), strict=True):
+            self.chunk[cc, node] = self.draw(self.streams[cc, node], node)
+            self.used[cc, node] = 0
+        numbers = self.chunk[c, nd, self.used[c, nd]]
+        self.used[c, nd] += 1
+        return numbers
 
 
 class Unsupported(ValueError):
     """A scenario needs what the array backend does not model (yet)."""
 
 
-def refusal(sc: Scenario, policy: str | None = None) -> str | None:
-    """Why the array backend cannot run ``sc`` (one line naming the feature and the backend to use), or None."""
+def refusal(sc: Scenario, policy: str | None = None, agents: bool = False) -> str | None:
+    """Why the array backend cannot run ``sc`` (one line naming the feature and the backend to use), or None;
+    ``agents``: with controllers driven by agents (``ArraySim.drive``, the environment)."""
     def why() -> str | None:
         kinds = dict(sc.kinds)
         for name, path in kinds.items():
@@ -79,21 +113,18 @@ def refusal(sc: Scenario, policy: str | None = None) -> str | None:
             return f"user task source {sc.workload.source}"
         if sc.workload.jobs is not None:
             return "jobs (workload.jobs: DAGs of tasks)"
-        if sc.failures:
-            return "failures"
-        if any(lk.loss > 0 for lk in sc.links):
-            return "link loss"
         if any(t.payload is not None for t in sc.workload.task_types):
             return "payloads"
         if sc.moving:
             return f"moving nodes ({', '.join(sorted(sc.moving, key=sc.index.__getitem__))})"
-        if sc.admission != "decide_first":
-            return f"admission {sc.admission!r}"
-        if sc.control_latency != 2:
-            return f"control_latency {sc.control_latency}"
-        if sc.max_hops > 1:
-            return f"max_hops {sc.max_hops} (results forwarded along a path)"
-        for n in sc.nodes:  # an offloaded task's result goes straight back to its origin over the link
+        if agents:  # what the driven controllers' observations and the ledger are not proven exact for yet
+            if sc.failures:
+                return "failures while agents drive controllers"
+            if sc.admission != "decide_first":
+                return f"admission {sc.admission!r} while agents drive controllers"
+            if sc.control_latency != 2:
+                return f"control_latency {sc.control_latency} while agents drive controllers"
+        for n in sc.nodes:  # an offloaded task's result comes back over the link it went by, reversed
             for j in sc.neighbours[n.id] if n.has("controller") and sc.max_hops else ():
                 if sc.node[j].has("worker") and (j, n.id) not in sc.link:
                     return f"link {j} -> {n.id} is missing (a result could not come back directly)"
@@ -162,9 +193,14 @@ class ArraySim:
         self.idle = np.array([idle_energy(nd.idle_power_w, sc.dt) if nd.idle_power_w else 0.0 for nd in nodes])
         self.watts = np.array([dbm_to_watts(nd.tx_power_dbm) for nd in nodes])
         self.rate = np.ones((n, n))
+        self.loss = np.zeros((n, n))
         for (a, b), lk in sc.link.items():
             self.rate[sc.index[a], sc.index[b]] = lk.rate_bps
+            self.loss[sc.index[a], sc.index[b]] = lk.loss
         self.decides = np.array([nd.has("controller") and sc.max_hops > 0 for nd in nodes])
+        self.adjacent = np.zeros((n, n), dtype=bool)  # j in the radio of i: a result goes straight to its origin
+        for a, js in sc.neighbours.items():
+            self.adjacent[sc.index[a], [sc.index[j] for j in js]] = True
         # the actions of each controller: 0 keeps a task, a >= 1 sends it to neighbour a - 1 (-1: no such action)
         width = 1 + max((len(sc.neighbours[nd.id]) for nd in nodes), default=0)
         self.target = np.full((n, width), -1)
@@ -189,20 +225,25 @@ class ArraySim:
         self.recording = False  # keep the per-task ledger and the driven controllers' observations (``drive``)
         self.use_policy(policy)
         self.per_epoch = 1 if sc.mode == "binary" else sc.batch_size
+        self.queue_first = sc.admission == "queue_first"
 
     def use_policy(self, policy: str | None) -> None:
         """The node-side policy of the controllers no agent drives: ``policy`` for all, or each node's own."""
-        reason = refusal(self.sc, policy)
+        reason = refusal(self.sc, policy, agents=self.recording)
         if reason is not None:
             raise Unsupported(reason)
         self.policy = policy
         self.policy_of = np.array([POLICIES.index(policy or nd.policy) if nd.has("controller") and not driven else -1
                                    for nd, driven in zip(self.sc.nodes, self.driven, strict=True)])
+        self.randoms = np.flatnonzero(self.policy_of == POLICIES.index("random"))  # the controllers that draw
 
     def drive(self, nodes: Sequence[str]) -> None:
         """From the next ``reset`` on, the controllers of ``nodes`` observe every decision epoch and place what
         ``act`` gives them, as an externally driven ``Controller`` does, and every tick keeps the roles' ledger
         (``ledger``, ``completions``): what the environment reads (orchestrator/array_session.py)."""
+        reason = refusal(self.sc, self.policy, agents=True)
+        if reason is not None:
+            raise Unsupported(reason)
         self.driven = np.isin(np.arange(self.n), [self.sc.index[n] for n in nodes])
         self.recording = True
         self.use_policy(self.policy)
@@ -215,7 +256,7 @@ class ArraySim:
             raise ValueError(f"{len(seeds)} seeds for {self.k} copies")
         sc, k = self.sc, self.k
         ticks = sc.episode_ticks if ticks is None else ticks
-        drawn = [arrivals(sc, int(s), ticks) for s in seeds]
+        drawn = arrivals_of(sc, [int(s) for s in seeds], ticks)
         self.sizes = [[size for _, _, size in tasks] for tasks in drawn]
         m = max(1, max(len(d) for d in drawn))
         self.m = m
@@ -229,6 +270,7 @@ class ArraySim:
         self.expires = np.zeros(shape, dtype=np.int64)
         self.latest = np.zeros(shape)  # the last tick (a float) a transmission of it may start
         self.urgency = np.zeros(shape)
+        self.deadline = np.zeros(shape)  # seconds, as created (a controller's time left derives from it)
         self.task_id = np.zeros(shape, dtype=np.int64)  # the client's id of it (``Client.task_id``)
         expiry: dict[tuple[int, TaskSize], int] = {}
         for c, tasks in enumerate(drawn):
@@ -245,6 +287,7 @@ class ArraySim:
                                    else expiry.setdefault(key, expiry_tick(t, size, sc.dt)) for t, _, size in tasks]
             self.latest[c, :n] = [t + size.deadline / sc.dt for t, _, size in tasks]
             self.urgency[c, :n] = [1.0 / max(size.deadline, sc.dt) for _, _, size in tasks]
+            self.deadline[c, :n] = [size.deadline for _, _, size in tasks]
             made = [0] * self.n  # tasks each client made so far
             for j, (_, node, _) in enumerate(tasks):
                 made[node] += 1
@@ -271,6 +314,22 @@ class ArraySim:
         self.heard = np.zeros((k, self.n), dtype=np.int64)  # queue lengths as last broadcast ...
         self.heard_occupancy = np.zeros((k, self.n), dtype=np.int64)  # ... and occupancies
         self.rr = np.zeros((k, self.n), dtype=np.int64)  # round robin's next
+        self.joined = [(NONE, NONE)]  # the tasks queued since the CPU last ran (its queue then first), in order
+        self.kept = np.zeros(shape, dtype=bool)  # queue_first: kept by a decision (not offered again)
+        self.dec_node = np.zeros(shape, dtype=np.int64)  # the node whose controller asked about it
+        # max_hops above 1: the workers that admitted each task, in order, and where its result is on that path
+        self.path = np.zeros((k, m, sc.max_hops + 1) if sc.max_hops > 1 else (0, 0, 0), dtype=np.int64)
+        self.plen = np.zeros(shape if sc.max_hops > 1 else (0, 0), dtype=np.int64)
+        self.hop = np.zeros(shape if sc.max_hops > 1 else (0, 0), dtype=np.int64)
+        # failures: which nodes are down in each tick, and the tasks its controller still thinks it may place
+        # when its node comes back (its worker's last report before the failure, which dropped them)
+        self.down = np.zeros((ticks + 1, self.n), dtype=bool)
+        for node, windows in sc.failure_windows.items():
+            for a, b in windows:
+                self.down[a:b, sc.index[node]] = True
+        self.ghosts: dict[int, tuple[np.ndarray, np.ndarray]] = {}  # node -> (copies, tasks)
+        self.heard_late = np.zeros((k, self.n), dtype=np.int64)  # co-located: the states heard a tick before
+        self.heard_occupancy_late = np.zeros((k, self.n), dtype=np.int64)
         self.queued = np.zeros((k, self.n), dtype=np.int64)
         self.undecided = np.zeros((k, self.n), dtype=np.int64)
         self.serving = np.full((k, self.n), -1, dtype=np.int64)
@@ -292,6 +351,14 @@ class ArraySim:
         self.born = by_tick(self.created, ticks)
         self.dies = by_tick(self.expires, ticks)
         self.flying = np.zeros((k, len(self.roles)), dtype=np.int64)  # messages in flight, by sending role
+        # random: each controller's own stream (the policy's, ``Controller.reset``)
+        self.choices = Streams({(c, int(nd)): stream(int(s), int(nd), CONTROLLER.stream) for c, s in enumerate(seeds)
+                                for nd in self.randoms},
+                               lambda g, node: g.integers(self.n_valid[node], size=CHUNK), k, self.n, np.int64)
+        # link loss: each worker's radio stream (``Worker.reset``), a number per transmission on a lossy link
+        self.losses = Streams({(c, int(nd)): stream(int(s), int(nd), WORKER.stream) for c, s in enumerate(seeds)
+                               for nd in np.flatnonzero(self.loss.any(axis=1))},
+                              lambda g, node: g.random(CHUNK), k, self.n, float)
 
     def step(self) -> np.ndarray:
         """Run tick ``t`` of every copy; the counters at its end."""
@@ -450,24 +517,26 @@ class ArraySim:
 
     def _controllers(self, t: int) -> None:
         k = self.k
-        # the answer to the last observation is placed: it reaches the worker next tick
-        c, i = self.asking
-        self.asking = (NONE, NONE)
-        if len(c) and self.driven.any():  # a driven controller places what its agent answered (``act``)
-            answered = ~self.driven[self.node[c, i]] | self.given[c, i]
-            c, i = c[answered], i[answered]
-        if len(c):
-            self.dec_arrive[c, i] = t + 1
-            self.decided[t + 1] = (c, i)
-            self.dec_action[c, i] = self.ask_action[c, i]
-            self._add(c, self.controller[self.node[c, i]], "decisions")
-        if t % self.sc.decision_interval:
+        colocated = self.sc.colocated_control
+        if not colocated:  # the answer to the last observation is placed: it reaches the worker next tick
+            self._place(t, t + 1)
+        # control_latency 2: the observation of tick t, on its worker's state at the end of the last tick as
+        # reported; 0: the observation of the last tick, on its worker's state at its end, answered at once
+        seen = t - colocated
+        if seen < 0 or seen % self.sc.decision_interval:
             return
         if self.driven.any():
-            self._remember_view(t)
-        # observe: the oldest undecided tasks, as the worker reported them at the end of the last tick
+            self._remember_view(seen)
+        # the oldest tasks the controller may place (queue_first: queued tasks it may divert)
         w = self.win
-        c, i = self._find((self.state[:, w] == UNDECIDED) & (self.dec_arrive[:, w] < 0))
+        offered = self._divertible(w) if self.queue_first else self.state[:, w] == UNDECIDED
+        if self.sc.failures:  # a controller that is down does not observe
+            offered &= ~self.down[seen, self.node[:, w]]
+        c, i = self._find(offered & (self.dec_arrive[:, w] < 0))
+        if self.sc.failures and seen:  # one back up sees its worker's last report, from before the failure
+            back = [self.ghosts.pop(int(node), (NONE, NONE)) for node in
+                    np.flatnonzero(~self.down[seen] & self.down[seen - 1])]
+            c, i = np.concatenate([c, *(g[0] for g in back)]), np.concatenate([i, *(g[1] for g in back)])
         if not len(c):
             return
         nd = self.node[c, i]
@@ -476,6 +545,7 @@ class ArraySim:
         rank = group_rank(c, nd)
         extra = np.zeros((k, self.n, self.target.shape[1]), dtype=np.int64)
         self.asking = (c[rank < self.per_epoch], i[rank < self.per_epoch])
+        self.dec_node[self.asking] = nd[rank < self.per_epoch]
         if self.driven.any():
             shown = (rank < self.per_epoch) & self.driven[nd]
             self.slots[c[shown], nd[shown], rank[shown]] = i[shown]
@@ -495,30 +565,117 @@ class ArraySim:
             lq = pol == POLICIES.index("least_queue")
             if lq.any():
                 cl, nl = cb[lq], nb[lq]
-                key = np.where(self.valid[nl], self.heard[cl[:, None], self.target[nl]] + extra[cl, nl], np.iinfo(
-                    np.int64).max)
+                key = np.where(self.valid[nl], self._seen(cl, nl)[0] + extra[cl, nl], np.iinfo(np.int64).max)
                 action[lq] = np.argmin(key, axis=1)  # ties: the lowest action, so local first
             gr = pol == POLICIES.index("greedy")
             if gr.any():
                 action[gr] = self._greedy(cb[gr], ib[gr], nb[gr], extra)
+            rd = pol == POLICIES.index("random")
+            if rd.any():
+                action[rd] = self._random(cb[rd], nb[rd])
+            for name in BACKLOG:
+                on = pol == POLICIES.index(name)
+                if on.any():
+                    action[on] = self._by_backlog(name, seen, cb[on], ib[on], nb[on], extra)
             extra[cb, nb, action] += 1
             self.ask_action[cb, ib] = action
             self.ask_rank[cb, ib] = b
+        if colocated:  # the host hands the answer to the worker at the start of this tick
+            self._place(t, t)
+
+    def _place(self, t: int, arrive: int) -> None:
+        """The answer to the last observation, placed at tick ``t``: decisions that reach the worker at ``arrive``."""
+        c, i = self.asking
+        self.asking = (NONE, NONE)
+        up = ~self.down[t, self.dec_node[c, i]]  # a controller that is down drops its answer
+        if self.driven.any():  # a driven controller places what its agent answered (``act``)
+            up &= ~self.driven[self.dec_node[c, i]] | self.given[c, i]
+        c, i = c[up], i[up]
+        if len(c):
+            self.dec_arrive[c, i] = arrive
+            self.decided[arrive] = (c, i)
+            self.dec_action[c, i] = self.ask_action[c, i]
+            self._add(c, self.controller[self.dec_node[c, i]], "decisions")
+
+    def _divertible(self, w: slice) -> np.ndarray:
+        """queue_first (``Worker.divertible``), over the window ``w``: queued tasks that have not started, were not
+        kept by a decision, and may still be offloaded (fewer hops than ``max_hops``, at a node that decides)."""
+        nd = self.node[:, w]
+        return ((self.state[:, w] == QUEUED) & ~self.kept[:, w] & (self.hops[:, w] < self.sc.max_hops)
+                & self.decides[nd] & (self.rem[:, w] == self.cycles[:, w])
+                & (np.take_along_axis(self.serving, nd, axis=1) != np.arange(w.start, w.stop)))
+
+    def _seen(self, c: np.ndarray, nd: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The queues and occupancies a controller sees of each action's target (a row per task): as broadcast
+        and heard a tick later; co-located (control_latency 0), its own worker as it is."""
+        to = self.target[nd]
+        if not self.sc.colocated_control:
+            return self.heard[c[:, None], to], self.heard_occupancy[c[:, None], to]
+        queue, occupancy = self.heard_late[c[:, None], to], self.heard_occupancy_late[c[:, None], to]
+        queue[:, 0] = self.queued[c, nd]
+        occupancy[:, 0] = self.queued[c, nd] + self.undecided[c, nd]
+        return queue, occupancy
 
     def _greedy(self, c: np.ndarray, i: np.ndarray, nd: np.ndarray, extra: np.ndarray) -> np.ndarray:
-        """``policies.Greedy``: the least estimated completion time, in its float operations, over the valid
-        actions (ties: the lowest action)."""
+        """``policies.Greedy``: the least estimated completion time over the valid actions (ties: the lowest)."""
+        return np.argmin(np.where(self.valid[nd], self._estimate(c, i, nd, extra), np.inf), axis=1)
+
+    def _estimate(self, c: np.ndarray, i: np.ndarray, nd: np.ndarray, extra: np.ndarray) -> np.ndarray:
+        """``Greedy.estimate`` of every action (a row per task), in its float operations."""
         to = self.target[nd]
         more = extra[c, nd]
         cycles = self.cycles[c, i][:, None]
         capacity = self.capacity[to]
-        wait = (self.heard[c[:, None], to] + more) * cycles / capacity
+        queue, occupancy = self._seen(c, nd)
+        wait = (queue + more) * cycles / capacity
         run = cycles / capacity
         transfer = self.io_bytes[c, i][:, None] * 8.0 / self.rate[nd[:, None], to]
-        full = self.heard_occupancy[c[:, None], to] + more >= self.buffer[to]
+        full = occupancy + more >= self.buffer[to]
         estimate = np.where(full, np.inf, transfer + wait + run)
         estimate[:, 0] = (wait + run)[:, 0]
-        return np.argmin(np.where(self.valid[nd], estimate, np.inf), axis=1)
+        return estimate
+
+    def _random(self, c: np.ndarray, nd: np.ndarray) -> np.ndarray:
+        """``policies.Random``: a valid action drawn from each controller's own stream (one (copy, node) per call)."""
+        return self.valid_list[nd, self.choices.take(c, nd)]
+
+    def _by_backlog(self, name: str, t: int, c: np.ndarray, i: np.ndarray, nd: np.ndarray,
+                    extra: np.ndarray) -> np.ndarray:
+        """The policies that add the links' backlogs (``NodeView.backlog_s``, ``controller.backlog``) to greedy's
+        estimate, each in its float operations: ``GreedyBacklog``, ``LocalFirst``, ``Threshold`` and
+        ``DriftPlusPenalty`` at their default parameters.
+
+        The busy-until ticks a controller knows are its worker's at the end of the last tick it reported in; with
+        tasks to place they are the links' at the end of the previous tick, as held here: the worker reports
+        whenever its undecided set changes, and whenever it transmits while tasks wait for a decision, so since
+        its last report the set stayed the same and not empty, and nothing was sent. (Back from a failure, a
+        controller's first observation holds only tasks the failure dropped: their decisions are stale whatever
+        they say, so the backlogs it reads then change nothing.)"""
+        to = self.target[nd]
+        busy = self.busy[c[:, None], nd[:, None], to]
+        backlog = np.where(busy > t + 1, (busy - (t + 1)) * self.dt, 0.0)
+        greedy = self._estimate(c, i, nd, extra)
+        estimate = greedy + backlog  # GreedyBacklog.estimate
+        estimate[:, 0] = greedy[:, 0]
+        valid = self.valid[nd]
+        choice = np.argmin(np.where(valid, estimate, np.inf), axis=1)
+        if name == "greedy_backlog":
+            return choice
+        if name == "local_first":
+            left = self.deadline[c, i] - (t - self.created[c, i]) * self.dt  # TaskView.time_left
+            return np.where(estimate[:, 0] <= left, 0, choice)
+        if name == "threshold":
+            cost = np.where(valid, estimate, np.inf)
+            cost[:, 0] = np.inf
+            best = np.argmin(cost, axis=1)
+            keep = self._seen(c, nd)[0][:, 0] + extra[c, nd, 0] < Threshold.threshold
+            return np.where(keep | ~np.isfinite(cost[np.arange(len(c)), best]), 0, best)
+        # drift_plus_penalty
+        service = self.cycles[c, i][:, None] / self.capacity[to]
+        drift = ((self._seen(c, nd)[0] + extra[c, nd]) * service + service / 2) * service
+        transfer = self.io_bytes[c, i][:, None] * 8.0 / self.rate[nd[:, None], to]
+        drift[:, 1:] += ((backlog + transfer / 2) * transfer)[:, 1:]
+        return np.argmin(np.where(valid, drift + DriftPlusPenalty.v * estimate, np.inf), axis=1)
 
     # ----- clients -----
 
@@ -540,9 +697,11 @@ class ArraySim:
             if self.recording:
                 self._record(c[imposed], roles[imposed], key[imposed], i[imposed], CHARGED,
                              self.imposed[c[imposed], i[imposed]])
-            late = t >= self.expires[c, i]
+            failed = self.down[t, nd]
+            self._drop(c[failed], i[failed], roles[failed], "node_failure", key[failed] + 1)
+            late = (t >= self.expires[c, i]) & ~failed
             self._drop(c[late], i[late], roles[late], "expired", key[late] + 1)
-            ok = ~late
+            ok = ~late & ~failed
             self._drop(c[ok], i[ok], roles[ok], "completed")
             if self.recording:
                 self._record(c[ok], roles[ok], key[ok] + 1, i[ok], COMPLETED,
@@ -561,11 +720,15 @@ class ArraySim:
 
     def _workers(self, t: int) -> None:
         w = self.has_worker
+        if self.sc.failures:
+            self._fail(t)
         occupancy = self.queued + self.undecided
         full = (occupancy >= self.buffer) & w
         cnt = self.counters
         cnt[:, :, F["overloaded"]][:, self.worker[w]] = full[:, w]
         cnt[:, :, F["overloaded_ticks"]][:, self.worker[w]] += full[:, w]
+        if self.sc.max_hops > 1:
+            self._relay(t)
         # expiry of held tasks
         c, i = self.dies[t]  # a held task expires at its expiry tick: it was admitted before, and not expired then
         state = self.state[c, i]
@@ -583,17 +746,48 @@ class ArraySim:
         self._decisions(t)
         self._admit(t)
         self._serve(t)
-        if self.idle.any():
-            cnt[:, :, F["energy_idle"]][:, self.worker[w]] += self.idle[w]
+        if self.idle.any():  # a node that is down spends nothing
+            cnt[:, :, F["energy_idle"]][:, self.worker[w]] += np.where(self.down[t, w], 0.0, self.idle[w])
+
+    def _fail(self, t: int) -> None:
+        """Nodes going down in tick t drop all they hold (``node_failure``) and reset their links: nothing queued,
+        nothing charged (``Worker.tick``, ``Worker.drop_all``)."""
+        went = self.down[t] & ~self.down[t - 1] if t else self.down[t]
+        if not went.any():
+            return
+        w = self.win
+        held = (self.state[:, w] == UNDECIDED) | (self.state[:, w] == QUEUED)
+        c, i = self._find(held & went[self.node[:, w]])
+        if not self.sc.colocated_control:  # what its worker last reported as still to place
+            offered = (self._divertible(w) if self.queue_first else self.state[:, w] == UNDECIDED)[c, i - w.start]
+            offered &= self.dec_arrive[c, i] < 0
+            for node in np.flatnonzero(went):
+                mine = offered & (self.node[c, i] == node)
+                self.ghosts[int(node)] = (c[mine], i[mine])
+        self.queued[:, went] = 0
+        self.undecided[:, went] = 0
+        self._enter(FAILURE)  # ``Worker.drop_all``: the queue in queue order, then the undecided in arrival order
+        undecided = self.state[c, i] == UNDECIDED
+        self._drop(c, i, self.worker[self.node[c, i]], "node_failure", self.order[c, i] + undecided * (1 << 40))
+        self.busy[:, went, :] = 0.0
+        charged = self.olink[:, w] >= 0
+        self.olink[:, w][charged & went[self.olink[:, w] // self.n]] = -1
 
     def _decisions(self, t: int) -> None:
         c, i = self.decided.pop(t, (NONE, NONE))
         if not len(c):
             return
-        nd = self.node[c, i]
+        nd = self.dec_node[c, i]
+        up = ~self.down[t, nd]  # a node that is down ignores them
+        c, i, nd = c[up], i[up], nd[up]
         if self.recording:
             self.bumped[c, nd] = True
-        stale = self.state[c, i] != UNDECIDED
+        if self.queue_first:  # it must still be divertible: queued, not started, not kept
+            stale = ((self.state[c, i] != QUEUED) | self.kept[c, i] | (self.rem[c, i] != self.cycles[c, i])
+                     | (self.serving[c, nd] == i))
+        else:
+            stale = self.state[c, i] != UNDECIDED
+        stale |= self.node[c, i] != nd  # a result on its way, further along its path
         self._add(c[stale], self.worker[nd[stale]], "stale_decisions")
         c, i, nd = c[~stale], i[~stale], nd[~stale]
         by = np.lexsort((self.ask_rank[c, i], nd, c))
@@ -603,13 +797,18 @@ class ArraySim:
             sel = rank == b
             cb, ib, nb = c[sel], i[sel], nd[sel]
             action = self.dec_action[cb, ib]
-            np.subtract.at(self.undecided, (cb, nb), 1)
             local = action == 0
             cl, il, nl = cb[local], ib[local], nb[local]
-            self.state[cl, il] = QUEUED
-            self.order[cl, il] = self._next_order(len(cl))
-            np.add.at(self.queued, (cl, nl), 1)
             co, io, no = cb[~local], ib[~local], nb[~local]
+            if self.queue_first:  # local: it stays where it is in the queue, kept; else it leaves the queue
+                self.kept[cl, il] = True
+                np.subtract.at(self.queued, (co, no), 1)
+            else:
+                np.subtract.at(self.undecided, (cb, nb), 1)
+                self.state[cl, il] = QUEUED
+                self.order[cl, il] = self._next_order(len(cl))
+                self.joined.append((cl, il))
+                np.add.at(self.queued, (cl, nl), 1)
             if len(co):
                 self.hops[co, io] += 1
                 self._add(co, self.worker[no], "offloaded")
@@ -631,11 +830,18 @@ class ArraySim:
         seconds = bits / self.rate[src, dst]
         finish = start + seconds / self.dt
         self.busy[c, src, dst] = finish
-        self._add(c, roles, "energy_transmit", self.watts[src] * seconds)
+        # a lost message occupied the link (and is charged for it), but costs no energy and charges nothing
+        lost = np.zeros(len(c), dtype=bool)
+        if self.losses.streams:
+            lossy = np.flatnonzero(self.loss[src, dst] > 0.0)
+            lost[lossy] = self.losses.take(c[lossy], src[lossy]) < self.loss[src[lossy], dst[lossy]]
+        kept = ~lost if lost.any() else slice(None)
+        self._add(c[kept], roles[kept], "energy_transmit", (self.watts[src] * seconds)[kept])
         link = src * self.n + dst
         # the charged offloads still on the link, in the order they were sent: each charged what this one waits
         w = self.win
-        s, j = np.nonzero((self.olink[c, w] == link[:, None]) & (self.ofinish[c, w] > t))
+        on_air = (self.olink[c, w] == link[:, None]) & (self.ofinish[c, w] > t)
+        s, j = np.nonzero(on_air & ~lost[:, None] if lost.any() else on_air)
         j += w.start
         if len(s):
             cs = c[s]
@@ -647,6 +853,9 @@ class ArraySim:
                 self._record(cs, roles[s], np.arange(len(s)), j, CHARGED, waited * self.urgency[cs, i[s]])
         if kind == TO_WORKER:  # an offload: charged for what it makes later messages wait
             self.olink[c, i], self.ostart[c, i], self.ofinish[c, i] = link, start, finish
+        if lost.any():
+            self._drop(c[lost], i[lost], roles[lost], "link_loss")
+            c, i, dst, finish, roles, src = (a[~lost] for a in (c, i, dst, finish, roles, src))
         arrive = np.maximum(t + 1, np.ceil(finish).astype(np.int64))
         self._send(c, i, kind, dst, arrive, roles, self.worker_rank[src])
 
@@ -662,8 +871,11 @@ class ArraySim:
         roles = self.worker[nd]
         self._enter(ADMISSION)
         key = np.arange(len(c))  # mail order
-        late = t >= self.expires[c, i]
+        failed = self.down[t, nd]  # a worker that is down drops what reaches it (after its results: ``_relay``)
+        self._drop(c[failed], i[failed], roles[failed], "node_failure", key[failed])
+        late = (t >= self.expires[c, i]) & ~failed
         self._drop(c[late], i[late], roles[late], "expired", key[late])
+        late |= failed
         c, i, nd, roles, key = c[~late], i[~late], nd[~late], roles[~late], key[~late]
         if not len(c):
             return
@@ -673,29 +885,40 @@ class ArraySim:
         c, i, nd = c[room], i[room], nd[room]
         self.order[c, i] = self._next_order(len(c))
         self.arrived[c, i] = t
-        wait = self.decides[nd] & (self.hops[c, i] < self.sc.max_hops)
+        self.dec_arrive[c, i], self.kept[c, i] = -1, False  # a task offloaded here is this controller's to place
+        if self.sc.max_hops > 1:
+            self.path[c, i, self.plen[c, i]] = nd
+            self.hop[c, i] = self.plen[c, i]
+            self.plen[c, i] += 1
+        wait = self.decides[nd] & (self.hops[c, i] < self.sc.max_hops) & (not self.queue_first)
         if self.recording:
             self.bumped[c[wait], nd[wait]] = True
         self.state[c, i] = np.where(wait, UNDECIDED, QUEUED)
         np.add.at(self.undecided, (c[wait], nd[wait]), 1)
         np.add.at(self.queued, (c[~wait], nd[~wait]), 1)
+        self.joined.append((c[~wait], i[~wait]))
 
     def _serve(self, t: int) -> None:
         """The CPU: the tick's cycles on the FIFO queue, head first, work-conserving (``Worker.serve``)."""
         budget = np.where(self.has_worker, self.budget, 0.0)[None, :].repeat(self.k, axis=0)
         used = np.zeros((self.k, self.n))
         active = (self.queued > 0) & (budget > 0.0)
-        qc, qi = self._find(self.state[:, self.win] == QUEUED)  # no task joins a queue while the CPU runs
+        # the queued tasks (no task joins a queue while the CPU runs): those of the last tick still queued, in
+        # order, and the ones queued since, sorted in (a sort of one long sorted run and a short tail)
+        qc, qi = (np.concatenate(a) for a in zip(*self.joined, strict=True))
+        self.joined = []
         qn = self.node[qc, qi]
         by = np.argsort(((qc * self.n + qn) << 32) + self.order[qc, qi], kind="stable")  # by copy, node, order
         qc, qi, qn = qc[by], qi[by], qn[by]
+        queued = qc, qi
         finishing = 0  # the how-manieth task each worker finishes in this tick
-        while active.any():
+        while active.any():  # a queue that stops being served, or a task that leaves one, does not come back
             keep = active[qc, qn] & (self.state[qc, qi] == QUEUED)
-            c, i, nd = qc[keep], qi[keep], qn[keep]
+            qc, qi, qn = c, i, nd = qc[keep], qi[keep], qn[keep]
             first = np.r_[True, (c[1:] != c[:-1]) | (nd[1:] != nd[:-1])]
-            behind = np.zeros((self.k, self.n))  # urgency of the tasks queued behind each head
-            np.add.at(behind, (c[~first], nd[~first]), self.urgency[c[~first], i[~first]])
+            # urgency of the tasks queued behind each head, added in queue order (bincount adds in input order)
+            behind = np.bincount(c[~first] * self.n + nd[~first], self.urgency[c[~first], i[~first]],
+                                 minlength=self.k * self.n).reshape(self.k, self.n)
             c, i, nd = c[first], i[first], nd[first]
             new = self.serving[c, nd] != i
             self.imposed[c[new], i[new]] = 0.0
@@ -716,6 +939,9 @@ class ArraySim:
             finishing += 1
             self._results(t, cd, id_, nd_)
             active = (self.queued > 0) & (budget > 0.0)
+        c, i = queued
+        still = self.state[c, i] == QUEUED
+        self.joined.append((c[still], i[still]))
         c, nd = np.nonzero(used)
         if len(c):
             roles = self.worker[nd]
@@ -723,8 +949,8 @@ class ArraySim:
             self.counters[c, roles, F["energy_compute"]] += compute_energy(self.kappa[nd], used[c, nd], self.freq[nd])
 
     def _results(self, t: int, c: np.ndarray, i: np.ndarray, nd: np.ndarray) -> None:
-        """Finished tasks' results back to their origin (``Worker.route_result``): handed over on its own
-        node, sent over the link to a neighbour."""
+        """Results one step towards their origin (``Worker.route_result``): handed over on its own node, sent over
+        the link to a neighbour, else to the previous worker on the task's path (one per (copy, node) per call)."""
         late = t >= self.expires[c, i]
         self._drop(c[late], i[late], self.worker[nd[late]], "expired")
         c, i, nd = c[~late], i[~late], nd[~late]
@@ -732,9 +958,34 @@ class ArraySim:
         here = origin == nd
         self._send(c[here], i[here], TO_CLIENT, origin[here], np.full(here.sum(), t + 1), self.worker[nd[here]],
                    self.worker_rank[nd[here]])
-        away = ~here
-        if away.any():
-            self._transmit(t, c[away], i[away], nd[away], origin[away], self.out_bits[c[away], i[away]], TO_CLIENT)
+        near = ~here & self.adjacent[nd, origin]
+        if near.any():
+            self._transmit(t, c[near], i[near], nd[near], origin[near], self.out_bits[c[near], i[near]], TO_CLIENT)
+        far = ~here & ~near
+        if far.any():
+            c, i, nd = c[far], i[far], nd[far]
+            self.hop[c, i] -= 1
+            self._transmit(t, c, i, nd, self.path[c, i, self.hop[c, i]], self.out_bits[c, i], TO_RELAY)
+
+    def _relay(self, t: int) -> None:
+        """Results reaching a worker on their way back, routed on at once in mail order (``Worker.tick``'s inbox);
+        a worker that is down drops them."""
+        c, i = self.arriving
+        here = self.state[c, i] == TO_RELAY
+        c, i = c[here], i[here]
+        if not len(c):
+            return
+        nd = self.node[c, i]
+        by = np.lexsort((self.seq[c, i], self.src_rank[c, i], nd, c))
+        c, i, nd = c[by], i[by], nd[by]
+        failed = self.down[t, nd]
+        self._enter(RELAY)
+        self._drop(c[failed], i[failed], self.worker[nd[failed]], "node_failure", np.arange(len(c))[failed])
+        c, i, nd = c[~failed], i[~failed], nd[~failed]
+        rank = group_rank(c, nd)
+        for r in range(int(rank.max(initial=-1)) + 1):  # each worker's r-th result, in its own step of the stage
+            self._enter(RELAY, r)
+            self._results(t, c[rank == r], i[rank == r], nd[rank == r])
 
     # ----- end of the tick -----
 
@@ -749,6 +1000,12 @@ class ArraySim:
             if len(c):
                 to = np.maximum(self.target[nd, 1:], 0)  # (a missing neighbour's column is never read)
                 self.told_busy[c, nd] = self.busy[c[:, None], nd[:, None], to]
-        if t % self.sc.state_interval == 0:
+        if self.sc.colocated_control:  # what a co-located controller has heard at the end of the next tick
+            self.heard_late[:], self.heard_occupancy_late[:] = self.heard, self.heard_occupancy
+        if t % self.sc.state_interval == 0 and self.sc.failures:  # a node that is down is silent
+            up = ~self.down[t]
+            self.heard[:, up] = self.queued[:, up]
+            self.heard_occupancy[:, up] = (self.queued + self.undecided)[:, up]
+        elif t % self.sc.state_interval == 0:
             self.heard[:] = self.queued
             self.heard_occupancy[:] = self.queued + self.undecided

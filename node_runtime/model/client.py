@@ -8,6 +8,8 @@ and releases its tasks as they become ready (``jobs.JobBook``), each then sent a
 
 from __future__ import annotations
 
+from collections.abc import Sequence
+
 from node_runtime.model.jobs import Job, JobBook
 from node_runtime.model.messages import Envelope, Kind, Task, TaskSize
 from node_runtime.model.plugins import load
@@ -130,18 +132,25 @@ def arrivals(sc: Scenario, seed: int, ticks: int) -> list[tuple[int, int, TaskSi
     streams, which no decision moves, so it is every run's workload task for task: the array backend's, and
     the arrival trace the clairvoyant bound sees. Jobs have no such trace: which of their tasks arrive, and
     when, depends on where the earlier ones ran."""
+    return arrivals_of(sc, (seed,), ticks)[0]
+
+
+def arrivals_of(sc: Scenario, seeds: Sequence[int], ticks: int) -> list[list[tuple[int, int, TaskSize]]]:
+    """``arrivals`` of each seed, the clients made once and reset for each."""
     if sc.workload.jobs is not None:
         raise ValueError(f"{sc.name}: a scenario of jobs (workload.jobs) has no arrival trace of its tasks")
-    out = []
-    for node in sc.nodes:
-        if not node.has("client"):
-            continue
-        client = Client(node, sc)
-        client.reset(seed)
-        t = 0
-        while t < ticks:  # only the ticks it wakes at: the others draw nothing, so skipping them changes no draw
-            if not client.down(t):
-                out.extend((t, client.index, TaskSize(*size)) for size in client.source.draws(t))
-            t = int(client.wake(t))
-    out.sort(key=lambda task: (task[0], task[1]))  # stable: each client's tasks of a tick in the order drawn
-    return out
+    clients = [Client(node, sc) for node in sc.nodes if node.has("client")]
+    runs = []
+    for seed in seeds:
+        out = []
+        for client in clients:
+            client.reset(seed)
+            t = 0
+            while t < ticks:  # only the ticks it wakes at: the others draw nothing, so skipping them changes no draw
+                if not client.down(t):
+                    out.extend((t, client.index, size if type(size) is TaskSize else TaskSize(*size))
+                               for size in client.source.draws(t))
+                t = int(client.wake(t))
+        out.sort(key=lambda task: (task[0], task[1]))  # stable: each client's tasks of a tick in the order drawn
+        runs.append(out)
+    return runs

@@ -10,9 +10,11 @@ from __future__ import annotations
 import bisect
 import math
 from collections import defaultdict
+from functools import lru_cache
 
 import numpy as np
 
+from node_runtime.model.arrival import Schedule
 from node_runtime.model.dag import JobSpec
 from node_runtime.model.messages import TaskSize
 from node_runtime.model.spec import Scenario, TaskType, TraceRow
@@ -43,6 +45,15 @@ def nominal_arrivals(sc: Scenario) -> dict[str, float]:
 
 def trace_tick(row: TraceRow, dt: float) -> int:
     return math.floor(row.time / dt + 1e-9)
+
+
+@lru_cache(maxsize=256)
+def _block_means(arrival: Schedule, start: int, dt: float, horizon: float) -> np.ndarray:
+    """λ(s)·dt over the block of ticks from ``start``: the same for every client of a schedule (and every copy
+    of the array backend), so computed once."""
+    means = np.array([arrival.rate_at(s * dt, horizon) * dt for s in range(start, start + BLOCK)])
+    means.flags.writeable = False
+    return means
 
 
 def _every_tick(source: TaskSource, after: int) -> int:
@@ -85,6 +96,7 @@ class TaskSource:
         if self.fixed_rate is None:
             self.fixed_rate = self.arrival.client_rate(counts_rng)
         self._blocks: dict[int, np.ndarray] = {}  # block start tick -> counts
+        self._hits: dict[int, list[int]] = {}  # block start tick -> the offsets in it with a task, once searched
         self.trace: dict[int, list[TraceRow]] | None = None
         if scenario.workload.trace is not None:
             self.trace = defaultdict(list)
@@ -111,9 +123,13 @@ class TaskSource:
             if self.gaps:
                 block = self._blocks[start] = self.gap_block(start)
             else:
-                lam = np.array([self.rate(s) * self.dt for s in range(start, start + BLOCK)])
+                if self.fixed_rate is None and type(self).rate is TaskSource.rate:
+                    lam = _block_means(self.arrival, start, self.dt, self.horizon)
+                else:
+                    lam = np.array([self.rate(s) * self.dt for s in range(start, start + BLOCK)])
                 block = self._blocks[start] = self.counts_rng.poisson(lam)
             self._blocks.pop(start - 2 * BLOCK, None)  # the current tick is at most one block behind
+            self._hits.pop(start - 2 * BLOCK, None)
         return int(block[tick - start])
 
     def gap_block(self, start: int) -> list[int]:
@@ -160,8 +176,17 @@ class TaskSource:
         if self.trace is not None:
             i = bisect.bisect_right(self.trace_ticks, after)
             return self.trace_ticks[i] if i < len(self.trace_ticks) else after + LOOKAHEAD
-        for tick in range(after + 1, after + LOOKAHEAD):
-            if self.count(tick):
-                return tick
-        return after + LOOKAHEAD
+        tick, end = after + 1, after + LOOKAHEAD
+        while tick < end:  # a block at a time, each drawn when its first tick is asked, as ``count`` does
+            start = tick - tick % BLOCK
+            self.count(tick)
+            hits = self._hits.get(start)
+            if hits is None:
+                hits = self._hits[start] = np.flatnonzero(np.asarray(self._blocks[start])).tolist()
+            stop = min(start + BLOCK, end)
+            j = bisect.bisect_left(hits, tick - start)
+            if j < len(hits) and start + hits[j] < stop:
+                return start + hits[j]
+            tick = stop
+        return end
 
