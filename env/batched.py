@@ -50,7 +50,7 @@ DELTA_KEYS = ("completed", "dropped", "response_time_total", "delay_imposed")  #
 def uncovered(env: ZenohEdgeEnv) -> str | None:
     """Why the batched path cannot make this environment's steps (one line), or None."""
     if env.reward_fn not in REWARDS:
-        name = getattr(env.reward_fn, "__name__", repr(env.reward_fn))
+        name = _name(env.reward_fn) if hasattr(env.reward_fn, "__name__") else repr(env.reward_fn)
         return (f"reward {name} (the batched path computes {', '.join(sorted(set(map(_name, REWARDS))))}; "
                 "others take the per-copy path)")
     if env.action_rules.raise_invalid:
