@@ -37,7 +37,6 @@ from node_runtime.model.controller import always_fresh, heard_at
 from orchestrator.array_session import ArrayBatch
 from orchestrator.catalogue import METRIC, Agg, Form, Out, shown_as
 from orchestrator.metrics import FIELDS as METRICS_FIELDS
-from orchestrator.metrics import F as METRICS_F
 from orchestrator.metrics import counters, share, total
 
 # the rewards it computes: from the paper's terms of the decisions, or from the step's counter changes
@@ -139,14 +138,14 @@ class BatchedSteps:
         jobs = env.scenario.workload.jobs is not None
         self.env_metrics = [(m, f"node_{key}") for m, key, _ in shown_as(Out.ENV, jobs)
                             if m.agg is not Agg.SAMPLES and f"node_{key}" in self.info_keys]
-        wanted = {f for m, _ in self.env_metrics for f in m.fields}
-        if self.reward_kind != "paper":
-            wanted |= {f for key in DELTA_KEYS for f in METRIC[key].fields}
-        self.columns = np.array(sorted(ARRAY_FIELDS.index(f) for f in wanted), dtype=np.int64)
-        self.into = np.array([METRICS_F[ARRAY_FIELDS[c]] for c in self.columns], dtype=np.int64)
-        owner = metrics.incidence.argmax(axis=0)  # each role's node (roles of a node are contiguous)
-        self.role_starts = np.flatnonzero(np.r_[True, owner[1:] != owner[:-1]])
-        self.role_nodes = owner[self.role_starts]
+        # each agent's node's roles (at most one of each kind, contiguous in canonical order): ``_tick`` adds them
+        # in canonical order, as ``Metrics._record`` does; the array's counters are the metrics' first columns
+        assert METRICS_FIELDS[:len(ARRAY_FIELDS)] == ARRAY_FIELDS
+        owner = metrics.incidence.argmax(axis=0)
+        roles = [np.flatnonzero(owner == node) for node in self.nodes]
+        self.node_roles = [(np.array([a for a, r in enumerate(roles) if len(r) > p]),
+                            np.array([r[p] for r in roles if len(r) > p])) for p in range(max(map(len, roles)))]
+        self.network = self.reward_kind == "network"
 
     # ----- episodes -----
 
@@ -158,8 +157,8 @@ class BatchedSteps:
         k = sim.k
         self.steps = 0
         self.invalid_count[:] = 0
-        self.last_nodes = np.zeros((k, len(self.nodes), len(METRICS_FIELDS)))
-        self.last_totals = np.zeros((k, len(METRICS_FIELDS)))
+        self.last_nodes = np.zeros((k, len(self.nodes), len(ARRAY_FIELDS)))
+        self.last_totals = np.zeros((k, len(ARRAY_FIELDS)))
         nodes, _, _ = self._tick()
         observation, mask = self._observe()
         invalid = np.zeros((k, len(self.agents)), dtype=bool)
@@ -183,7 +182,8 @@ class BatchedSteps:
         nodes, node_delta, network_delta = self._tick()
         for _ in range(sc.decision_interval - 1):
             nodes, more, more_network = self._tick()
-            node_delta, network_delta = node_delta + more, network_delta + more_network
+            node_delta = node_delta + more
+            network_delta = None if more_network is None else network_delta + more_network
         self.steps += 1
         self.invalid_count += invalid
         observation, new_mask = self._observe()
@@ -194,19 +194,21 @@ class BatchedSteps:
 
     # ----- one tick -----
 
-    def _tick(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Run a tick of every copy: the agents' nodes' counters at its end (the metrics' columns), their change
-        and the network's change over the tick."""
-        counters = self.sim.step()[:, :, self.columns]  # (K, roles, wanted)
-        k = counters.shape[0]
-        by_node = np.zeros((k, self.sim.n, len(self.columns)))
-        by_node[:, self.role_nodes] = np.add.reduceat(counters, self.role_starts, axis=1)
-        nodes = np.zeros((k, len(self.nodes), len(METRICS_FIELDS)))
-        nodes[:, :, self.into] = by_node[:, self.nodes]
-        totals = np.zeros((k, len(METRICS_FIELDS)))
-        totals[:, self.into] = counters.sum(axis=1)
-        node_delta, network_delta = nodes - self.last_nodes, totals - self.last_totals
-        self.last_nodes, self.last_totals = nodes, totals
+    def _tick(self) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
+        """Run a tick of every copy: the agents' nodes' counters at its end, their change
+        and (for a network's reward) the network's change over the tick (``Metrics._record``'s sums)."""
+        counters = self.sim.step()  # (K, roles, FIELDS)
+        (_, first), *others = self.node_roles
+        nodes = counters[:, first]
+        for agents, roles in others:
+            nodes[:, agents] = nodes[:, agents] + counters[:, roles]
+        node_delta = nodes - self.last_nodes
+        self.last_nodes = nodes
+        if not self.network:
+            return nodes, node_delta, None
+        totals = counters.sum(axis=1)
+        network_delta = totals - self.last_totals
+        self.last_totals = totals
         return nodes, node_delta, network_delta
 
     # ----- observations -----

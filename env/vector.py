@@ -224,10 +224,12 @@ class ZenohEdgeVectorEnv(EnvBase):
                 self._info[i, j] = [infos[agent][key] for key in self._info_keys]
 
     def _output(self, *, ended: np.ndarray) -> TensorDictBase:
-        """The batch as tensors: copies, since the arrays are overwritten by the next step."""
+        """The batch as tensors: copies of the per-copy path's arrays, since its next step overwrites them (the
+        batched path makes new ones every step)."""
         k, n = len(self.envs), len(self.agent_names)
-        observation = torch.from_numpy(self._observation.copy())
-        mask = torch.from_numpy(self._mask.copy())
+        own = (lambda a: a) if self.batched is not None else np.copy
+        observation = torch.from_numpy(own(self._observation))
+        mask = torch.from_numpy(own(self._mask))
         truncated = torch.from_numpy(ended).reshape(k, 1)
         group: dict[str, Any] = {
             "observation": TensorDict({"observation": observation}, batch_size=(k, n)),
@@ -238,7 +240,7 @@ class ZenohEdgeVectorEnv(EnvBase):
             "truncated": truncated.unsqueeze(1).expand(k, n, 1).clone(),
         }
         if self._info_keys:
-            numbers = torch.from_numpy(self._info.copy())  # (k, n, keys)
+            numbers = torch.from_numpy(own(self._info))  # (k, n, keys)
             group["info"] = TensorDict({key: numbers[..., j] for j, key in enumerate(self._info_keys)},
                                        batch_size=(k, n))
         return TensorDict({GROUP: TensorDict(group, batch_size=(k, n)), "done": truncated.clone(),
