@@ -19,13 +19,16 @@ The array rows run node-side policies, not an agent: they measure the simulation
 same child measurements for random-geometric scenarios of N nodes (``scale.py``'s) at ``--node-k`` copies.
 The load average is printed with each table.
 
-    python benchmarks/array_env.py --scenarios aot2 --env-steps 200 --env-ks 64 256 1024
+    python benchmarks/array_env.py --ks 1 --env-steps 50 --env-max-steps 100
 
-``--env-steps N`` adds, per scenario, the environments on the array backend, every agent driven with uniformly
-random allowed actions (an agent-step is one agent's step: steps x agents x K over the wall time of the steps,
-the actions' drawing included, episodes of ``--env-max-steps`` crossing resets): ``ZenohEdgeEnv`` in-process and
-with ``backend="array"`` (flat observations), and ``ZenohEdgeVectorEnv`` with K in-process simulations
-(``--env-inproc-k``) and with ``backend="array"`` at each K of ``--env-ks``.
+``--env-steps N`` adds the environments on each of ``--env-scenarios`` (aot2 and aot4), every agent driven with
+uniformly random allowed actions (an agent-step is one agent's step: steps x agents x K over the wall time of
+the steps, the actions' drawing included; episodes of ``--env-max-steps``): ``ZenohEdgeEnv`` in-process and
+with ``backend="array"`` (flat observations, crossing resets), and ``ZenohEdgeVectorEnv`` with K in-process
+simulations (``--env-inproc-k``), with ``backend="array"`` on its per-copy path at that K, and on its batched
+path at each K of ``--env-ks`` (64 ... 4096). A vector env's steps are timed after its first reset, which is
+reported apart ("reset s": drawing every copy's arrivals, in Python, once an episode); with N above the episode
+length they cross resets and include them.
 """
 
 from __future__ import annotations
@@ -158,36 +161,49 @@ def env_rate(backend: str, name: str, steps: int, max_steps: int) -> float:
     return steps * len(env.possible_agents) / wall
 
 
-def vector_rate(backend: str, name: str, steps: int, max_steps: int, k: int) -> float:
-    """Agent-steps/s of ``ZenohEdgeVectorEnv`` with K simulations, random allowed actions, resets as episodes end."""
+def vector_rate(backend: str, name: str, steps: int, max_steps: int, k: int,
+                batched: bool | None = None) -> tuple[float, float, str]:
+    """(agent-steps/s, reset seconds, path) of ``ZenohEdgeVectorEnv`` with K simulations and random allowed actions:
+    ``steps`` steps after a reset, timed apart from it (a reset draws every copy's arrivals, per copy in Python);
+    with ``steps`` > ``max_steps`` the steps cross episode ends and include their resets."""
     import torch
 
     from env.vector import GROUP, ZenohEdgeVectorEnv
 
-    def policy(td):
-        mask = td[GROUP, "action_mask"]
-        td[GROUP, "action"] = torch.multinomial(mask.flatten(0, -2).float(), 1).view(mask.shape[:-1])
-        return td
-
-    env = ZenohEdgeVectorEnv(name, num_envs=k, seed=1, backend=backend, max_steps=max_steps)
+    env = ZenohEdgeVectorEnv(name, num_envs=k, seed=1, backend=backend, max_steps=max_steps,
+                             **({} if backend == "emulator" else {"batched": batched}))
     start = time.perf_counter()
-    td = env.rollout(steps, policy, break_when_any_done=False)
+    td = env.reset()
+    reset = time.perf_counter() - start
+    generator = torch.Generator().manual_seed(0)
+    start = time.perf_counter()
+    for _ in range(steps):
+        mask = td[GROUP, "action_mask"]
+        td[GROUP, "action"] = (torch.rand(mask.shape, generator=generator) * mask).argmax(-1)  # uniform, allowed
+        _, td = env.step_and_maybe_reset(td)
     wall = time.perf_counter() - start
     env.close()
-    return td[GROUP, "action"].numel() / wall
+    return steps * k * len(env.agent_names) / wall, reset, env.path
 
 
-def env_table(name: str, args: argparse.Namespace) -> None:
-    print(f"\nenvironments: {name}, {args.env_steps} steps, episodes of {args.env_max_steps}, random allowed "
-          f"actions, load average {os.getloadavg()[0]:.1f}")
-    print(f"{'env':>22} {'agent-steps/s':>14}")
-    run = (name, args.env_steps, args.env_max_steps)
-    rows = [("ZenohEdgeEnv inproc", lambda: env_rate("emulator", *run)),
-            ("ZenohEdgeEnv array", lambda: env_rate("array", *run)),
-            (f"vector inproc {args.env_inproc_k}", lambda: vector_rate("emulator", *run, args.env_inproc_k))]
-    rows += [(f"vector array {k}", lambda k=k: vector_rate("array", *run, k)) for k in args.env_ks]
-    for label, measure in rows:
-        print(f"{label:>22} {measure():>14,.0f}", flush=True)
+def env_table(args: argparse.Namespace) -> None:
+    print(f"\nenvironments: {args.env_steps} steps, episodes of {args.env_max_steps}, random allowed actions, "
+          f"load average {os.getloadavg()[0]:.1f} on {os.cpu_count()} cores")
+    print(f"{'scenario':>8} {'env':>28} {'agent-steps/s':>14} {'reset s':>8}")
+    for name in args.env_scenarios:
+        run = (name, args.env_steps, args.env_max_steps)
+        inproc_k = args.env_inproc_k
+        rows = [("ZenohEdgeEnv inproc", env_rate, ("emulator", *run)),
+                ("ZenohEdgeEnv array", env_rate, ("array", *run)),
+                (f"vector inproc {inproc_k}", vector_rate, ("emulator", *run, inproc_k)),
+                (f"vector array {inproc_k}", vector_rate, ("array", *run, inproc_k, False))]
+        rows += [(f"vector array {k}", vector_rate, ("array", *run, k)) for k in args.env_ks]
+        for label, measure, given in rows:
+            result = measure(*given)
+            rate, reset, path = result if isinstance(result, tuple) else (result, None, "")
+            label = f"{label} {path}".strip()
+            print(f"{name:>8} {label:>28} {rate:>14,.0f} {'' if reset is None else f'{reset:.2f}':>8}", flush=True)
+    print(f"load average {os.getloadavg()[0]:.1f} at the end")
 
 
 def main() -> None:
@@ -206,7 +222,8 @@ def main() -> None:
     ap.add_argument("--node-k", type=int, default=16, help="copies of each of those (default 16)")
     ap.add_argument("--env-steps", type=int, default=0, help="also the envs with backend='array', this many steps")
     ap.add_argument("--env-max-steps", type=int, default=100)
-    ap.add_argument("--env-ks", type=int, nargs="+", default=[64, 256, 1024])
+    ap.add_argument("--env-ks", type=int, nargs="+", default=[64, 256, 1024, 4096])
+    ap.add_argument("--env-scenarios", nargs="+", default=["aot2", "aot4"])
     ap.add_argument("--env-inproc-k", type=int, default=4)
     args = ap.parse_args()
     print(version_line())
@@ -224,8 +241,8 @@ def main() -> None:
             print(array_row("array", k, in_child("scenario", name, args.policy, str(args.ticks), str(k)), reference),
                   flush=True)
         print(f"after: {load()}")
-        if args.env_steps:
-            env_table(name, args)
+    if args.env_steps:
+        env_table(args)
     if args.nodes:
         print(f"\nrandom-geometric scenarios of N nodes (benchmarks/scale.py), their own policy, K = {args.node_k}, "
               f"{args.ticks} ticks, {load()}\n{header.replace('backend', 'nodes')}")

@@ -17,7 +17,11 @@ With ``backend="array"`` the K simulations are the K copies of one array program
 together in one call per tick, and each copy's ``ZenohEdgeEnv`` reads its copy as it would read its own
 simulation: the same observations, rewards and infos as K in-process environments with the same seeds
 and actions. Its copies start their episodes together (every episode has the same length, so they also end
-together); a reset that names only some of them is refused.
+together); a reset that names only some of them is refused. Two paths make its tensors (``path`` says which
+one a setting takes): "batched" (the default where it covers the setting: ``env.batched`` computes every
+copy's observations, masks, rewards and info numbers at once from the backend's arrays, and nothing of the
+copies' own environments runs) or "per-copy" (each copy's ``ZenohEdgeEnv`` reads its copy: any reward, any
+setting, their ``step_details`` and ``summary()``; ``env.batched.uncovered`` says why a setting takes it).
 
 Optional dependency: ``pip install -e ".[marl]"`` (TorchRL).
 """
@@ -32,6 +36,7 @@ from tensordict import TensorDict, TensorDictBase
 from torchrl.data import Binary, Categorical, Composite, Unbounded
 from torchrl.envs import EnvBase
 
+from env.batched import BatchedSteps, uncovered
 from env.environment import ZenohEdgeEnv
 from orchestrator.array_session import ArrayBatch
 
@@ -49,6 +54,9 @@ class ZenohEdgeVectorEnv(EnvBase):
         info_numbers: put the flat infos under ``("agents", "info", key)`` (one (K, N) tensor per number).
         backend: "emulator" (K in-process simulations of the node code) or "array" (one array program of K
             copies; docs/env.md, "Backends").
+        batched: with the array backend, None (default): the batched path where it covers the setting, else the
+            per-copy path; True: the batched path or a ``ValueError`` saying what it does not cover; False: the
+            per-copy path.
         **kwargs: any other ``ZenohEdgeEnv`` argument but ``observation``, ``transport`` and ``connect``
             (flat and in-process here), e.g. ``max_steps``, ``reward``, ``overrides``.
 
@@ -58,7 +66,8 @@ class ZenohEdgeVectorEnv(EnvBase):
     """
 
     def __init__(self, scenario: Any = "aot1", *, num_envs: int = 1, seed: int | None = None,
-                 info_numbers: bool = True, backend: str = "emulator", **kwargs: Any) -> None:
+                 info_numbers: bool = True, backend: str = "emulator", batched: bool | None = None,
+                 **kwargs: Any) -> None:
         if isinstance(num_envs, bool) or not isinstance(num_envs, int) or num_envs < 1:
             raise ValueError(f"num_envs must be an integer >= 1, not {num_envs!r}")
         for fixed in ("observation", "transport", "connect"):
@@ -74,10 +83,20 @@ class ZenohEdgeVectorEnv(EnvBase):
         self._started = False  # the first reset resets every simulation, whatever it is asked
         self._make_specs(first, info_numbers)
         self.batch: ArrayBatch | None = None
+        self.batched: BatchedSteps | None = None
+        self.path = "per-copy"  # how the tensors are made: "batched" (array backend only) or "per-copy"
         if backend == "array":  # one program of K copies: each env reads its copy as its simulation
             self.batch = ArrayBatch(first.scenario, num_envs, first.episode_ticks)
             for env, copy in zip(self.envs, self.batch.copies, strict=True):
                 env.sim = copy
+            reason = uncovered(first)
+            if batched and reason is not None:
+                raise ValueError(f"the batched array path does not cover {reason}")
+            if batched is not False and reason is None:
+                self.batched = BatchedSteps(first, self.batch, self._info_keys)
+                self.path = "batched"
+        elif batched:
+            raise ValueError("batched=True needs backend='array'")
         # every simulation's first reset gets its seed explicitly (the spec probe above reset the first one)
         self._set_seed(int(np.random.SeedSequence().entropy % 2**31) if seed is None else seed)
 
@@ -131,6 +150,11 @@ class ZenohEdgeVectorEnv(EnvBase):
 
     def _step(self, tensordict: TensorDictBase) -> TensorDictBase:
         actions = tensordict.get((GROUP, "action")).cpu().numpy()
+        if self.batched is not None:
+            self._observation, self._mask, rewards, ended, self._info = self.batched.step(actions, self._mask)
+            out = self._output(ended=np.full(len(self.envs), ended))
+            out.set((GROUP, "reward"), torch.from_numpy(rewards.astype(np.float32)).unsqueeze(-1))
+            return out
         rewards = np.zeros((len(self.envs), len(self.agent_names)), dtype=np.float32)
         ended = np.zeros(len(self.envs), dtype=bool)
         steps = self._step_batch(actions) if self.batch is not None else (
@@ -157,6 +181,9 @@ class ZenohEdgeVectorEnv(EnvBase):
                              f"asked to reset {int(which.sum())} of {len(which)}")
         seeds = [env._episode_seed(seed) for env, seed in zip(self.envs, self._seeds, strict=True)]
         self._seeds = [None] * len(self.envs)
+        if self.batched is not None:
+            self._observation, self._mask, self._info = self.batched.reset(seeds)
+            return self._output(ended=np.zeros(len(self.envs), dtype=bool))
         reports = self.batch.reset(seeds, external=self.envs[0]._driven())
         for i, (env, report) in enumerate(zip(self.envs, reports, strict=True)):
             self._write(i, *env._started(report))
@@ -197,10 +224,12 @@ class ZenohEdgeVectorEnv(EnvBase):
                 self._info[i, j] = [infos[agent][key] for key in self._info_keys]
 
     def _output(self, *, ended: np.ndarray) -> TensorDictBase:
-        """The batch as tensors: copies, since the arrays are overwritten by the next step."""
+        """The batch as tensors: copies of the per-copy path's arrays, since its next step overwrites them (the
+        batched path makes new ones every step)."""
         k, n = len(self.envs), len(self.agent_names)
-        observation = torch.from_numpy(self._observation.copy())
-        mask = torch.from_numpy(self._mask.copy())
+        own = (lambda a: a) if self.batched is not None else np.copy
+        observation = torch.from_numpy(own(self._observation))
+        mask = torch.from_numpy(own(self._mask))
         truncated = torch.from_numpy(ended).reshape(k, 1)
         group: dict[str, Any] = {
             "observation": TensorDict({"observation": observation}, batch_size=(k, n)),
@@ -211,7 +240,7 @@ class ZenohEdgeVectorEnv(EnvBase):
             "truncated": truncated.unsqueeze(1).expand(k, n, 1).clone(),
         }
         if self._info_keys:
-            numbers = torch.from_numpy(self._info.copy())  # (k, n, keys)
+            numbers = torch.from_numpy(own(self._info))  # (k, n, keys)
             group["info"] = TensorDict({key: numbers[..., j] for j, key in enumerate(self._info_keys)},
                                        batch_size=(k, n))
         return TensorDict({GROUP: TensorDict(group, batch_size=(k, n)), "done": truncated.clone(),

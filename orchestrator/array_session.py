@@ -43,6 +43,12 @@ class ArrayBatch:
               policy: str | None = None) -> list[TickReport]:
         """Start an episode in every copy (copy c with ``seeds[c]``) and run its tick 0. ``external``: the
         controller roles an agent drives; ``policy``: the node-side policy of the others, for this episode."""
+        self.begin(seeds, external, policy)
+        return self._tick()
+
+    def begin(self, seeds: Sequence[int], external: Sequence[str] | None = None, policy: str | None = None) -> None:
+        """``reset`` up to its tick 0, which the caller runs (``sim.step()``): the batched vector env reads the
+        copies' arrays itself (env/batched.py), so their ``Metrics`` are left at their reset."""
         sc, sim = self.scenario, self.sim
         self.external = tuple(external or ())
         self._nodes = tuple(sc.index[role_node(r)] for r in self.external)
@@ -53,7 +59,6 @@ class ArrayBatch:
             metrics.reset()
             view.seed, view.policy = int(seed), policy
         self.started = time.perf_counter()
-        return self._tick()
 
     def step(self, actions: Sequence[dict[str, Action] | None]) -> list[TickReport]:
         """One tick of every copy; ``actions[c]``: copy c's driven controllers' answers to their last

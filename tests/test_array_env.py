@@ -179,15 +179,20 @@ def test_a_backend_it_does_not_know_is_refused():
         ZenohEdgeEnv("aot2", backend="jax")
 
 
-def vector_difference(name: str, k: int, steps: int, max_steps: int, **kwargs: Any) -> str | None:
-    """``ZenohEdgeVectorEnv`` over the array backend against K in-process simulations, through episode ends
-    (each resets when done): where their tensors first differ, or None."""
+def vector_difference(name: str, k: int, steps: int, max_steps: int, batched: bool | None = None,
+                      any_action: bool = False, **kwargs: Any) -> str | None:
+    """``ZenohEdgeVectorEnv`` over the array backend (``batched``: its path, as the env's argument) against K
+    in-process simulations, through episode ends (each resets when done): where their tensors first differ, or
+    None. The actions are drawn among those the masks allow, or with ``any_action`` among all (masked choices
+    then stay local and count as invalid)."""
     import torch
 
     from env.vector import GROUP, ZenohEdgeVectorEnv
 
-    envs = [ZenohEdgeVectorEnv(name, num_envs=k, seed=11, backend=backend, max_steps=max_steps, **kwargs)
-            for backend in ("emulator", "array")]
+    envs = [ZenohEdgeVectorEnv(name, num_envs=k, seed=11, max_steps=max_steps, **kwargs),
+            ZenohEdgeVectorEnv(name, num_envs=k, seed=11, backend="array", batched=batched, max_steps=max_steps,
+                               **kwargs)]
+    assert envs[1].path == ("per-copy" if batched is False else "batched")
     rng = np.random.default_rng(0)
     try:
         tds = [env.reset() for env in envs]
@@ -196,11 +201,12 @@ def vector_difference(name: str, k: int, steps: int, max_steps: int, **kwargs: A
                 if not torch.equal(tds[0].get(key), tds[1].get(key)):
                     return f"step {step}: {key}"
             mask = tds[0].get((GROUP, "action_mask")).numpy()
-            action = torch.from_numpy(np.apply_along_axis(lambda m: rng.choice(np.flatnonzero(m)), -1, mask))
+            allowed = np.ones_like(mask) if any_action else mask
+            action = torch.from_numpy(np.apply_along_axis(lambda m: rng.choice(np.flatnonzero(m)), -1, allowed))
             outs = []
-            for env, td in zip(envs, tds, strict=True):
+            for j, (env, td) in enumerate(zip(envs, tds, strict=True)):
                 td.set((GROUP, "action"), action.clone())
-                out, td = env.step_and_maybe_reset(td)
+                out, tds[j] = env.step_and_maybe_reset(td)  # the next step acts on what this one observed
                 outs.append(out.get("next"))
             for key in outs[0].keys(include_nested=True, leaves_only=True):
                 if not torch.equal(outs[0].get(key), outs[1].get(key)):
@@ -212,5 +218,69 @@ def vector_difference(name: str, k: int, steps: int, max_steps: int, **kwargs: A
 
 
 def test_the_array_vector_env_steps_as_k_inprocess_envs():
+    """The per-copy path: each copy's ZenohEdgeEnv reads its copy."""
     pytest.importorskip("torchrl")
-    assert vector_difference("aot1", 2, 30, 12) is None
+    assert vector_difference("aot1", 2, 30, 12, batched=False) is None
+
+
+# (scenario, copies, steps, episode length, arguments) of the batched path against K in-process environments,
+# every reward it computes and the settings it covers; CI runs the first two
+VECTOR = [("aot1", 2, 30, 12, {"any_action": True}),
+          ("aot2", 2, 25, 10, {"reward": "marginal", "any_action": True}),
+          ("aot3", 3, 25, 10, {"reward": "sparse"}), ("aot4", 2, 20, 8, {"reward": "team_score"}),
+          ("aot1_urgent", 2, 40, 15, {"reward": "score", "any_action": True}),
+          ("aot2", 2, 20, 8, {"overrides": ScenarioOverrides(mode="batch", batch_size=3), "any_action": True}),
+          ("aot2", 2, 20, 8, {"overrides": ScenarioOverrides(decision_interval=3), "reward": "team"}),
+          ("aot3", 2, 20, 8, {"agents": ["rpi3_0", "rpi3_2", "rpi3_4"], "reward": "score"}),
+          ("aot2", 2, 20, 8, {"overrides": ScenarioOverrides(mode="batch", batch_size=2, decision_interval=2),
+                              "reward": "marginal", "neighbour_slots": 20, "any_action": True}),
+          ("aot4", 2, 20, 8, {"reward": "paper", "info_numbers": False, "any_action": True})]
+VECTOR_CI = 2
+
+
+@pytest.mark.parametrize(("name", "k", "steps", "max_steps", "kwargs"), VECTOR,
+                         ids=lambda v: v if isinstance(v, str) else None)
+def test_the_batched_vector_env_steps_as_k_inprocess_envs(name, k, steps, max_steps, kwargs, request):
+    pytest.importorskip("torchrl")
+    if VECTOR.index((name, k, steps, max_steps, kwargs)) >= VECTOR_CI and not request.config.getoption("--all"):
+        pytest.skip("the full set runs with --all")
+    assert vector_difference(name, k, steps, max_steps, **kwargs) is None
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("name", full_set())
+def test_the_batched_vector_env_on_every_bundled_scenario_it_takes(name, request):
+    if not request.config.getoption("--all"):
+        pytest.skip("the full set runs with --all")
+    pytest.importorskip("torchrl")
+    assert vector_difference(name, 2, 30, 12, reward="marginal", any_action=True) is None
+
+
+def test_a_broken_rule_of_the_batched_path_is_caught(monkeypatch):
+    """The comparison can fail: a task's time left one tick shorter than it is, or marginal's delta taken over
+    the network rather than the agent's node, make the batched env differ."""
+    pytest.importorskip("torchrl")
+    from env import batched
+
+    sizes = batched.BatchedSteps._sizes
+
+    def shorter(self):
+        sizes(self)
+        self.size[..., 4] -= self.sim.dt  # every deadline, as the observation shows it
+
+    with monkeypatch.context() as m:
+        m.setattr(batched.BatchedSteps, "_sizes", shorter)
+        assert "observation" in (vector_difference("aot2", 2, 10, 8) or "")
+    with monkeypatch.context() as m:
+        m.setattr(batched, "REWARDS", {**batched.REWARDS, batched.marginal_reward: "network"})
+        assert "reward" in (vector_difference("aot2", 2, 10, 8, reward="marginal") or "")
+
+
+def test_what_the_batched_path_does_not_cover_takes_the_per_copy_path_or_is_refused():
+    pytest.importorskip("torchrl")
+    from env.vector import ZenohEdgeVectorEnv
+
+    assert ZenohEdgeVectorEnv("aot1", num_envs=2, backend="array", max_steps=5, reward="reference").path == "per-copy"
+    with pytest.raises(ValueError, match="batched array path does not cover reward reference") as info:
+        ZenohEdgeVectorEnv("aot1", num_envs=2, backend="array", max_steps=5, reward="reference", batched=True)
+    assert "\n" not in str(info.value)

@@ -447,6 +447,15 @@ class ArraySim:
         self.ask_action[copy, i[shown]] = np.asarray(actions)[shown]
         self.given[copy, i[shown]] = True
 
+    def act_all(self, nodes: np.ndarray, actions: np.ndarray) -> None:
+        """``act`` for every copy at once: ``actions[c, a, b]`` answers task slot b of the driven controller of node
+        index ``nodes[a]`` in copy c (entries of slots without a task are ignored)."""
+        i = self.slots[:, nodes, :actions.shape[2]]
+        c = np.broadcast_to(np.arange(self.k)[:, None, None], i.shape)
+        shown = i >= 0
+        self.ask_action[c[shown], i[shown]] = actions[shown]
+        self.given[c[shown], i[shown]] = True
+
     def _enter(self, phase: int, step: int = 0) -> None:
         """The part of its tick a role is in: its ledger entries are ordered by it, then by their key."""
         self._stage = (phase, step)
