@@ -71,7 +71,7 @@ def test_auto_falls_back_to_the_emulator_for_a_refused_scenario_in_one_line(tmp_
     train.main(args)
     err = capsys.readouterr().err.strip().splitlines()
     assert err == ["python -m experiments.train: --backend auto: the emulator (scenario aot1_reference: the array "
-                   "backend does not support admission 'queue_first')"]
+                   "backend does not support admission 'queue_first' while agents drive controllers)"]
     assert json.loads((tmp_path / "config.json").read_text())["backend"] == "emulator"
     with pytest.raises(SystemExit) as e:  # asked for by name, the array backend's refusal is the user's error
         train.main([*args, "--backend", "array"])
