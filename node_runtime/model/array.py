@@ -868,15 +868,20 @@ class ArraySim:
         arrive = np.maximum(t + 1, np.ceil(finish).astype(np.int64))
         self._send(c, i, kind, dst, arrive, roles, self.worker_rank[src])
 
-    def _admit(self, t: int) -> None:
+    def _mail(self, state: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """This tick's messages of ``state`` (tasks or relayed results): copy, task and the worker they reach,
+        in the canonical mail order (arrival tick, sender, sender's sequence)."""
         c, i = self.arriving
-        here = self.state[c, i] == TO_WORKER
+        here = self.state[c, i] == state
         c, i = c[here], i[here]
-        if not len(c):
-            return
         nd = self.node[c, i]
         by = np.lexsort((self.seq[c, i], self.src_rank[c, i], nd, c))
-        c, i, nd = c[by], i[by], nd[by]
+        return c[by], i[by], nd[by]
+
+    def _admit(self, t: int) -> None:
+        c, i, nd = self._mail(TO_WORKER)
+        if not len(c):
+            return
         roles = self.worker[nd]
         self._enter(ADMISSION)
         key = np.arange(len(c))  # mail order
@@ -979,14 +984,9 @@ class ArraySim:
     def _relay(self, t: int) -> None:
         """Results reaching a worker on their way back, routed on at once in mail order (``Worker.tick``'s inbox);
         a worker that is down drops them."""
-        c, i = self.arriving
-        here = self.state[c, i] == TO_RELAY
-        c, i = c[here], i[here]
+        c, i, nd = self._mail(TO_RELAY)
         if not len(c):
             return
-        nd = self.node[c, i]
-        by = np.lexsort((self.seq[c, i], self.src_rank[c, i], nd, c))
-        c, i, nd = c[by], i[by], nd[by]
         failed = self.down[t, nd]
         self._enter(RELAY)
         self._drop(c[failed], i[failed], self.worker[nd[failed]], "node_failure", np.arange(len(c))[failed])
