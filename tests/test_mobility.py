@@ -65,13 +65,18 @@ def test_gauss_markov_one_step_by_hand(tmp_path):
     assert p.at("m", 2) == pytest.approx((x1 + max(s1, 0) * 2 * math.cos(d1), y1 + max(s1, 0) * 2 * math.sin(d1)))
 
 
+def walk(p: Positions, ticks: int) -> np.ndarray:
+    """Node m's positions in ticks 0 .. ticks - 1, one row each (pytest.approx compares arrays of any shape)."""
+    return np.array([p.at("m", k) for k in range(ticks)])
+
+
 def test_gauss_markov_without_noise_and_its_reflection(tmp_path):
     """Sigmas 0, alpha 0.3, 10 m/s, mean direction 0 (east), from x = 85 in [0, 100]. Tick 1: 95, and
     d1 = 0.3·0 + 0.7·0 = 0. Tick 2: 105 folds back to 95 and the direction to π; d2 = 0.3·π + 0.7·0 = 0.3π.
     Tick 3: 95 + 10·cos(0.3π) = 100.88 folds back to 200 − 100.88, y = 5 + 10·sin(0.3π)."""
     p = positions(tmp_path, {"model": "gauss_markov", "area": AREA, "alpha": 0.3, "speed": 10}, position=(85, 5))
     third = (200 - (95 + 10 * math.cos(0.3 * math.pi)), 5 + 10 * math.sin(0.3 * math.pi))
-    assert [p.at("m", k) for k in range(4)] == pytest.approx([(85, 5), (95, 5), (95, 5), third])
+    assert walk(p, 4) == pytest.approx(np.array([(85, 5), (95, 5), (95, 5), third]))
 
 
 def test_a_trace_is_interpolated_by_hand(tmp_path):
@@ -79,8 +84,8 @@ def test_a_trace_is_interpolated_by_hand(tmp_path):
     leg (20, 10); tick 3 (6 s) a third along the second (40, 40); before and after, the end samples."""
     (tmp_path / "moves.csv").write_text("t,node,x,y\n4,m,40,20\n0,m,0,0\n10,m,40,80\n0,other,5,5\n")
     p = positions(tmp_path, {"model": "trace", "file": "moves.csv"}, dt=2.0)
-    assert [p.at("m", k) for k in range(7)] == pytest.approx(
-        [(0, 0), (20, 10), (40, 20), (40, 40), (40, 60), (40, 80), (40, 80)])
+    assert walk(p, 7) == pytest.approx(
+        np.array([(0, 0), (20, 10), (40, 20), (40, 40), (40, 60), (40, 80), (40, 80)]))
 
 
 def test_a_sumo_fcd_file_through_sumolib(tmp_path):
@@ -92,7 +97,7 @@ def test_a_sumo_fcd_file_through_sumolib(tmp_path):
         '    <vehicle id="veh0" x="14.00" y="9.00" angle="0" speed="2"/>\n'
         '    <vehicle id="veh1" x="0.00" y="0.00" angle="0" speed="0"/>\n  </timestep>\n</fcd-export>\n')
     p = positions(tmp_path, {"model": "fcd", "file": "fcd.xml", "vehicle": "veh0"})
-    assert [p.at("m", k) for k in range(4)] == pytest.approx([(10, 5), (12, 7), (14, 9), (14, 9)])
+    assert walk(p, 4) == pytest.approx(np.array([(10, 5), (12, 7), (14, 9), (14, 9)]))
 
 
 def test_random_waypoint_walks_its_legs_at_their_speeds_and_pauses(tmp_path):
