@@ -230,15 +230,7 @@ def section(table: Table, figures: Path, link: str, reps: int, progress: Any = N
         if p == ref:
             step()
             continue
-        poi = (_ci(stats.bootstrap_improvement(table.scores(p, "normalised_score", scored),
-                                               table.scores(ref, "normalised_score", scored), reps))
-               if scored else "—")
-        c = stats.paired(table.per_episode(p, "completion_ratio"), table.per_episode(ref, "completion_ratio"),
-                         reps=reps)
-        r = stats.paired(table.per_episode(p, "penalised_response_time"),
-                         table.per_episode(ref, "penalised_response_time"), higher_is_better=False, reps=reps)
-        lines.append(f"| `{p}` | {poi} | {_ci(c.difference, 100, 1)} | {c.wins}/{c.ties}/{c.losses} | "
-                     f"{_ci(r.difference, 1, 1)} | {r.wins}/{r.ties}/{r.losses} |")
+        lines.append(f"| `{p}` | {improvement(table, p, ref, scored, reps)} | {paired_cells(table, p, ref, reps)} |")
         step()
     lines.append("")
     every = [p for p in policies if table.runs[p] == [None]]  # local too
@@ -266,22 +258,33 @@ def against_baselines(table: Table, learner: str, baselines: Sequence[str], scor
              "| baseline | P(learner > baseline) | IQM intervals | Δ completion [points] | W/T/L | "
              "Δ penalised response [s] | W/T/L |", "| --- | --- | --- | --- | --- | --- | --- |"]
     for b in baselines:
-        poi = (_ci(stats.bootstrap_improvement(table.scores(learner, "normalised_score", scored),
-                                               table.scores(b, "normalised_score", scored), reps))
-               if scored else "—")
         if scored:
             mine, theirs = interval[learner], interval[b]
             disjoint = ("disjoint, above" if mine.low > theirs.high else
                         "disjoint, below" if mine.high < theirs.low else "overlap")
         else:
             disjoint = "—"
-        c = stats.paired(table.per_episode(learner, "completion_ratio"), table.per_episode(b, "completion_ratio"),
-                         reps=reps)
-        r = stats.paired(table.per_episode(learner, "penalised_response_time"),
-                         table.per_episode(b, "penalised_response_time"), higher_is_better=False, reps=reps)
-        lines.append(f"| `{b}` | {poi} | {disjoint} | {_ci(c.difference, 100, 1)} | {c.wins}/{c.ties}/{c.losses} | "
-                     f"{_ci(r.difference, 1, 1)} | {r.wins}/{r.ties}/{r.losses} |")
+        lines.append(f"| `{b}` | {improvement(table, learner, b, scored, reps)} | {disjoint} | "
+                     f"{paired_cells(table, learner, b, reps)} |")
     return [*lines, ""]
+
+
+def improvement(table: Table, p: str, ref: str, scored: Sequence[Key], reps: int) -> str:
+    """P(p > ref) on the normalised score with its interval ("—" where no episode is scored)."""
+    if not scored:
+        return "—"
+    return _ci(stats.bootstrap_improvement(table.scores(p, "normalised_score", scored),
+                                           table.scores(ref, "normalised_score", scored), reps))
+
+
+def paired_cells(table: Table, p: str, ref: str, reps: int) -> str:
+    """The paired per-episode cells of p against ref: Δ completion [points] | W/T/L | Δ penalised response [s] |
+    W/T/L."""
+    c = stats.paired(table.per_episode(p, "completion_ratio"), table.per_episode(ref, "completion_ratio"), reps=reps)
+    r = stats.paired(table.per_episode(p, "penalised_response_time"), table.per_episode(ref, "penalised_response_time"),
+                     higher_is_better=False, reps=reps)
+    return (f"{_ci(c.difference, 100, 1)} | {c.wins}/{c.ties}/{c.losses} | "
+            f"{_ci(r.difference, 1, 1)} | {r.wins}/{r.ties}/{r.losses}")
 
 
 def load_classes(manifest: Path | None) -> dict[str, str]:

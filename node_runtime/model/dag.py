@@ -100,17 +100,11 @@ class Span(Strict):
         return self
 
 
-class CountSpan(Strict):
+class CountSpan(Span):
     """A whole number drawn uniformly from low .. high, both included."""
 
     low: Count
     high: Count
-
-    @model_validator(mode="after")
-    def _ordered(self) -> CountSpan:
-        if self.high < self.low:
-            raise ValueError("high must be >= low")
-        return self
 
 
 class LayeredDag(Strict):
