@@ -212,7 +212,8 @@ class TargetScorer(nn.Module):
     is local, and the task's estimates there. The same weights serve every slot, so each decision teaches
     the network about every target it compared, a neighbour learnt in one slot is understood in any
     other, and the policy does not depend on the order of the neighbours or their number: it transfers
-    to other degrees and topologies. Any columns after the estimates (the agent id) are not used.
+    to other degrees and topologies. Any columns after the estimates (the agent id) are not used. An empty
+    slot (no neighbour) scores 0: the action mask never allows it.
     """
 
     def __init__(self, slots: int, hidden: Sequence[int], out_gain: float = 0.01) -> None:
@@ -236,7 +237,12 @@ class TargetScorer(nn.Module):
         is_local = torch.zeros(*lead, 1 + s, 1, dtype=x.dtype, device=x.device)
         is_local[..., 0, :] = 1.0
         rows = torch.cat([context.unsqueeze(-2).expand(*lead, 1 + s, -1), is_local, targets, estimates], dim=-1)
-        return self.score(rows).squeeze(-1)
+        # only the targets that exist are scored: an empty slot is masked whatever its score (0 here), and with
+        # 32 slots for nodes of a few neighbours, scoring them all would be most of the work
+        present = targets[..., 0] > 0
+        scores = torch.zeros(*lead, 1 + s, dtype=x.dtype, device=x.device)
+        scores[present] = self.score(rows[present]).squeeze(-1)
+        return scores
 
 
 def _init(layer: nn.Linear, gain: float) -> nn.Linear:
