@@ -17,7 +17,7 @@ decision state (computed when the transition closed). lambda = 1 gives A2C's n-s
 from __future__ import annotations
 
 from abc import abstractmethod
-from collections.abc import Mapping
+from collections.abc import Hashable, Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any
 
@@ -134,6 +134,20 @@ def uncredited_removed(records: list[Record]) -> list[Record]:
     return kept
 
 
+def advantages(reward: Sequence[float], value: Sequence[float], next_value: Sequence[float],
+               discount: Sequence[float], last: Sequence[bool], chain: Sequence[Hashable], lam: float) -> np.ndarray:
+    """GAE over transitions listed in time order: each continues the next one of its chain (its agent's) in the
+    list, unless it is the ``last`` of an episode; the last of a chain in the list bootstraps from its
+    ``next_value`` alone (the module docstring's recursion, in Python floats, then float32)."""
+    adv = np.zeros(len(reward), dtype=np.float32)
+    following: dict[Hashable, float] = {}  # advantage of the chain's next transition, walking backwards
+    for i in range(len(reward) - 1, -1, -1):
+        delta = reward[i] + discount[i] * next_value[i] - value[i]
+        cont = 0.0 if last[i] else following.get(chain[i], 0.0)
+        adv[i] = following[chain[i]] = delta + discount[i] * lam * cont
+    return adv
+
+
 class OnPolicyLearner(Learner):
     """Acting with a masked categorical, collecting records, and handing batches to ``update_group``."""
 
@@ -238,15 +252,9 @@ class OnPolicyLearner(Learner):
 
     def batch(self, records: list[Record]) -> dict[str, torch.Tensor]:
         """Tensors of a rollout, with GAE advantages and the critic's targets (returns)."""
-        lam = self.config.gae_lambda
-        adv = np.zeros(len(records), dtype=np.float32)
-        following: dict[str, float] = {}  # advantage of the agent's next record, walking backwards
-        for i in range(len(records) - 1, -1, -1):
-            r = records[i]
-            reward = r.reward if r.source is None else r.source.credit
-            delta = reward + r.discount * r.next_value - r.value
-            cont = 0.0 if r.last else following.get(r.agent, 0.0)
-            adv[i] = following[r.agent] = delta + r.discount * lam * cont
+        adv = advantages([r.reward if r.source is None else r.source.credit for r in records],
+                         [r.value for r in records], [r.next_value for r in records], [r.discount for r in records],
+                         [r.last for r in records], [r.agent for r in records], self.config.gae_lambda)
         values = np.array([r.value for r in records], dtype=np.float32)
         out = {"obs": np.stack([r.features for r in records]), "critic": np.stack([r.critic for r in records]),
                "mask": np.stack([r.mask for r in records]), "action": np.array([r.action for r in records]),
