@@ -33,6 +33,7 @@ from env.reward import (
     team_score_reward,
 )
 from node_runtime.model.array import FIELDS as ARRAY_FIELDS
+from node_runtime.model.array import LedgerRows
 from node_runtime.model.controller import always_fresh, heard_at
 from orchestrator.array_session import ArrayBatch
 from orchestrator.catalogue import METRIC, Agg, Form, Out, shown_as
@@ -75,6 +76,7 @@ class BatchedSteps:
         if reason is not None:
             raise ValueError(f"the batched array path does not cover {reason}")
         self.env, self.batch, self.sim = env, batch, batch.sim
+        self.sim.listing = False  # nothing here reads the copies' ledgers as lists: ``ledgers`` keeps the arrays
         sc = env.scenario
         self.agents = list(env.possible_agents)
         self.nodes = np.array([env._row[a] for a in self.agents])
@@ -85,10 +87,18 @@ class BatchedSteps:
         self._metrics_plan(env, batch)
         self.steps = 0
         self.invalid_count = np.zeros((batch.sim.k, len(self.agents)), dtype=np.int64)
+        self.ledgers: list[LedgerRows] = []  # the ledgers of the last reset's or step's ticks, one per tick
+        self.counters = np.zeros((batch.sim.k, 0, len(ARRAY_FIELDS)))  # every role's counters after the last tick
         self._ages_at: dict[int, np.ndarray] = {}
         self._fresh = np.array([always_fresh(sc, (sc.nodes[i].id, *sc.neighbours[sc.nodes[i].id]))
                                 for i in self.nodes])
         self._sc = sc
+
+    @classmethod
+    def of(cls, env: ZenohEdgeEnv, k: int, info_keys: Sequence[str] = ()) -> BatchedSteps:
+        """K copies of ``env``'s scenario and settings in a new array batch (``Unsupported`` or a ValueError
+        says in one line what they do not cover)."""
+        return cls(env, ArrayBatch(env.scenario, k, env.episode_ticks), info_keys)
 
     # ----- set-up: what does not change -----
 
@@ -159,6 +169,7 @@ class BatchedSteps:
         self.invalid_count[:] = 0
         self.last_nodes = np.zeros((k, len(self.nodes), len(ARRAY_FIELDS)))
         self.last_totals = np.zeros((k, len(ARRAY_FIELDS)))
+        self.ledgers = []
         nodes, _, _ = self._tick()
         observation, mask = self._observe()
         invalid = np.zeros((k, len(self.agents)), dtype=bool)
@@ -179,6 +190,7 @@ class BatchedSteps:
         acts, invalid = self._resolve(actions, mask)
         rewards = self._paper(acts) if self.reward_kind == "paper" else None
         sim.act_all(self.nodes, acts)
+        self.ledgers = []
         nodes, node_delta, network_delta = self._tick()
         for _ in range(sc.decision_interval - 1):
             nodes, more, more_network = self._tick()
@@ -197,7 +209,8 @@ class BatchedSteps:
     def _tick(self) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
         """Run a tick of every copy: the agents' nodes' counters at its end, their change
         and (for a network's reward) the network's change over the tick (``Metrics._record``'s sums)."""
-        counters = self.sim.step()  # (K, roles, FIELDS)
+        counters = self.counters = self.sim.step()  # (K, roles, FIELDS)
+        self.ledgers.append(self.sim.ledger_rows)
         (_, first), *others = self.node_roles
         nodes = counters[:, first]
         for agents, roles in others:
@@ -255,7 +268,7 @@ class BatchedSteps:
         out[c, ag, base + TaskField.WAITED_TICKS] = t - sim.arrived[c, i]
         mask = np.where(present[..., None], self.allowed[None, :, None, :], False)
         mask[..., 0] = True
-        self.present = present
+        self.present, self.shown = present, slots  # shown: the task index in each slot (-1: none)
         return out, mask if self.batch_size is not None else mask[:, :, 0]
 
     # ----- actions and rewards -----

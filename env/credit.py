@@ -24,7 +24,10 @@ from __future__ import annotations
 
 from collections.abc import Iterable
 
+import numpy as np
+
 from env.reward import RewardSettings
+from node_runtime.model.array import LedgerRows
 from node_runtime.model.role import CHARGED, COMPLETED
 
 Credits = dict[str, list[tuple[int, float]]]  # agent -> [(step of the decision, credit)]
@@ -95,3 +98,53 @@ class TaskCredit:
         self._settled.add(task)
         if len(self._settled) >= SETTLED_MEMORY:
             self._settled_before, self._settled = self._settled, set()
+
+
+class ArrayCredit:
+    """``TaskCredit`` for the K copies of an array batch at once, task by task: each task's credit once it has
+    settled, in arrays indexed as the batch's tasks are (copy, task index). A decision in binary mode places one
+    task, so its credit is its task's; a decision on a task that had settled already is credited 0 at once,
+    charges before a task's first placement and after it settled are not counted, exactly as ``TaskCredit``
+    does (tests/test_vector_ppo.py compares the two on the same episodes)."""
+
+    def __init__(self, penalty: float, settings: RewardSettings) -> None:
+        self.penalty = penalty
+        self.settings = settings
+        self.reset(0, 0)
+
+    def reset(self, k: int, m: int) -> None:
+        """A new episode of K copies of at most ``m`` tasks each."""
+        self.placed = np.zeros((k, m), dtype=bool)
+        self.settled = np.zeros((k, m), dtype=bool)
+        self.charges = np.zeros((k, m))
+        self.credit = np.full((k, m), np.nan)  # NaN until the task settles (or for a task no decision placed)
+
+    def place(self, copy: np.ndarray, task: np.ndarray) -> np.ndarray:
+        """Record decisions on tasks (copy, task index); returns which of them had settled already (credit 0)."""
+        done = self.settled[copy, task]
+        self.placed[copy[~done], task[~done]] = True
+        return done
+
+    def settle(self, rows: LedgerRows) -> None:
+        """Apply one tick's ledger, entry after entry as ``TaskCredit.settle`` does, in arrays."""
+        if not len(rows.copy):
+            return
+        m = self.placed.shape[1]
+        key = rows.copy * m + rows.task
+        ends = np.flatnonzero(rows.kind != CHARGED)
+        # the first entry that settles each task this tick (each task ends once; a later one would change nothing)
+        end_keys, first = np.unique(key[ends], return_index=True)
+        end_at = ends[first]
+        live = self.placed[rows.copy, rows.task] & ~self.settled[rows.copy, rows.task]
+        first_end = np.full(len(key), len(key))  # each entry's task's first ending entry this tick (none: len)
+        at = np.searchsorted(end_keys, key)
+        hit = at < len(end_keys)
+        hit[hit] = end_keys[at[hit]] == key[hit]
+        first_end[hit] = end_at[at[hit]]
+        counted = np.flatnonzero((rows.kind == CHARGED) & live & (np.arange(len(key)) < first_end))
+        np.add.at(self.charges, (rows.copy[counted], rows.task[counted]), rows.value[counted])
+        closing = end_at[live[end_at]]
+        c, i = rows.copy[closing], rows.task[closing]
+        timely = np.where(rows.kind[closing] == COMPLETED, 1.0 - rows.value[closing] / self.penalty, 0.0)
+        self.credit[c, i] = timely - self.settings.congestion_price * self.charges[c, i]
+        self.settled[rows.copy[end_at], rows.task[end_at]] = True

@@ -32,6 +32,7 @@ host does.
 from __future__ import annotations
 
 from collections.abc import Callable, Sequence
+from dataclasses import dataclass
 from itertools import pairwise
 
 import numpy as np
@@ -65,6 +66,23 @@ SEQ_STRIDE = 1 << 20  # message numbers: send call * stride + position in the ca
 # the parts of a worker's tick that write its ledger, in the order the worker runs them (``Worker.tick``):
 # going down, results relayed (max_hops above 1), expiry, decisions, admission, service
 FAILURE, RELAY, EXPIRY, DECISIONS, ADMISSION, SERVICE = range(6)
+
+
+@dataclass(frozen=True)
+class LedgerRows:
+    """A tick's ledger of every copy as arrays, in the order of ``ArraySim.ledger``: copy, task index (into the
+    copy's arrays, not its id), kind (``role.CHARGED``, ``COMPLETED``, ``LOST``) and value. What a batched reader
+    takes instead of the per-copy lists (env/credit.py's ``ArrayCredit``)."""
+
+    copy: np.ndarray
+    task: np.ndarray
+    kind: np.ndarray
+    value: np.ndarray
+
+    @classmethod
+    def empty(cls) -> LedgerRows:
+        none = np.zeros(0, dtype=np.int64)
+        return cls(none, none, none, np.zeros(0))
 
 
 class Streams:
@@ -223,6 +241,7 @@ class ArraySim:
                         [sc.link[(nd.id, j)].rate_bps for j in sc.neighbours[nd.id]]) for nd in nodes]
         self._fresh = [always_fresh(sc, (nd.id, *sc.neighbours[nd.id])) for nd in nodes]
         self.recording = False  # keep the per-task ledger and the driven controllers' observations (``drive``)
+        self.listing = True  # and the ledger as per-copy lists of tuples too (``ledger``, ``completions``)
         self.use_policy(policy)
         self.per_epoch = 1 if sc.mode == "binary" else sc.batch_size
         self.queue_first = sc.admission == "queue_first"
@@ -400,6 +419,7 @@ class ArraySim:
         self.slots = np.full((k, n, self.per_epoch), -1)  # the tasks each was shown, by task slot
         self.ledger: list[list[tuple[int, int, float]]] = [[] for _ in range(k)]  # each copy's, the last tick
         self.completions: list[list[tuple[int, float]]] = [[] for _ in range(k)]  # (client role, response time)
+        self.ledger_rows = LedgerRows.empty()  # the same ledger as arrays, of every copy
 
     def _remember_view(self, t: int) -> None:
         """What the driven controllers know at epoch ``t``: all of it was heard by the end of tick t - 1."""
@@ -466,8 +486,8 @@ class ArraySim:
         n = len(c)
         if n:
             phase, step = self._stage
-            self._entries.append((c, roles, np.full(n, phase), np.full(n, step), np.broadcast_to(key, (n,)),
-                                  self.task_id[c, i], np.full(n, kind), np.broadcast_to(value, (n,)).astype(float)))
+            self._entries.append((c, roles, np.full(n, phase), np.full(n, step), np.broadcast_to(key, (n,)), i,
+                                  np.full(n, kind), np.broadcast_to(value, (n,)).astype(float)))
 
     def _settle_ledger(self) -> None:
         """The tick's ledger of each copy, in canonical role order and, within a role, in the order its tick
@@ -475,9 +495,14 @@ class ArraySim:
         self.ledger = [[] for _ in range(self.k)]
         self.completions = [[] for _ in range(self.k)]
         if not self._entries:
+            self.ledger_rows = LedgerRows.empty()
             return
-        c, role, phase, step, key, task, kind, value = (np.concatenate(a) for a in zip(*self._entries, strict=True))
+        c, role, phase, step, key, i, kind, value = (np.concatenate(a) for a in zip(*self._entries, strict=True))
         by = np.lexsort((key, step, phase, role, c))
+        self.ledger_rows = LedgerRows(c[by], i[by], kind[by], value[by])
+        if not self.listing:
+            return
+        task = self.task_id[c, i]
         for copy, r, entry in zip(c[by].tolist(), role[by].tolist(),
                                   zip(task[by].tolist(), kind[by].tolist(), value[by].tolist(), strict=True),
                                   strict=True):
