@@ -204,6 +204,12 @@ class BatchedSteps:
         infos = self._infos(nodes, node_delta, sc.decision_interval, invalid)
         return observation, new_mask, rewards, self.steps >= self.env.max_steps, infos
 
+    def totals(self) -> dict[str, np.ndarray]:
+        """Each copy's task counts so far, as the summary counts them: generated, completed, dropped, and the sum
+        of the completions' response times (s)."""
+        rows = self.counters.sum(axis=1)  # (K, FIELDS): every role's counters added up
+        return {key: total(METRIC[key], rows) for key in ("generated", "completed", "dropped", "response_time_total")}
+
     # ----- one tick -----
 
     def _tick(self) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
