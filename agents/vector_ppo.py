@@ -138,6 +138,9 @@ class VectorPPO:
         self.table = Decisions.empty(learner.input_dim(SHARED), self.steps.n_actions)
         self.learnt = 0  # decisions learnt from so far (the others: learner.uncredited)
 
+    def close(self) -> None:
+        self.env.close()
+
     # ----- features and acting -----
 
     def features(self, observation: np.ndarray, agents: np.ndarray) -> np.ndarray:

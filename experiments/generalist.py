@@ -29,7 +29,7 @@ import pickle
 import shutil
 import time
 from collections import OrderedDict
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from contextlib import nullcontext
 from dataclasses import asdict, dataclass
 from pathlib import Path
@@ -40,6 +40,7 @@ import numpy as np
 from agents import BASELINES, PPO, AgentPolicy, Baseline, Learner, load_learner
 from agents.common import AgentSpec
 from agents.training import CsvWriter, progress_bar, run_episode, write_csv
+from agents.vector_ppo import VectorPPO
 from env import ZenohEdgeEnv
 from env.reward import RewardSettings
 from experiments import raw, tune_baselines
@@ -88,6 +89,12 @@ def regime_env(regime: SuiteRegime, slots: int, max_steps: int | None, price: fl
                         max_steps=max_steps, reward=REWARD, congestion_price=price)
 
 
+def flat_env(regime: SuiteRegime, slots: int, max_steps: int | None, price: float | None) -> ZenohEdgeEnv:
+    """``regime_env``'s settings with flat observations on the array backend: what ``VectorPPO`` steps."""
+    return ZenohEdgeEnv(str(regime.path), backend="array", transport="inproc", observation="flat", info_numbers=False,
+                        neighbour_slots=slots, max_steps=max_steps, reward=REWARD, congestion_price=price)
+
+
 def regime_backends(prog: str, regimes: Sequence[SuiteRegime], backend: str) -> dict[str, str]:
     """Each regime's backend by name (``--backend auto``: one line on stderr says which and why)."""
     chosen = choose_backend(prog, [(str(r.path), None) for r in regimes], backend)
@@ -95,17 +102,19 @@ def regime_backends(prog: str, regimes: Sequence[SuiteRegime], backend: str) -> 
 
 
 class OpenEnvs:
-    """The environments of the regimes drawn last, kept open (starting one costs more than an episode's reset)."""
+    """The environments of the regimes drawn last, kept open (starting one costs more than an episode's reset);
+    ``make`` opens a regime's (default: ``regime_env``'s environment on the regime's backend)."""
 
     def __init__(self, slots: int, max_steps: int | None, price: float | None, backends: dict[str, str],
-                 keep: int = OPEN_ENVS) -> None:
+                 keep: int = OPEN_ENVS, make: Callable[[SuiteRegime], Any] | None = None) -> None:
         self.slots, self.max_steps, self.price, self.backends, self.keep = slots, max_steps, price, backends, keep
-        self.open: OrderedDict[str, ZenohEdgeEnv] = OrderedDict()
+        self.make = make or (lambda r: regime_env(r, self.slots, self.max_steps, self.price, self.backends[r.name]))
+        self.open: OrderedDict[str, Any] = OrderedDict()
 
-    def get(self, regime: SuiteRegime) -> ZenohEdgeEnv:
+    def get(self, regime: SuiteRegime) -> Any:
         env = self.open.pop(regime.name, None)
         if env is None:
-            env = regime_env(regime, self.slots, self.max_steps, self.price, self.backends[regime.name])
+            env = self.make(regime)
         self.open[regime.name] = env
         while len(self.open) > self.keep:
             self.open.popitem(last=False)[1].close()
@@ -166,9 +175,15 @@ def train(args: argparse.Namespace, p: Parser) -> None:
                              "and centralised_critic at their defaults")
         seeds = EPISODES["train"].seeds(args.episodes, offset=args.seed * args.episodes)
         check_degrees([*regimes, *checks], args.slots)
+        if args.envs > 1 and (args.episodes % args.envs or args.checkpoint_every % args.envs):
+            raise ValueError(f"--envs {args.envs} runs that many episodes of a regime at once: it must divide "
+                             f"--episodes ({args.episodes}) and --checkpoint-every ({args.checkpoint_every})")
     except ValueError as e:
         p.error(str(e))
     backends = regime_backends(p.prog, [*regimes, *checks], args.backend)
+    if args.envs > 1 and (emulated := [r.name for r in regimes if backends[r.name] != "array"]):
+        p.error(f"--envs {args.envs} trains on the array backend, which does not run {emulated[0]} "
+                f"(--backend {args.backend}); train it with --envs 1")
     set_threads(args.threads)
     args.out.mkdir(parents=True, exist_ok=True)
     envs = OpenEnvs(args.slots, args.max_steps, args.congestion_price, backends)
@@ -182,39 +197,51 @@ def train(args: argparse.Namespace, p: Parser) -> None:
         "algo": "ppo", "suite": str(args.suite), "regimes": [r.name for r in regimes],
         "validation": str(args.validation) if args.validation else None, "episodes": args.episodes,
         "max_steps": first.max_steps, "slots": args.slots, "reward": REWARD, "backends": backends,
-        "congestion_price": first.reward_settings.congestion_price, "config": asdict(config)}, indent=1))
+        "congestion_price": first.reward_settings.congestion_price, "envs": args.envs, "config": asdict(config)},
+        indent=1))
     learner.start_training(args.episodes * first.max_steps)
-    draw = np.random.default_rng(args.seed)  # which regime each episode runs: from the training seed
+    draw = np.random.default_rng(args.seed)  # which regime each episode (each K episodes) runs: from the training seed
     log = CsvWriter(args.out / "train.csv")
     checks_log = CsvWriter(args.out / "validation.csv") if checks else None
     best, frames = -math.inf, 0
+    vectorised = (args.slots, args.max_steps, args.congestion_price)
+    trainers = OpenEnvs(*vectorised, backends, make=lambda r: VectorPPO(learner, flat_env(r, *vectorised), args.envs))
     progress = progress_bar() if args.progress else None
     with progress or nullcontext():
         bar = progress.add_task("train generalist", total=args.episodes, info="") if progress else None
-        for k, seed in enumerate(seeds):
+        for k in range(0, args.episodes, args.envs):
             regime = regimes[int(draw.integers(len(regimes)))]
             try:
-                env = envs.get(regime)
+                if args.envs == 1:
+                    env = envs.get(regime)
+                    rows = [run_episode(env, learner, seeds[k], learner) | learner.stats()]
+                else:
+                    trainer = trainers.get(regime)
+                    env = trainer.env
+                    rows = trainer.episode(seeds[k:k + args.envs])
             except (ValueError, ScenarioError) as e:
                 p.error(f"{regime.path}: {str(e).splitlines()[0]}")
-            row = run_episode(env, learner, seed, learner)
-            frames += row["steps"] * len(env.possible_agents)  # agent-steps, the learning curves' x axis
-            log.write({"episode": k, "regime": regime.name, "episode_seed": row.pop("seed"),
-                       "agents": len(env.possible_agents), "frames": frames, **row, **learner.stats()})
+            for j, row in enumerate(rows):
+                frames += row["steps"] * len(env.possible_agents)  # agent-steps, the learning curves' x axis
+                log.write({"episode": k + j, "regime": regime.name, "episode_seed": row.pop("seed"),
+                           "agents": len(env.possible_agents), "frames": frames, **row})
+            done = k + args.envs
             if progress is not None:
-                progress.update(bar, advance=1, info=f"{regime.name}  completion {row['completion_ratio']:.2f}  "
-                                                     f"{row['wall_s']:.1f} s/episode")
-            if (k + 1) % args.checkpoint_every == 0 or k + 1 == args.episodes:
-                path = args.out / f"ckpt-{k + 1:05d}.pt"
+                completion = np.mean([r["completion_ratio"] for r in rows])
+                progress.update(bar, advance=args.envs, info=f"{regime.name}  completion {completion:.2f}  "
+                                                             f"{rows[0]['wall_s']:.1f} s/episode")
+            if done % args.checkpoint_every == 0 or done == args.episodes:
+                path = args.out / f"ckpt-{done:05d}.pt"
                 learner.save(path)
                 if checks_log is not None:
                     start = time.perf_counter()
                     means = validate(learner, checks, checked, args.validation_episodes, progress)
-                    checks_log.write({"episode": k + 1, "frames": frames, "checkpoint": path.name, **means,
+                    checks_log.write({"episode": done, "frames": frames, "checkpoint": path.name, **means,
                                       "wall_s": time.perf_counter() - start})
                     if means[CRITERION] > best:
                         best = means[CRITERION]
                         shutil.copyfile(path, args.out / "best.pt")
+    trainers.close()
     log.close()
     if checks_log is not None:
         checks_log.close()
@@ -368,6 +395,9 @@ def main(argv: Sequence[str] | None = None) -> None:
     t.add_argument("--validation-episodes", type=positive_int, default=1,
                    help="validation episodes per regime and checkpoint (default 1)")
     t.add_argument("--out", type=Path, default=Path("runs/generalist"), help="output folder (runs/generalist)")
+    t.add_argument("--envs", type=positive_int, default=1,
+                   help="episodes of the drawn regime run at once, K copies on the array backend (agents.vector_ppo: "
+                        "the same learner, fed in arrays); default 1, the serial loop")
     s = sub.add_parser("specialist", help="train one PPO per regime of a suite (experiments.train ppo on each)")
     s.add_argument("--suite", type=Path, required=True, help="a suite folder: one specialist per regime")
     s.add_argument("--episodes", type=positive_int, default=100, help="training episodes per regime (default 100)")
