@@ -269,8 +269,8 @@ def section(table: Table, figures: Path, link: str, reps: int, progress: Any = N
 
 
 def against_baselines(table: Table, learner: str, baselines: Sequence[str], scored: Sequence[Key],
-                      interval: dict[str, stats.Interval], reps: int, pairs: Sequence[Pair] = TASK_PAIRS,
-                      jobs: Sequence[Key] = ()) -> list[str]:
+                      interval: dict[str, stats.Interval], reps: int, pairs: Sequence[Pair],
+                      jobs: Sequence[Key]) -> list[str]:
     """A learner against every baseline: P(learner > baseline) on the normalised score, whether their IQM
     intervals are disjoint, and the paired per-episode differences of ``pairs`` (the job metrics on ``jobs``)."""
     lines = [f"### `{learner}` against every baseline", "",
@@ -304,8 +304,7 @@ def _paired_header(pairs: Sequence[Pair]) -> str:
     return " | ".join(f"{title} | W/T/L" for *_, title in pairs) + " |"
 
 
-def paired_cells(table: Table, p: str, ref: str, reps: int, pairs: Sequence[Pair] = TASK_PAIRS,
-                 jobs: Sequence[Key] = ()) -> str:
+def paired_cells(table: Table, p: str, ref: str, reps: int, pairs: Sequence[Pair], jobs: Sequence[Key]) -> str:
     """The paired per-episode cells of p against ref, for each of ``pairs``: Δ | W/T/L (a job metric on the
     episodes ``jobs`` alone)."""
     cells = []

@@ -431,7 +431,7 @@ def _hashed_jobs(jobs: Jobs) -> dict[str, Any]:
     """The jobs, a task's ``type`` (added later) left out while unset."""
     d = jobs.model_dump(mode="json")
     for part in [d["generator"] or {}, *(t for job in d["dags"] for t in job["tasks"])]:
-        if part.get("type", 0) is None:
+        if "type" in part and part["type"] is None:
             del part["type"]
     return d
 
