@@ -168,19 +168,32 @@ def _same(value: Any, lam: float | None) -> bool:
 
 
 def verdict(stats: dict[tuple[str, str], tuple[float, float]], best: dict[str, str]) -> str:
-    """Does offloading pay, and does one heuristic dominate? Read off the means, with no tuning."""
+    """Does offloading pay, and does one heuristic dominate? Read off the means, with no tuning. In a scenario
+    of jobs (``best`` judges ``job_completion_ratio``) the same for the jobs: completed, and the job score."""
     lead = best["completion_ratio"]
-    (top, top_ci), (local, local_ci) = stats[lead, "completion_ratio"], stats["local", "completion_ratio"]
-    if lead == "local":
-        first = "keeping tasks local is best"
-    elif top - top_ci > local + local_ci:
-        first = f"offloading pays (+{top - local:.1f} points over local)"
-    else:
-        first = f"offloading barely matters (+{top - local:.1f} points over local, within the 95% CIs)"
+    first = _gain(stats, lead, "completion_ratio")
     if best["completion_ratio"] == best["penalised_response_time"] == best["dropped"]:
-        return f"*{first}; {lead} dominates*"
-    return (f"*{first}; no heuristic dominates: most completed {lead}, best score "
-            f"{best['penalised_response_time']}, fewest dropped {best['dropped']}*")
+        tasks = f"{first}; {lead} dominates"
+    else:
+        tasks = (f"{first}; no heuristic dominates: most completed {lead}, best score "
+                 f"{best['penalised_response_time']}, fewest dropped {best['dropped']}")
+    if "job_completion_ratio" not in best:
+        return f"*{tasks}*"
+    lead, score = best["job_completion_ratio"], best["penalised_makespan"]
+    jobs = _gain(stats, lead, "job_completion_ratio")
+    jobs += (f"; {lead} dominates" if lead == score else
+             f"; no heuristic dominates: most jobs done {lead}, best job score {score}")
+    return f"*tasks: {tasks}. Jobs: {jobs}*"
+
+
+def _gain(stats: dict[tuple[str, str], tuple[float, float]], lead: str, metric: str) -> str:
+    """Whether the baseline that completes most (``lead``, on ``metric``, a ratio) beats ``local`` beyond the CIs."""
+    (top, top_ci), (local, local_ci) = stats[lead, metric], stats["local", metric]
+    if lead == "local":
+        return "keeping tasks local is best"
+    if top - top_ci > local + local_ci:
+        return f"offloading pays (+{top - local:.1f} points over local)"
+    return f"offloading barely matters (+{top - local:.1f} points over local, within the 95% CIs)"
 
 
 def main(argv: Sequence[str] | None = None) -> None:

@@ -136,10 +136,10 @@ class Table:
                                  for s in seeds]) for regime in regimes)
         return stats.Scores(tuple(regimes), arrays)
 
-    def per_episode(self, policy: str, metric: str) -> dict[Key, float]:
-        """A policy's value on each episode, its training runs' mean."""
+    def per_episode(self, policy: str, metric: str, episodes: Sequence[Key] | None = None) -> dict[Key, float]:
+        """A policy's value on each episode (of ``episodes``, default all), its training runs' mean."""
         return {ep: float(np.mean([self.value(policy, s, ep, metric) for s in self.runs[policy]]))
-                for ep in self.episodes}
+                for ep in (self.episodes if episodes is None else episodes)}
 
     def regime_mean(self, policy: str, metric: str, regime: str) -> float:
         """A policy's mean over a regime's episodes and its training runs."""
@@ -149,6 +149,19 @@ class Table:
     def scored(self) -> list[Key]:
         """The episodes with a normalised score: a bound and local's completions, and room between them."""
         return [ep for ep in self.episodes if not math.isnan(self.first[ep]["normalised_score"])]
+
+    def with_jobs(self) -> list[Key]:
+        """The episodes of a scenario of jobs: their rows carry the job columns (``raw.JOBS``)."""
+        return [ep for ep in self.episodes if not math.isnan(self.first[ep]["jobs"])]
+
+
+Pair = tuple[str, float, bool, str]
+"""A metric compared episode by episode: column, scale, whether higher is better, its Δ header."""
+TASK_PAIRS: tuple[Pair, ...] = (("completion_ratio", 100, True, "Δ completion [points]"),
+                                  ("penalised_response_time", 1, False, "Δ penalised response [s]"))
+JOB_PAIRS: tuple[Pair, ...] = (("job_completion_ratio", 100, True, "Δ jobs done [points]"),
+                                 ("penalised_makespan", 1, False, "Δ penalised makespan [s]"))
+"""The paired columns of a table whose rows have jobs, after the tasks' (``TASK_PAIRS``)."""
 
 
 def groups(rows: Sequence[dict[str, Any]]) -> dict[Group, list[dict[str, Any]]]:
@@ -189,8 +202,10 @@ def section(table: Table, figures: Path, link: str, reps: int, progress: Any = N
     if scored and len(scored) < len(table.episodes):
         lines += [f"The normalised score counts {len(scored)} of the {len(table.episodes)} episodes: on the others "
                   "the bound leaves no room above `local`.", ""]
+    jobs = table.with_jobs()
+    pairs = (*TASK_PAIRS, *JOB_PAIRS) if jobs else TASK_PAIRS
     header = ["policy", "runs", "normalised score IQM", "normalised score mean", "optimality gap", "completion %",
-              "penalised response [s]", "interval over"]
+              "penalised response [s]", *(["jobs done %", "penalised makespan [s]"] if jobs else []), "interval over"]
     lines += ["| " + " | ".join(header) + " |", "|" + " --- |" * len(header)]
     interval: dict[str, stats.Interval] = {}
     for p in policies:
@@ -203,16 +218,22 @@ def section(table: Table, figures: Path, link: str, reps: int, progress: Any = N
         else:
             cells += ["—"] * 3
         cells += [_ci(stats.bootstrap(table.scores(p, "completion_ratio"), stats.mean, reps), 100, 1),
-                  _ci(stats.bootstrap(table.scores(p, "penalised_response_time"), stats.mean, reps), 1, 1),
-                  "episodes" if table.runs[p] == [None] else "training seeds, episodes"]
+                  _ci(stats.bootstrap(table.scores(p, "penalised_response_time"), stats.mean, reps), 1, 1)]
+        if jobs:
+            cells += [_ci(stats.bootstrap(table.scores(p, "job_completion_ratio", jobs), stats.mean, reps), 100, 1),
+                      _ci(stats.bootstrap(table.scores(p, "penalised_makespan", jobs), stats.mean, reps), 1, 1)]
+        cells.append("episodes" if table.runs[p] == [None] else "training seeds, episodes")
         step()
         lines.append("| " + " | ".join(cells) + " |")
     if with_bound:
         bound = stats.bootstrap(table.scores(BOUND, "completion_ratio"), stats.mean, reps)
-        lines.append(f"| the bound | | 1 | 1 | 0 | {_ci(bound, 100, 1)} | | episodes |")
+        lines.append(f"| the bound | | 1 | 1 | 0 | {_ci(bound, 100, 1)} | |{' | |' if jobs else ''} episodes |")
     lines += ["", "Normalised score: 0 is `local`, 1 the bound (docs/benchmark.md); optimality gap: the mean "
               "shortfall below 1. Completion and penalised response: the mean over regimes of each regime's mean"
-              + (", the bound's completion its tasks over those generated." if with_bound else "."), ""]
+              + (", the bound's completion its tasks over those generated." if with_bound else ".")
+              + (" Jobs done and penalised makespan (the mean over the jobs created of the makespan, a job not "
+                 "completed counting its deadline): the same over the regimes of jobs"
+                 f"{'' if len(jobs) == len(table.episodes) else ' alone'}." if jobs else ""), ""]
     baselines = [p for p in policies if table.runs[p] == [None] and p != "local"]
     if scored:
         ref = max(baselines or policies, key=lambda p: interval[p].point)
@@ -224,18 +245,19 @@ def section(table: Table, figures: Path, link: str, reps: int, progress: Any = N
               f"{'normalised score IQM' if scored else 'mean completion'}. "
               "Δ: the policy's mean difference from it on the same episodes (a learner: its runs' mean per episode), "
               "with its paired bootstrap interval; W/T/L: the episodes where the policy is better, equal or worse.",
-              "", "| policy | P(policy > ref), normalised score | Δ completion [points] | W/T/L | "
-              "Δ penalised response [s] | W/T/L |", "| --- | --- | --- | --- | --- | --- |"]
+              "", "| policy | P(policy > ref), normalised score | " + _paired_header(pairs),
+              "| --- | --- |" + " --- | --- |" * len(pairs)]
     for p in policies:
         if p == ref:
             step()
             continue
-        lines.append(f"| `{p}` | {improvement(table, p, ref, scored, reps)} | {paired_cells(table, p, ref, reps)} |")
+        lines.append(f"| `{p}` | {improvement(table, p, ref, scored, reps)} | "
+                     f"{paired_cells(table, p, ref, reps, pairs, jobs)} |")
         step()
     lines.append("")
     every = [p for p in policies if table.runs[p] == [None]]  # local too
     for learner in learners if every else []:
-        lines += against_baselines(table, learner, every, scored, interval, reps)
+        lines += against_baselines(table, learner, every, scored, interval, reps, pairs, jobs)
         lines += regime_by_regime(table, learner, every, load_classes(manifests / f"{g.suite}-manifest.csv"
                                                                     if manifests else None))
         step()
@@ -247,16 +269,17 @@ def section(table: Table, figures: Path, link: str, reps: int, progress: Any = N
 
 
 def against_baselines(table: Table, learner: str, baselines: Sequence[str], scored: Sequence[Key],
-                      interval: dict[str, stats.Interval], reps: int) -> list[str]:
+                      interval: dict[str, stats.Interval], reps: int, pairs: Sequence[Pair],
+                      jobs: Sequence[Key]) -> list[str]:
     """A learner against every baseline: P(learner > baseline) on the normalised score, whether their IQM
-    intervals are disjoint, and the paired per-episode differences in completion and penalised response."""
+    intervals are disjoint, and the paired per-episode differences of ``pairs`` (the job metrics on ``jobs``)."""
     lines = [f"### `{learner}` against every baseline", "",
              f"P: the probability of improvement of `{learner}` over the baseline on the normalised score (per regime, "
              "the chance that a training run beats the baseline, averaged over regimes), with its interval. IQM "
              "intervals: whether the two normalised score IQM intervals of the table above are disjoint. Δ and "
              "W/T/L: paired, episode by episode, the learner's value its runs' mean.", "",
-             "| baseline | P(learner > baseline) | IQM intervals | Δ completion [points] | W/T/L | "
-             "Δ penalised response [s] | W/T/L |", "| --- | --- | --- | --- | --- | --- | --- |"]
+             "| baseline | P(learner > baseline) | IQM intervals | " + _paired_header(pairs),
+             "| --- | --- | --- |" + " --- | --- |" * len(pairs)]
     for b in baselines:
         if scored:
             mine, theirs = interval[learner], interval[b]
@@ -265,7 +288,7 @@ def against_baselines(table: Table, learner: str, baselines: Sequence[str], scor
         else:
             disjoint = "—"
         lines.append(f"| `{b}` | {improvement(table, learner, b, scored, reps)} | {disjoint} | "
-                     f"{paired_cells(table, learner, b, reps)} |")
+                     f"{paired_cells(table, learner, b, reps, pairs, jobs)} |")
     return [*lines, ""]
 
 
@@ -277,14 +300,20 @@ def improvement(table: Table, p: str, ref: str, scored: Sequence[Key], reps: int
                                            table.scores(ref, "normalised_score", scored), reps))
 
 
-def paired_cells(table: Table, p: str, ref: str, reps: int) -> str:
-    """The paired per-episode cells of p against ref: Δ completion [points] | W/T/L | Δ penalised response [s] |
-    W/T/L."""
-    c = stats.paired(table.per_episode(p, "completion_ratio"), table.per_episode(ref, "completion_ratio"), reps=reps)
-    r = stats.paired(table.per_episode(p, "penalised_response_time"), table.per_episode(ref, "penalised_response_time"),
-                     higher_is_better=False, reps=reps)
-    return (f"{_ci(c.difference, 100, 1)} | {c.wins}/{c.ties}/{c.losses} | "
-            f"{_ci(r.difference, 1, 1)} | {r.wins}/{r.ties}/{r.losses}")
+def _paired_header(pairs: Sequence[Pair]) -> str:
+    return " | ".join(f"{title} | W/T/L" for *_, title in pairs) + " |"
+
+
+def paired_cells(table: Table, p: str, ref: str, reps: int, pairs: Sequence[Pair], jobs: Sequence[Key]) -> str:
+    """The paired per-episode cells of p against ref, for each of ``pairs``: Δ | W/T/L (a job metric on the
+    episodes ``jobs`` alone)."""
+    cells = []
+    for metric, scale, higher, _ in pairs:
+        episodes = jobs if metric in raw.JOBS else None
+        d = stats.paired(table.per_episode(p, metric, episodes), table.per_episode(ref, metric, episodes),
+                         higher_is_better=higher, reps=reps)
+        cells += [_ci(d.difference, scale, 1), f"{d.wins}/{d.ties}/{d.losses}"]
+    return " | ".join(cells)
 
 
 def load_classes(manifest: Path | None) -> dict[str, str]:

@@ -22,6 +22,7 @@ def task(**kw):
 def test_batch_roundtrip():
     envs = [
         Envelope(Kind.TASK, "worker:a", "worker:b", 1, 4, 7, task()),
+        Envelope(Kind.TASK, "worker:a", "worker:b", 1, 4, 7, task(type=2)),
         Envelope(Kind.RESULT, "worker:b", "client:a", 2, 5, 6, Result(task(), "b", 5, 1, 12.5)),
         Envelope(Kind.DECISION, "controller:a", "worker:a", 3, 5, 6, [Decision(1, ""), Decision(2, "b")]),
         Envelope(Kind.REPORT, "worker:a", "controller:a", 4, 5, 6,
@@ -39,6 +40,15 @@ def test_a_result_must_impose_a_finite_delay_of_at_least_zero(imposed):
                                                          Result(task(), "b", 5, 1, 1.0))]))
     wire["msgs"][0][6][4] = imposed
     with pytest.raises(codec.CodecError, match="imposed >= 0"):
+        codec.decode(msgpack.packb({**wire, "v": SCHEMA_VERSION}))
+
+
+@pytest.mark.parametrize("kind", ["1", 1.5, [0]])
+def test_a_task_type_is_an_index_or_nil(kind):
+    """A task's type indexes the scenario's task types (the receiving process checks the range)."""
+    wire = codec.to_wire(Batch(0, 5, "node-b", [Envelope(Kind.TASK, "worker:a", "worker:b", 1, 4, 7, task(type=0))]))
+    wire["msgs"][0][6][11] = kind
+    with pytest.raises(codec.CodecError, match=r"path, job, type\]"):
         codec.decode(msgpack.packb({**wire, "v": SCHEMA_VERSION}))
 
 

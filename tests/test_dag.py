@@ -18,11 +18,14 @@ import yaml
 from node_runtime.model.array import refusal
 from node_runtime.model.client import CLIENT, COUNTS, TYPES, arrivals
 from node_runtime.model.dag import JobSpec, LayeredDag, Shape
+from node_runtime.model.payload import read_record, run_log
 from node_runtime.model.rng import stream
+from node_runtime.model.spec import Scenario
 from node_runtime.model.workload import TaskSource, nominal_arrivals
 from orchestrator.scenario import ScenarioError, costs, load_scenario
 from orchestrator.viewers.summary import rows
 from tests.conftest import ROOT, model_part, run_summary, write_scenario
+from tests.test_payload import LAB
 from topologies.alibaba import Conversion, TraceError
 from topologies.alibaba_dag import dependencies, read_dags
 
@@ -124,6 +127,71 @@ def test_hand_trace_of_a_diamond_over_zenoh(tmp_path):
         over, over_ticks = run(scenario, tmp_path, layout, transport="zenoh", layout=layout)
         check_hand_trace(over, over_ticks)
         assert model_part(over) == model_part(inproc) and over_ticks == inproc_ticks
+
+
+def payload_diamond(tmp_path: Path) -> Scenario:
+    """The diamond whose tasks 1 and 2 are of type infer, which runs a payload, replayed from a record: task 1
+    (task id 3, on b) 2.5 CPU-s, task 2 (id 4, on c) 3 CPU-s; payload_hz: each node's capacity."""
+    (tmp_path / "lab_payloads.py").write_text(LAB)
+    typed = [{**t, "type": "infer"} if i in (1, 2) else t for i, t in enumerate(DIAMOND["tasks"])]
+    path = diamond(tmp_path, jobs={"dags": [{**DIAMOND, "tasks": typed}]},
+                   tasks=[{"name": "infer", "payload": {"call": "lab_payloads:spin"}}])
+    record = tmp_path / "times.jsonl"
+    record.write_text(f'{{"seed": {SEED}, "task": 3, "node": "b", "cpu_s": 2.5}}\n'
+                      f'{{"seed": {SEED}, "task": 4, "node": "c", "cpu_s": 3.0}}\n')
+    return load_scenario(path).replace(payload_log=run_log(replay=str(record)))
+
+
+def check_payload_hand_trace(s: dict) -> None:
+    """As the diamond's hand trace (``check_hand_trace``) until task 1 reaches b at 8 and task 2 c at 9; then:
+
+    - task 1: 2.5 CPU-s x 2e6 = 5e6 cycles, not its nominal 4e6: ticks 8, 9 and 1e6 in 10; its result on
+      b->a 10.0 -> 11.0: back at 11 (7 s).
+    - task 2: 3 CPU-s x 1e6 = 3e6 cycles, not 2e6: ticks 9, 10, 11; result on c->a 11.0 -> 12.0: back at 12 (8 s).
+    - task 3: released at 12, at a's worker at 13, placed locally at 14, run in 14, result at 15 (3 s): the
+      job completes at 15, makespan 15 s.
+
+    Response times 4, 7, 8, 3 (mean 5.5); b computes 5e6 cycles, c 3e6, a 3e6."""
+    assert s["totals"]["generated"] == s["totals"]["completed"] == 4 and s["totals"]["offloaded"] == 2
+    assert s["response_time"]["mean"] == pytest.approx(5.5) and s["response_time"]["max"] == pytest.approx(8.0)
+    assert s["jobs"] == {"generated": 1, "completed": 1, "missed": 0, "completion_ratio": 1.0, "makespan_mean": 15.0,
+                         "penalised_makespan": 15.0, "active": 0}
+    assert s["nodes"]["a"]["energy_j"] == pytest.approx(0.4 + 1e-27 * 3e6 * 1e12)
+    assert s["nodes"]["b"]["energy_j"] == pytest.approx(0.1 + 1e-27 * 5e6 * 4e12)
+    assert s["nodes"]["c"]["energy_j"] == pytest.approx(0.1 + 1e-27 * 3e6 * 1e12)
+
+
+def test_a_jobs_tasks_run_the_payload_of_the_type_they_name(tmp_path):
+    scenario = payload_diamond(tmp_path)
+    check_payload_hand_trace(run_summary(scenario, ticks=20))
+    assert costs.report(scenario)[0].endswith("(no task types to cost); the tasks of type(s) infer run a payload")
+
+
+@pytest.mark.zenoh
+def test_a_jobs_payload_tasks_replay_over_zenoh_per_node(tmp_path):
+    scenario = payload_diamond(tmp_path)
+    inproc, inproc_ticks = run(scenario, tmp_path, "inproc")
+    over, over_ticks = run(scenario, tmp_path, "per-node", transport="zenoh", layout="per-node")
+    check_payload_hand_trace(over)
+    assert model_part(over) == model_part(inproc) and over_ticks == inproc_ticks
+
+
+def test_generated_jobs_of_a_payload_type_record_and_replay(tmp_path):
+    """generator.type: every task of a generated job runs the payload; the measured times, recorded, replay
+    to the same results in another layout."""
+    (tmp_path / "lab_payloads.py").write_text(LAB)
+    path = diamond(tmp_path, jobs={"generator": {"type": "infer", "deadline": 40}},
+                   tasks=[{"name": "infer", "payload": {"call": "lab_payloads:spin"}}],
+                   arrival={"kind": "constant", "rate": 0.3})
+    record = tmp_path / "times.jsonl"
+    scenario = load_scenario(path)
+    measured = run_summary(scenario.replace(payload_log=run_log(record=str(record))), ticks=20, seed=1)
+    times = read_record(str(record))
+    assert measured["jobs"]["generated"] >= 1 and 0 < len(times) <= measured["totals"]["generated"]
+    assert 0 < measured["totals"]["completed"] <= len(times)  # every task served ran the payload
+    replayed = run_summary(scenario.replace(payload_log=run_log(replay=str(record))), ticks=20, seed=1,
+                           layout="per-node")
+    assert model_part(replayed) == model_part(measured)
 
 
 def test_a_lost_task_makes_its_job_miss_at_its_deadline(tmp_path):
@@ -239,7 +307,12 @@ def test_a_scenario_imports_the_sample_and_runs_its_jobs(tmp_path):
     ({"alibaba": {"file": "none.csv"}}, {}, "workload.jobs.alibaba.file: "),
     ({"dags": [DIAMOND]}, {"source": "x.y:Z"}, "jobs come from the arrival process: remove trace and source, or jobs"),
     ({"dags": [DIAMOND]}, {"tasks": [{"payload": {"call": "x.y:f"}}]},
-     "the tasks of jobs run no payload: remove the payload of tasks, or jobs"),
+     "workload.tasks[0].payload: no task of workload.jobs is of type 'task'; with jobs a task runs a payload when it "
+     "names its type (dags[].tasks[].type or generator.type; an Alibaba job's tasks have none)"),
+    ({"dags": [{**DIAMOND, "tasks": [{"instructions": 1.0e6, "type": "nope"}], "edges": []}]}, {},
+     "workload.jobs.dags[0].tasks[0].type: expected the name of a task type of workload.tasks ('task'), got 'nope'"),
+    ({"generator": {"type": "infer"}}, {"tasks": [{"name": "infer"}, {"name": "infer"}]},
+     "workload.jobs.generator.type: 2 task types of workload.tasks are named 'infer'; give each a name of its own"),
 ])
 def test_bad_job_settings_name_the_key(tmp_path, jobs, extra, message):
     path = write_scenario(tmp_path, {"workload": {"jobs": jobs, **extra},

@@ -158,6 +158,28 @@ def test_every_refusal_in_process_leaves_the_results_alone(aot1):
                                                    "nodes": reported}
 
 
+def test_a_task_of_a_type_the_scenario_lacks_is_refused_and_counted(aot1):
+    """A task's type indexes workload.tasks, where a worker looks up its payload: a forged task of another
+    index (aot1 has one type) is refused like any untrusted mail, and the run gives the clean results."""
+    clean = model_part(Simulation.inproc(aot1, layout="per-role").run(TICKS, seed=SEED, policy="least_queue"))
+    sim = Simulation.inproc(aot1, layout="per-role")
+    assert len(aot1.workload.task_types) == 1
+
+    def attack(out, e):
+        for kind in (1, -1):
+            forged = Task(1, "rpi3_0", AT, TASK.size, 0, ("rpi3_0",), type=kind)
+            out.publish(sim.keys.inbox("worker-nuc_0"), Batch(e, AT, "worker-rpi3_0", [
+                Envelope(Kind.TASK, "worker:rpi3_0", "worker:nuc_0", 1, AT, AT + 1, forged)]))
+
+    attack_at(sim, AT, attack)
+    summary = sim.run(TICKS, seed=SEED, policy="least_queue")
+    sim.close()
+    assert model_part(summary) == clean
+    assert node_counts(sim) == {"wrong_shape": 2}
+    assert next(d for d in sim.drivers if d.proc == "worker-nuc_0").rejections.last[
+        sim.keys.inbox("worker-nuc_0")] == "wrong_shape (a task of type -1; the scenario has 1 task types)"
+
+
 def test_mail_beyond_what_the_clock_announced_stops_the_run(aot1):
     """A forgery that passes every check cannot be told from the genuine mail: the run stops, loudly."""
     sim = Simulation.inproc(aot1, layout="per-role")

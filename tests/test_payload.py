@@ -1,7 +1,7 @@
 """Payloads: real work run by the serving worker, its CPU time turned into cycles, recorded and replayed.
 
-The rule (docs/model.md, "Payloads"): when a task whose size is that of a type with a payload starts
-service, its worker runs the payload (or, replaying, reads its recorded CPU seconds) and the task takes
+The rule (docs/model.md, "Payloads"): when a task of a type with a payload (the index the task carries)
+starts service, its worker runs the payload (or, replaying, reads its recorded CPU seconds) and the task takes
 cycles = seconds x payload_hz of the serving node (default cores x frequency) instead of ρ·ξ.
 """
 
@@ -13,6 +13,7 @@ import sys
 from pathlib import Path
 
 import pytest
+import yaml
 
 from node_runtime.model.calibrate import main
 from node_runtime.model.payload import PayloadError, read_record, run_log
@@ -69,8 +70,8 @@ def replaying(path: Path, record: Path):
 
 
 def hand_trace(tmp_path: Path):
-    (tmp_path / "trace.csv").write_text(HEADER + "0,a,1e6,1e6,1e6,1,100\n0,a,1e6,1e6,1e6,1,100\n"
-                                                 "0,a,2e6,1e6,1e6,1,100\n")
+    (tmp_path / "trace.csv").write_text(HEADER.replace("\n", ",type\n") + "0,a,1e6,1e6,1e6,1,100,infer\n"
+                                        "0,a,1e6,1e6,1e6,1,100,infer\n0,a,2e6,1e6,1e6,1,100,\n")
     record = tmp_path / "times.jsonl"
     record.write_text('{"seed": 0, "task": 1, "node": "a", "cpu_s": 2.5}\n'
                       '{"seed": 0, "task": 2, "node": "b", "cpu_s": 0.75}\n')
@@ -78,7 +79,7 @@ def hand_trace(tmp_path: Path):
 
 
 def check_hand_trace(s: dict) -> None:
-    """Tasks 1 and 2 are of the payload's size (infer), task 3 is plain. Round robin over [local, b], one
+    """Tasks 1 and 2 are of type infer (the trace's type column), task 3 has no type. Round robin over [local, b], one
     decision a tick reaching a at 4, 5, 6: tasks 1 and 3 stay, task 2 goes to b.
 
     - task 1 (recorded 2.5 CPU-s on a, payload_hz 1e6): 2.5e6 cycles, not its nominal 1e6. It starts in
@@ -199,10 +200,6 @@ def test_a_payload_is_part_of_the_scenario_hash_and_its_times_are_not(tmp_path):
     ({"payload": {"cal": "lab_payloads:spin"}}, {}, "workload.tasks[0].payload.cal: unknown key"),
     ({"payload": {"call": "lab_payloads:spin"}}, {"payload_hz": 0},
      "topology.nodes[0].payload_hz: expected a number > 0 (got 0)"),
-    ({"payload": {"call": "lab_payloads:spin"}, "instructions": 2.0e6, "input_bytes": 1.0e6,
-      "output_bytes": 1.0e6}, {},
-     "workload.tasks[0].payload: task type 'plain' (tasks[1]) has the same instructions, input_bytes, "
-     "output_bytes and cpi"),
 ])
 def test_bad_payload_settings_name_the_key(tmp_path, task, node, message):
     (tmp_path / "lab_payloads.py").write_text(LAB)
@@ -211,6 +208,38 @@ def test_bad_payload_settings_name_the_key(tmp_path, task, node, message):
     with pytest.raises(ScenarioError) as e:
         load_scenario(path)
     assert any(message in line for line in str(e.value).splitlines()), str(e.value)
+
+
+def test_a_worker_knows_a_payload_task_by_its_type_not_its_size(tmp_path):
+    """infer and plain of one size: the trace's rows 1 and 3 name infer and run its payload, rows 2 (plain)
+    and 4 (no type) keep their nominal cycles, and only 1 and 3 are in the record."""
+    path = pair(tmp_path, {"trace": "trace.csv"}, steps=20, policy="local")
+    data = yaml.safe_load(path.read_text())
+    data["workload"]["tasks"][1]["instructions"] = INFER["instructions"]
+    write_scenario(tmp_path, data)
+    (tmp_path / "trace.csv").write_text(HEADER.replace("\n", ",type\n") + "".join(
+        f"{t},a,1e6,1e6,1e6,1,100,{kind}\n" for t, kind in enumerate(("infer", "plain", "infer", ""))))
+    scenario = load_scenario(path)
+    assert scenario.workload.task_types[0].size(1.0) == scenario.workload.task_types[1].size(1.0)
+    assert [r.type for r in scenario.workload.trace] == [0, 1, 0, None]
+    record = tmp_path / "times.jsonl"
+    summary = run_summary(scenario.replace(payload_log=run_log(record=str(record))), ticks=20)
+    assert summary["totals"]["completed"] == 4
+    assert sorted(task & 0xFFFFFFFF for _, task, _ in read_record(str(record))) == [1, 3]
+
+
+@pytest.mark.parametrize(("rows", "message"), [
+    ("0,a,1e6,1e6,1e6,1,100,nope\n", "workload.trace: {trace}:2: type: expected the name of a task type of "
+                                     "workload.tasks ('infer', 'plain'), got 'nope'"),
+    ("0,a,1e6,1e6,1e6,1,100,plain\n", "workload.tasks[0].payload: no row of trace.csv is of type 'infer'; a "
+                                      "trace's task runs a payload when its type column names it"),
+])
+def test_a_trace_names_task_types_or_is_refused_in_one_line(tmp_path, rows, message):
+    path = pair(tmp_path, {"trace": "trace.csv"}, steps=5)
+    (tmp_path / "trace.csv").write_text(HEADER.replace("\n", ",type\n") + rows)
+    with pytest.raises(ScenarioError) as e:
+        load_scenario(path)
+    assert str(e.value).splitlines() == [f"{path}: {message.format(trace=tmp_path / 'trace.csv')}"]
 
 
 def test_record_files_keep_whole_lines_and_refuse_what_is_not_one(tmp_path):

@@ -39,6 +39,29 @@ def test_the_verdict_names_the_dominant_heuristic_or_the_split():
     assert regimes.verdict(_stats(completion, score, dropped), best).startswith("*keeping tasks local is best")
 
 
+def test_in_a_scenario_of_jobs_the_verdict_judges_the_jobs_beside_the_tasks():
+    """Jobs done and the job score decide the second half: here greedy completes most tasks, but round_robin
+    completes most jobs (beyond the CIs) and drift_plus_penalty has the best job score."""
+    names = list(BASELINES)
+    stats = _stats(dict.fromkeys(names, 50.0) | {"local": 20.0, "greedy": 90.0}, dict.fromkeys(names, 40.0),
+                   dict.fromkeys(names, 100.0))
+    jobs = dict.fromkeys(names, 40.0) | {"local": 30.0, "round_robin": 60.0}
+    for b in names:
+        stats[b, "job_completion_ratio"] = (jobs[b], 5.0)
+    best = {"completion_ratio": "greedy", "penalised_response_time": "greedy", "dropped": "greedy",
+            "job_completion_ratio": "round_robin", "penalised_makespan": "drift_plus_penalty",
+            "jobs_missed": "round_robin"}
+    assert regimes.verdict(stats, best) == (
+        "*tasks: offloading pays (+70.0 points over local); greedy dominates. Jobs: offloading pays (+30.0 points "
+        "over local); no heuristic dominates: most jobs done round_robin, best job score drift_plus_penalty*")
+    stats["round_robin", "job_completion_ratio"] = (40.0, 5.0)  # +10 points, within the two CIs of 5
+    best["penalised_makespan"] = "round_robin"
+    assert regimes.verdict(stats, best).endswith(
+        "Jobs: offloading barely matters (+10.0 points over local, within the 95% CIs); round_robin dominates*")
+    best["job_completion_ratio"] = "local"
+    assert "Jobs: keeping tasks local is best; no heuristic dominates" in regimes.verdict(stats, best)
+
+
 def test_the_command_writes_one_csv_per_family_and_the_cards(tmp_path):
     regimes.main(["--families", "compute", "--episodes", "2", "--max-steps", "30", "--out", str(tmp_path),
                   "--no-progress"])
@@ -115,6 +138,9 @@ def test_a_feature_family_card_shows_its_own_columns_and_is_rebuilt_from_its_csv
         columns = next(f for f in regimes.FAMILIES if f.name == family).columns
         header = next(line for line in card.splitlines() if line.startswith("| λ |") and columns[0][1] in line)
         assert header.endswith(" | ".join(title for _, title, _, _ in columns) + " |")
+    verdicts = [line for line in card.splitlines() if line.startswith("| 0.0") and "| | *" in line]
+    assert len(verdicts) == 2 and all("*tasks: " in v and ". Jobs: " in v for v in verdicts)  # dag's two rates
+    assert sum(". Jobs: " in line for line in card.splitlines()) == 2  # mobile's verdicts judge tasks alone
     dag, mobile = (raw.read([tmp_path / f"{name}.csv"]) for name in ("dag", "mobile"))
     assert all(r["jobs"] > 0 and 0 <= r["job_completion_ratio"] <= 1 and r["jobs_completed"] + r["jobs_missed"]
                <= r["jobs"] for r in dag)

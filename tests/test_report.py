@@ -227,3 +227,40 @@ def test_learning_curves_and_wall_clock_follow_their_csv(pipeline, training, tmp
         report.main([str(pipeline / "raw.csv"), "--wall-clock", str(timing), "--out", str(out), "--no-progress"])
     err = capsys.readouterr().err
     assert e.value.code == 2 and "protocol.csv:2: wall_s and cpu_s: expected numbers" in err
+
+
+def test_rows_with_jobs_add_the_job_columns_over_their_regimes_alone(tmp_path):
+    """The committed cards' rows of dag (jobs) and compute (none) in one group: the aggregate and paired tables
+    gain jobs done and the penalised makespan, computed over dag's regimes alone; compute alone has no job column."""
+    compute = rows_of(ROOT / "docs" / "regimes" / "compute.csv")
+    policies = {r["policy"] for r in compute}
+    dag = [r for r in rows_of(ROOT / "docs" / "regimes" / "dag.csv") if r["policy"] in policies]
+    learner = [{**r, "policy": "learner", "train_seed": str(s)} for s in (0, 1) for r in dag + compute
+               if r["policy"] == "greedy"]
+    for name, rows in (("compute.csv", compute), ("dag.csv", dag), ("learner.csv", learner)):
+        write(tmp_path / name, rows)
+    assert "jobs done" not in build(tmp_path, tmp_path / "compute.csv")
+    text = build(tmp_path, tmp_path / "compute.csv", tmp_path / "dag.csv", tmp_path / "learner.csv")
+    assert "| completion % | penalised response [s] | jobs done % | penalised makespan [s] | interval over |" in text
+    assert "the same over the regimes of jobs alone." in text
+    for policy in policies:
+        for column, metric, scale in ((7, "job_completion_ratio", 100), (8, "penalised_makespan", 1)):
+            regimes = sorted({r["regime"] for r in dag})
+            expected = scale * np.mean([np.mean([float(r[metric]) for r in dag if r["policy"] == policy
+                                                 and r["regime"] == g]) for g in regimes])
+            assert float(cell(text, policy, column).split()[0]) == pytest.approx(expected, abs=0.05), policy
+        assert float(cell(text, policy, 5).split()[0]) == pytest.approx(
+            expected_completion(compute + dag, policy), abs=0.05)  # the tasks over every regime
+    episodes = len({(r["regime"], r["seed"]) for r in compute + dag})
+    jobs = len({(r["regime"], r["seed"]) for r in dag})
+    for title in ("### Every policy against", "### `learner` against every baseline"):
+        table = text.split(title)[1].split("###")[0]
+        assert "| Δ jobs done [points] | W/T/L | Δ penalised makespan [s] | W/T/L |" in table
+        for line in (line for line in table.splitlines() if line.startswith("| `")):
+            cells = [c.strip() for c in line.strip("|").split("|")]
+            counts = [sum(map(int, c.split("/"))) for c in cells if re.fullmatch(r"\d+/\d+/\d+", c)]
+            assert counts == [episodes, episodes, jobs, jobs], line
+    against = text.split("### `learner` against every baseline")[1].split("###")[0]
+    greedy = [c.strip() for c in next(line for line in against.splitlines()
+                                      if line.startswith("| `greedy` |")).strip("|").split("|")]
+    assert greedy[7:11] == ["0.0 [0.0, 0.0]", f"0/{jobs}/0", "0.0 [0.0, 0.0]", f"0/{jobs}/0"]

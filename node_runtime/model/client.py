@@ -44,7 +44,8 @@ class Client(Role):
             self.source.deadlines_rng = stream(seed, self.index, CLIENT.stream, DEADLINES)
         self.target_rng = stream(seed, self.index, CLIENT.stream, TARGETS)
         self.seq = 0
-        self.book = JobBook(self.scenario.dt) if self.scenario.workload.jobs is not None else None
+        wl = self.scenario.workload
+        self.book = JobBook(self.scenario.dt, tuple(t.name for t in wl.task_types)) if wl.jobs is not None else None
         if self.radio is not None:
             self.radio.reset(stream(seed, self.index, CLIENT.stream, LINKS))
 
@@ -90,8 +91,8 @@ class Client(Role):
                 for job, index in book.start(self.task_id(), spec, t, st):
                     self.send(t, book.task(job, index, self.task_id(), me, t), out)
             return
-        for size in self.source.draws(t):
-            self.send(t, Task(self.task_id(), me, t, TaskSize(*size)), out)
+        for size, kind in self.source.typed(t):
+            self.send(t, Task(self.task_id(), me, t, TaskSize(*size), type=kind), out)
 
     def send(self, t: int, task: Task, out: Outbox) -> None:
         """A new task: to the own worker, or over the radio to a target worker in range."""

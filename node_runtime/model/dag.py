@@ -24,6 +24,7 @@ class DagTask(Strict):
     cpi: Pos = 1.0  # xi
     input_bytes: NonNeg = 0.0  # from the job's origin, beside what its in-edges bring
     output_bytes: NonNeg = 0.0  # back to the job's origin as its result, beside what its out-edges carry
+    type: str | None = None  # a task type of workload.tasks, whose payload it runs (its size stays its own)
 
 
 Edge = tuple[int, int, NonNeg]  # (from task, to task, bytes)
@@ -127,6 +128,7 @@ class LayeredDag(Strict):
     input_bytes: NonNeg = 1.0e5  # of each entry task, from the origin
     output_bytes: NonNeg = 1.0e4  # of each exit task, to the origin
     deadline: Pos = 100.0
+    type: str | None = None  # the task type of every task drawn, whose payload it runs (sizes stay drawn)
 
     @model_validator(mode="after")
     def _some_work(self) -> LayeredDag:
@@ -164,7 +166,8 @@ class LayeredDag(Strict):
         has_pred = {b for _, b in ordered}
         tasks = tuple(DagTask(name=f"t{i}", instructions=work[i], cpi=self.cpi,
                               input_bytes=0.0 if i in has_pred else self.input_bytes,
-                              output_bytes=self.output_bytes if i not in fed else 0.0) for i in range(n))
+                              output_bytes=self.output_bytes if i not in fed else 0.0, type=self.type)
+                      for i in range(n))
         return JobSpec(name="generated", deadline=self.deadline, tasks=tasks,
                        edges=tuple((a, b, s) for (a, b), s in zip(ordered, sizes, strict=True)))
 

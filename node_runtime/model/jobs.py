@@ -32,8 +32,11 @@ class Job:
 class JobBook:
     """The active jobs of one client, in creation order, and the job counters they move."""
 
-    def __init__(self, dt: float) -> None:
+    def __init__(self, dt: float, types: tuple[str, ...] = ()) -> None:
+        """``types``: the names of the task types, in ``workload.tasks`` order (a task of a job that names one
+        carries its index)."""
         self.dt = dt
+        self.types = {name: i for i, name in enumerate(types)}
         self.active: dict[int, Job] = {}
 
     def start(self, job_id: int, spec: JobSpec, t: int, stats: Counters) -> list[tuple[Job, int]]:
@@ -53,7 +56,8 @@ class JobBook:
         size = TaskSize(d.instructions, shape.input_bytes[index], shape.output_bytes[index], d.cpi,
                         spec.deadline - (t - job.created) * self.dt)
         return Task(task_id, origin, t, size,
-                    job=JobRef(job.id, index, shape.critical_cycles[index], shape.successor_bytes[index]))
+                    job=JobRef(job.id, index, shape.critical_cycles[index], shape.successor_bytes[index]),
+                    type=None if d.type is None else self.types[d.type])
 
     def finished(self, ref: JobRef, t: int, stats: Counters) -> list[tuple[Job, int]]:
         """A result of a task of a job came back in time at tick ``t``: the tasks it makes ready (ascending),

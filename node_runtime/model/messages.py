@@ -54,6 +54,7 @@ class Task:
     hops: int = 0  # offloads so far
     path: tuple[str, ...] = ()
     job: JobRef | None = None  # a task of a job, or a task on its own
+    type: int | None = None  # index of its task type in workload.tasks (None: a trace row or source gave no type)
 
     def expired(self, tick: int, dt: float) -> bool:
         """Older than its deadline: (now - created) > delta."""

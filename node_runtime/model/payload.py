@@ -1,8 +1,9 @@
 """Real work in the loop: a task type's payload, run by the worker that serves the task.
 
-A task type may name a Python callable (``workload.tasks[].payload``). When a task of that type starts
-service, its worker calls it, measures the CPU time the call took on its own thread and serves the task
-for that work instead of the type's nominal ρ·ξ cycles (docs/model.md, "Payloads"):
+A task type may name a Python callable (``workload.tasks[].payload``). When a task of that type (the index
+a task carries, ``Task.type``) starts service, its worker calls it, measures the CPU time the call took on
+its own thread and serves the task for that work instead of the type's nominal ρ·ξ cycles (docs/model.md,
+"Payloads"):
 
     cycles = measured CPU seconds x payload_hz,   payload_hz = the node's, else cores x frequency
 
@@ -33,12 +34,6 @@ from node_runtime.model.spec import NodeSpec, Payload, PayloadLog, Scenario
 
 class PayloadError(RuntimeError):
     """A payload that cannot run or be replayed: the run fails, naming the node, task type and payload."""
-
-
-def size_key(instructions: float, input_bytes: float, output_bytes: float, cpi: float) -> tuple[float, ...]:
-    """What tells a task's type: a task carries its size, not its type, so a type with a payload needs a
-    size (ρ, α_in, α_out, ξ) no other type has (``orchestrator.scenario`` checks it)."""
-    return (instructions, input_bytes, output_bytes, cpi)
 
 
 RecordKey = tuple[int, int, str]  # (seed, task id, serving node)
@@ -89,7 +84,7 @@ class Payloads:
     def __init__(self, node: NodeSpec, scenario: Scenario) -> None:
         self.node = node.id
         self.hz = node.payload_hz if node.payload_hz is not None else node.capacity
-        self.types = {size_key(*t.size(0.0)[:4]): t for t in scenario.workload.task_types if t.payload is not None}
+        self.types = {i: t for i, t in enumerate(scenario.workload.task_types) if t.payload is not None}
         self.log = scenario.payload_log
         self.functions: dict[str, Callable[..., Any]] = {}
         self.seed = scenario.seed  # the episode's: the worker sets it at every reset
@@ -103,8 +98,8 @@ class Payloads:
 
     def cycles(self, task: Task) -> float | None:
         """The cycles ``task`` takes here: its payload's measured (or recorded) CPU seconds x payload_hz;
-        None for a task without a payload (it keeps its nominal ρ·ξ)."""
-        ttype = self.types.get(size_key(*task.size[:4]))
+        None for a task without a payload (its type has none, or it has no type): it keeps its nominal ρ·ξ."""
+        ttype = self.types.get(task.type)
         if ttype is None:
             return None
         if self.log.mode == "replay":

@@ -194,11 +194,12 @@ class TaskType(Strict):
 
 @dataclass(frozen=True, slots=True)
 class TraceRow:
-    """One task of a trace: when, which client creates it, and its size."""
+    """One task of a trace: when, which client creates it, its size, and (an optional column) its task type."""
 
     time: float  # seconds from the episode start
     client: str
     size: TaskSize
+    type: int | None = None  # index of the task type in workload.tasks it names (None: the column is empty)
 
     @classmethod
     def columns(cls) -> list[str]:
@@ -404,10 +405,11 @@ def _hashed(sc: Scenario) -> dict[str, Any]:
             "arrival": {"kind": wl.arrival.kind, **LEGACY_ARRIVAL, **wl.arrival.model_dump(exclude={"kind"})},
             "client_rates": [list(kv) for kv in wl.client_rates],
             "client_targets": [[c, list(ts)] for c, ts in wl.client_targets],
-            "trace": None if wl.trace is None else [{"time": r.time, "client": r.client, **r.size._asdict()}
+            "trace": None if wl.trace is None else [{"time": r.time, "client": r.client, **r.size._asdict(),
+                                                     **({} if r.type is None else {"type": r.type})}
                                                     for r in wl.trace],
             "source": wl.source,
-            **({} if wl.jobs is None else {"jobs": wl.jobs.model_dump(mode="json")}),
+            **({} if wl.jobs is None else {"jobs": _hashed_jobs(wl.jobs)}),
         },
         "failures": [{"node": f.node, "start": f.at, "end": f.end} for f in sc.failures],
         "admission": sc.admission, "control_latency": sc.control_latency,
@@ -423,6 +425,15 @@ def _hashed(sc: Scenario) -> dict[str, Any]:
 
 # Every arrival key with the default it had when all kinds shared one record
 LEGACY_ARRIVAL: dict[str, Any] = {"rate": 0.17, "start": 0.0, "end": 0.0, "low": 0.0, "high": 0.0, "period": 100.0}
+
+
+def _hashed_jobs(jobs: Jobs) -> dict[str, Any]:
+    """The jobs, a task's ``type`` (added later) left out while unset."""
+    d = jobs.model_dump(mode="json")
+    for part in [d["generator"] or {}, *(t for job in d["dags"] for t in job["tasks"])]:
+        if "type" in part and part["type"] is None:
+            del part["type"]
+    return d
 
 
 def _hashed_task_type(t: TaskType) -> dict[str, Any]:

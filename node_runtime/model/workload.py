@@ -152,16 +152,24 @@ class TaskSource:
 
     def draws(self, tick: int) -> list[TaskSize]:
         """The size of every task created at ``tick`` (a plain tuple of its five fields will do)."""
+        return [size for size, _ in self._typed(tick)]
+
+    def typed(self, tick: int) -> list[tuple[TaskSize, int | None]]:
+        """Every task created at ``tick``: its size and the index of its task type in ``workload.tasks``
+        (None for a trace row without one). A source that redefines ``draws`` gives tasks without a type."""
+        if type(self).draws is not TaskSource.draws:
+            return [(size, None) for size in self.draws(tick)]
+        return self._typed(tick)
+
+    def _typed(self, tick: int) -> list[tuple[TaskSize, int | None]]:
         if self.trace is not None:
-            return [r.size for r in self.trace.get(tick, ())]
+            return [(r.size, r.type) for r in self.trace.get(tick, ())]
         n = self.count(tick)
         if n == 0:
             return []
-        if len(self.types) == 1:
-            picks = [self.types[0]] * n
-        else:
-            picks = [self.types[i] for i in self.types_rng.choice(len(self.types), size=n, p=self.probs)]
-        return [t.size(t.draw_deadline(self.deadlines_rng)) for t in picks]
+        picks = [0] * n if len(self.types) == 1 else \
+            self.types_rng.choice(len(self.types), size=n, p=self.probs).tolist()
+        return [(self.types[i].size(self.types[i].draw_deadline(self.deadlines_rng)), i) for i in picks]
 
     def draw_jobs(self, tick: int) -> list[JobSpec]:
         """The DAG of every job created at ``tick`` (``workload.jobs``): as many as ``count`` says, each drawn

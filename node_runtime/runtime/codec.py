@@ -58,7 +58,7 @@ def _malformed(what: str) -> NoReturn:
 # ----- shapes: what each array and map may hold (bool passes for int, as in Python) -----
 
 NUM = (int, float)
-TASK = (int, str, int, NUM, NUM, NUM, NUM, NUM, int, list, object)
+TASK = (int, str, int, NUM, NUM, NUM, NUM, NUM, int, list, object, object)
 RESULT = (list, str, int, int, NUM)
 DECISION = (int, str)
 PENDING = (int, str, int, NUM, NUM, NUM, NUM, NUM, int, object)
@@ -224,14 +224,14 @@ def _unjob(a: Any) -> JobRef | None:
 
 
 def _task(t: Task) -> list:
-    return [t.id, t.origin, t.created, *t.size, t.hops, list(t.path), _job(t.job)]
+    return [t.id, t.origin, t.created, *t.size, t.hops, list(t.path), _job(t.job), t.type]
 
 
 def _untask(a: Any) -> Task:
-    if not (_fits(a, TASK) and _str_list(a[9]) and _is_job(a[10])):
+    if not (_fits(a, TASK) and _str_list(a[9]) and _is_job(a[10]) and _maybe_int(a[11])):
         _malformed("a task that is not [id, origin, created, instructions, input, output, cpi, deadline, hops, path, "
-                   "job]")
-    return Task(a[0], a[1], a[2], TaskSize(a[3], a[4], a[5], a[6], a[7]), a[8], tuple(a[9]), _unjob(a[10]))
+                   "job, type]")
+    return Task(a[0], a[1], a[2], TaskSize(a[3], a[4], a[5], a[6], a[7]), a[8], tuple(a[9]), _unjob(a[10]), a[11])
 
 
 def _body(kind: Kind, body: Any) -> Any:

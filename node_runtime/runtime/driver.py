@@ -10,10 +10,10 @@ not started yet, so they are buffered by (episode, sent tick) until their turn.
 Anyone on the bus can publish on this process's keys, so what cannot be trusted is refused, counted
 and logged (docs/bus.md, "Rejected messages"): a tick without the clock's MAC (``origin``), or of an
 epoch older than the newest it has seen (a holder of the clock whose claim is over), a tick of another
-episode or one already run, mail
-from a process that never sends here or for roles that are not here, mail that comes after its tick
-ran, a second batch from the same sender on the same key in one tick, a tick that gives this process
-nothing to do or skips the tick it has work due in. Mail that passes every check
+episode or one already run, mail from a process that never sends here or for roles that are not here, a
+task of a task type the scenario does not have, mail that comes after its tick ran, a second batch from
+the same sender on the same key in one tick, a tick that gives this process nothing to do or skips the
+tick it has work due in. Mail that passes every check
 but outnumbers what the clock announced, or differs from a batch the same sender already sent on the
 same key in the same tick, cannot be told from the genuine mail: the process then stops with an error
 rather than run with it. Its reports are sealed with its own key of the tick's epoch.
@@ -63,6 +63,7 @@ class HostDriver:
         self.proc_of = plan.proc_of
         self.publications = plan.publications  # role -> the topics it broadcasts on
         self.n_roles = len(plan.roles)
+        self.n_types = len(plan.scenario.workload.task_types)  # a task's type indexes them
         # one detector per node covers every event kind, users' own included; publishers come lazily
         self.listeners = [transport.monitored(keys.events("*", node)) for node in host.nodes]
         self.monitors: dict[tuple[str, str], Monitored] = {}
@@ -159,6 +160,8 @@ class HostDriver:
                 return UNKNOWN_SENDER, f"an envelope from {env.src!r}, which {batch.src} does not host"
             if env.arrive <= batch.tick:
                 return WRONG_TICK, f"an envelope sent in tick {batch.tick} that arrives at tick {env.arrive}"
+            if env.kind is Kind.TASK and env.body.type is not None and not 0 <= env.body.type < self.n_types:
+                return WRONG_SHAPE, f"a task of type {env.body.type}; the scenario has {self.n_types} task types"
         return None
 
     def advance(self) -> None:

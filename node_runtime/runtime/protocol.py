@@ -28,7 +28,7 @@ from typing import Any, Literal
 from node_runtime.model.messages import Envelope
 from node_runtime.model.view import Observation
 
-SCHEMA_VERSION = 13
+SCHEMA_VERSION = 14
 Command = Literal["run", "reset", "stop", "fence"]  # fence: only says a new epoch began (docs/protocol.md)
 
 

@@ -74,8 +74,10 @@ def report(sc: Scenario) -> list[str]:
     if (jobs := sc.workload.jobs) is not None:
         source = (f"{len(jobs.dags)} listed DAG(s), {sum(len(d.tasks) for d in jobs.dags)} tasks in all"
                   if jobs.dags else "DAGs drawn by the layered generator")
+        paid = [t.name for t in sc.workload.task_types if t.payload is not None]
+        runs = f"; the tasks of type(s) {', '.join(paid)} run a payload" if paid else ""
         return [f"jobs workload: every arrival is a job, one of {source}, due in at most {jobs.longest_deadline:g} s "
-                "(no task types to cost)"]
+                f"(no task types to cost){runs}"]
     arriving = {n for targets in sc.targets.values() for n in targets}
     reached = within(sc, arriving, sc.max_hops)
     kinds = devices(sc)

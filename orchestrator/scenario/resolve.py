@@ -20,7 +20,6 @@ from pydantic import ConfigDict, ValidationError, validate_call
 from node_runtime.model.dag import Jobs
 from node_runtime.model.messages import LONGEST_DEADLINE_TICKS, TaskSize
 from node_runtime.model.mobility import RadioRange, Trace
-from node_runtime.model.payload import size_key
 from node_runtime.model.plugins import PluginError, extend_path, is_import_path, load
 from node_runtime.model.positions import bounds, box_distance, link_rate
 from node_runtime.model.radio import free_space_loss_db, log_distance_gain_db, shannon_rate
@@ -510,10 +509,9 @@ class _Resolver:
                 self.error(f"node {n.id!r}", "a task source without a worker needs a worker neighbour")
         self.check_arrivals(wl)
         self.check_deadlines(wl)
-        self.check_payload_sizes(wl)
         trace = None
         if wl.trace is not None:
-            trace = self.trace(self.file(wl.trace), by_id)
+            trace = self.trace(self.file(wl.trace), by_id, wl)
         return Workload(
             task_types=tasks,
             arrival=wl.arrival,
@@ -541,20 +539,38 @@ class _Resolver:
             jobs = Jobs(dags=tuple(cfg.dags or ()), generator=cfg.generator)
         if why := self.too_long(jobs.longest_deadline):
             self.error("workload.jobs", why)
+        self.check_job_types(wl, jobs)
         return jobs
 
-    def check_payload_sizes(self, wl: WorkloadCfg) -> None:
-        """A task carries its size, not its type: a type with a payload needs a size no other type has."""
-        for i, task in enumerate(wl.tasks):
-            if task.payload is None:
+    def type_index(self, wl: WorkloadCfg, name: str) -> int | str:
+        """The index in ``workload.tasks`` of the task type ``name``, or why there is none."""
+        named = [i for i, t in enumerate(wl.tasks) if t.name == name]
+        if len(named) == 1:
+            return named[0]
+        if not named:
+            return (f"expected the name of a task type of workload.tasks ({', '.join(repr(t.name) for t in wl.tasks)})"
+                    f", got {name!r}")
+        return f"{len(named)} task types of workload.tasks are named {name!r}; give each a name of its own"
+
+    def check_job_types(self, wl: WorkloadCfg, jobs: Jobs) -> None:
+        """A job's task names a task type of its own file, and a type with a payload is named by some task of
+        a job: with jobs, a task runs a payload only when its type names one (an Alibaba job's tasks name none)."""
+        named: set[str] = set()
+        places = [("workload.jobs.generator.type", jobs.generator.type)] if jobs.generator is not None else []
+        if wl.jobs is not None and wl.jobs.dags is not None:
+            places += [(f"workload.jobs.dags[{j}].tasks[{k}].type", t.type) for j, job in enumerate(wl.jobs.dags)
+                       for k, t in enumerate(job.tasks)]
+        for where, name in places:
+            if name is None:
                 continue
-            key = size_key(*task.size(0.0)[:4])
-            for j, other in enumerate(wl.tasks):
-                if j != i and size_key(*other.size(0.0)[:4]) == key:
-                    self.error(f"workload.tasks[{i}].payload", f"task type {other.name!r} (tasks[{j}]) has the same "
-                               "instructions, input_bytes, output_bytes and cpi; a type with a payload needs a size "
-                               "of its own (a worker knows a task's type by its size)")
-                    break
+            if isinstance(why := self.type_index(wl, name), str):
+                self.error(where, why)
+            named.add(name)
+        for i, t in enumerate(wl.tasks):
+            if t.payload is not None and t.name not in named:
+                self.error(f"workload.tasks[{i}].payload", f"no task of workload.jobs is of type {t.name!r}; with jobs "
+                           "a task runs a payload when it names its type (dags[].tasks[].type or generator.type; an "
+                           "Alibaba job's tasks have none)")
 
     def check_arrivals(self, wl: WorkloadCfg) -> None:
         """Every rate a source may draw with, times dt, within MAX_TASKS_PER_TICK."""
@@ -580,23 +596,32 @@ class _Resolver:
         return (f"a deadline of {deadline:g} s is {deadline / dt:g} ticks of dt = {dt:g} s; expected at most "
                 f"2^50 ({LONGEST_DEADLINE_TICKS:.2g}) ticks")
 
-    def trace(self, path: Path, by_id: dict[str, NodeSpec]) -> tuple[TraceRow, ...] | None:
+    def trace(self, path: Path, by_id: dict[str, NodeSpec], wl: WorkloadCfg) -> tuple[TraceRow, ...] | None:
+        """The rows of a trace file: its columns, and optionally ``type`` (the name of a task type of
+        ``workload.tasks``, whose payload the row's task runs; empty: none)."""
         columns = TraceRow.columns()
         sizes = columns[2:]
         where = "workload.trace"
         try:
             with path.open(newline="") as fh:
                 reader = csv.DictReader(fh)
-                if reader.fieldnames is None or [c.strip() for c in reader.fieldnames] != columns:
-                    self.error(where, f"{path}: expected the header {','.join(columns)}")
+                header = [c.strip() for c in reader.fieldnames or ()]
+                if header not in (columns, [*columns, "type"]):
+                    self.error(where, f"{path}: expected the header {','.join(columns)} (and optionally type)")
                     return None
-                rows = []
+                rows, untyped = [], False  # untyped: a row whose type is no task type's
                 for line, rec in enumerate(reader, start=2):
+                    name = (rec.get(reader.fieldnames[-1]) or "").strip() if len(header) > len(columns) else ""
+                    kind = self.type_index(wl, name) if name else None
+                    if isinstance(kind, str):
+                        self.error(where, f"{path}:{line}: type: {kind}")
+                        untyped = True
+                        continue
                     try:
                         row = TraceRow(float(rec["time"]), rec["client"].strip(),
-                                       TaskSize(*(float(rec[c]) for c in sizes)))
+                                       TaskSize(*(float(rec[c]) for c in sizes)), kind)
                     except (TypeError, ValueError, AttributeError):
-                        self.error(where, f"{path}:{line}: expected numbers in every column but 'client'")
+                        self.error(where, f"{path}:{line}: expected numbers in every column but 'client' and 'type'")
                         continue
                     if not all(math.isfinite(x) for x in (row.time, *row.size)):
                         self.error(where, f"{path}:{line}: expected finite numbers in every column but 'client'")
@@ -623,5 +648,10 @@ class _Resolver:
         except OSError as exc:  # a directory, no permission
             self.error(where, f"{path}: cannot read it: {exc.strerror}")
             return None
+        named = {r.type for r in rows}
+        for i, t in enumerate(wl.tasks):
+            if t.payload is not None and i not in named and not untyped:
+                self.error(f"workload.tasks[{i}].payload", f"no row of {path.name} is of type {t.name!r}; a trace's "
+                           "task runs a payload when its type column names it")
         return tuple(sorted(rows, key=lambda r: (r.time, r.client)))
 

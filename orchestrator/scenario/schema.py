@@ -122,8 +122,6 @@ class WorkloadCfg(Strict):
     def one_workload(self) -> WorkloadCfg:
         if self.jobs is not None and (self.trace is not None or self.source is not None):
             raise ValueError("jobs come from the arrival process: remove trace and source, or jobs")
-        if self.jobs is not None and any(t.payload is not None for t in self.tasks):
-            raise ValueError("the tasks of jobs run no payload: remove the payload of tasks, or jobs")
         if self.trace is not None:
             ignored = sorted({"arrival", "rates", "source"} & self.model_fields_set)
             if ignored:
