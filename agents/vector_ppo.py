@@ -1,8 +1,8 @@
 """PPO over K copies of a scenario stepped together on the array backend: the project's PPO, fed in arrays.
 
     learner = PPO(specs, PPOConfig(shared=True, agent_id=False, credit="task", gamma=0.0))
-    trainer = VectorPPO(learner, env, envs=64)      # env: ZenohEdgeEnv(observation="flat", backend="array", ...)
-    rows = trainer.episode(seeds)                    # one episode of every copy, learning as it goes
+    regimes = [Regime(learner, env, 16) for env in envs]  # envs: ZenohEdgeEnv(observation="flat", backend="array")
+    rows = VectorPPO(learner).episode(regimes, seeds)     # one episode of every copy, learning as it goes
 
 The serial loop (``agents.training.train``) steps one environment and asks the learner for one agent at a
 time; on 2 cores it makes about 200 training steps a second. Here ``env.batched.BatchedSteps`` gives every
@@ -21,8 +21,10 @@ each decision is a row of arrays. What is learnt is the serial learner's, rule f
   (``PPO.update_group``), with the learning rate annealed over the horizon in environment steps.
 
 So a checkpoint is an ordinary PPO checkpoint: it acts and is evaluated on any backend. What differs is the
-sample stream: K episodes of one regime run at once, and an update comes every ``rollout_steps`` steps of
-all K copies, so it holds K times the decisions of a serial one (``num_minibatches`` times larger minibatches).
+sample stream: the episodes of all copies run at once, so an update mixes the regimes stepped together; by default
+it comes after as many copy-steps as a serial update (``rollout_steps``), so the updates per frame are the serial
+loop's. Several regimes stepped together keep the diversity of the serial loop, which draws a regime per episode:
+K copies of one regime train on that regime alone for K episodes' worth of updates.
 Binary mode only (one task per decision); no centralised critic and no teacher (they read Dict observations).
 """
 
@@ -73,7 +75,7 @@ class Decisions:
     columns: dict[str, np.ndarray] = field(default_factory=dict)
 
     SPEC: ClassVar[dict[str, type]] = {
-        "copy": np.int64, "agent": np.int64, "step": np.int64, "task": np.int64, "action": np.int64,
+        "group": np.int64, "copy": np.int64, "chain": np.int64, "step": np.int64, "task": np.int64, "action": np.int64,
         "logp": np.float32, "value": np.float32, "reward": np.float64, "discount": np.float64,
         "next_value": np.float64, "last": bool, "closed": bool, "credit": np.float64}
 
@@ -114,44 +116,50 @@ def _grown(a: np.ndarray, size: int) -> np.ndarray:
     return out
 
 
-class VectorPPO:
-    """Trains a shared-network ``PPO`` on K copies of ``env``'s scenario and settings (module docstring)."""
+class Regime:
+    """One scenario's K copies in the loop: its batched steps, its per-task credit, and where the learner's
+    features lie in its flat observations."""
 
-    def __init__(self, learner: PPO, env: ZenohEdgeEnv, envs: int = 64, rollout_steps: int | None = None) -> None:
+    def __init__(self, learner: PPO, env: ZenohEdgeEnv, k: int) -> None:
         reason = unsupported(learner, env)
         if reason is not None:
             raise ValueError(f"the vectorised PPO loop does not train {reason}")
-        self.learner, self.env = learner, env
-        self.steps = BatchedSteps.of(env, envs)
-        self.k, self.n = envs, len(self.steps.agents)
-        # steps of every copy between updates: by default as many copy-steps per update as the serial loop's
-        self.rollout = rollout_steps or max(1, learner.config.rollout_steps // envs)
+        self.env, self.k = env, k
+        self.steps = BatchedSteps.of(env, k)
+        self.n = len(self.steps.agents)
         s = env.builders[self.steps.agents[0]].slices
-        self.own = s["own"]
+        self.own, self.neighbours = s["own"], s["neighbours"]
         self.task = slice(s["task"].start, s["task"].start + len(TaskField))
-        self.neighbours = s["neighbours"]
-        self.slots = self.steps.slots
-        c = learner.config
-        self.credit = ArrayCredit(env.penalty, env.reward_settings) if c.credit == "task" else None
+        self.credit = ArrayCredit(env.penalty, env.reward_settings) if learner.config.credit == "task" else None
         self.ids = (np.stack([one_hot(learner.index[a], len(learner.agents)) for a in self.steps.agents])
-                    if c.agent_id else None)
-        self.table = Decisions.empty(learner.input_dim(SHARED), self.steps.n_actions)
-        self.learnt = 0  # decisions learnt from so far (the others: learner.uncredited)
-
-    def close(self) -> None:
-        self.env.close()
-
-    # ----- features and acting -----
+                    if learner.config.agent_id else None)
+        self.width = learner.input_dim(SHARED)
+        self.rewards = np.zeros((k, self.n))  # of its last step
 
     def features(self, observation: np.ndarray, agents: np.ndarray) -> np.ndarray:
         """The learner's features (``Learner.features``) of flat observations (rows) of ``agents``."""
         if not len(observation):
-            return np.zeros((0, self.table.features.shape[1]), np.float32)
-        own = observation[:, self.own]
-        task = observation[:, self.task]
-        nb = observation[:, self.neighbours].reshape(len(observation), self.slots, len(NeighbourField))
-        x = flatten(own, task, nb)
+            return np.zeros((0, self.width), np.float32)
+        nb = observation[:, self.neighbours].reshape(len(observation), self.steps.slots, len(NeighbourField))
+        x = flatten(observation[:, self.own], observation[:, self.task], nb)
         return x if self.ids is None else np.concatenate([x, self.ids[agents]], axis=1)
+
+    def close(self) -> None:
+        self.env.close()
+
+
+class VectorPPO:
+    """Trains a shared-network ``PPO`` on the copies of one or more regimes stepped together (module docstring).
+    ``rollout_steps``: steps of every copy between updates (default: as many copy-steps per update as the
+    serial loop's ``rollout_steps``)."""
+
+    def __init__(self, learner: PPO, rollout_steps: int | None = None) -> None:
+        self.learner, self.rollout_steps = learner, rollout_steps
+        self.table = Decisions.empty(learner.input_dim(SHARED), learner.n_actions(SHARED))
+        self.learnt = 0  # decisions learnt from so far (the others: learner.uncredited)
+        self.open_row = np.zeros(0, dtype=np.int64)
+
+    # ----- acting -----
 
     def _act(self, x: np.ndarray, mask: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Sampled actions, their log-probabilities and the critic's values, for the rows of ``x``."""
@@ -169,105 +177,128 @@ class VectorPPO:
 
     # ----- one episode of every copy -----
 
-    def episode(self, seeds: Sequence[int], learn: bool = True) -> list[dict[str, float]]:
-        """Run one episode in every copy (copy c seeded ``seeds[c]``), learning from it; one row per copy: the
-        return (summed over agents), the task counts and ratios of the episode, the wall time and the learner's
-        diagnostics after it."""
+    def episode(self, regimes: Sequence[Regime], seeds: Sequence[Sequence[int]],
+                learn: bool = True) -> list[list[dict[str, float]]]:
+        """Run one episode in every copy of every regime (copy c of regime g seeded ``seeds[g][c]``), all stepped
+        together, learning from them; per regime, one row per copy: the return (summed over agents), the task
+        counts and ratios of the episode, the wall time and the learner's diagnostics after it."""
         start = time.perf_counter()
-        learner, steps, table, k, n = self.learner, self.steps, self.table, self.k, self.n
-        learner.rng = np.random.default_rng(seeds[0])  # as Learner.reset reseeds its sampling per episode
-        learner.generator.manual_seed(int(seeds[0]))
-        observation, mask, _ = steps.reset(seeds)
-        if self.credit is not None:
-            self.credit.reset(k, steps.sim.m)
-        open_row = self.open_row = np.full((k, n), -1)  # each agent's open decision (its row), -1: none
-        running = np.zeros((k, n))  # each agent's discounted return so far (ReturnScale's, per copy)
-        returns = np.zeros(k)
+        learner, table = self.learner, self.table
+        lengths = {r.env.max_steps for r in regimes}
+        if len(lengths) > 1 or len({r.steps.n_actions for r in regimes}) > 1:
+            raise ValueError("regimes stepped together need one episode length and one action space")
+        copies = sum(r.k for r in regimes)
+        rollout = self.rollout_steps or max(1, learner.config.rollout_steps // copies)
+        learner.rng = np.random.default_rng(seeds[0][0])  # as Learner.reset reseeds its sampling per episode
+        learner.generator.manual_seed(int(seeds[0][0]))
+        base = np.cumsum([0] + [r.k * r.n for r in regimes])  # chain (copy, agent) numbers of each regime
+        self.open_row = np.full(base[-1], -1)  # each chain's open decision (its row), -1: none
+        running = np.zeros(base[-1])  # each chain's discounted return so far (ReturnScale's)
+        returns = [np.zeros(r.k) for r in regimes]
+        observations, masks = [], []
+        for r, s in zip(regimes, seeds, strict=True):
+            observation, mask, _ = r.steps.reset(s)
+            observations.append(observation)
+            masks.append(mask)
+            if r.credit is not None:
+                r.credit.reset(r.k, r.steps.sim.m)
         decisions = 0
-        x, deciders = self._deciders(observation)
-        for step in range(self.env.max_steps):
+        x, deciders = self._deciders(regimes, observations, base)
+        for step in range(lengths.pop()):
             # act for every agent with a task, and open its decision
-            dc, da = deciders
-            act, logp, value = self._act(x, mask[dc, da])
-            task = steps.shown[dc, da, 0]
-            rows = table.add(x, mask[dc, da], copy=dc, agent=da, step=np.full(len(dc), step), task=task,
-                             action=act, logp=logp, value=value, discount=np.ones(len(dc)))
-            open_row[dc, da] = rows
-            decisions += len(dc)
-            actions = np.zeros((k, n), dtype=np.int64)
-            actions[dc, da] = act
-            if self.credit is not None:
-                settled = self.credit.place(dc, task)
-                table["credit"][rows[settled]] = 0.0  # normalised below with the step's other credits
-            observation, mask, rewards, truncated, _ = steps.step(actions, mask)
-            returns += rewards.sum(axis=1)
+            act, logp, value = self._act(x, np.concatenate([m[dc, da] for m, (dc, da, _) in zip(masks, deciders,
+                                                                                                 strict=True)]))
+            fresh, at = [], 0
+            for g, (r, (dc, da, chain)) in enumerate(zip(regimes, deciders, strict=True)):
+                part = slice(at, at + len(dc))
+                at = part.stop
+                task = r.steps.shown[dc, da, 0]
+                rows = table.add(x[part], masks[g][dc, da], group=np.full(len(dc), g), copy=dc, chain=chain,
+                                 step=np.full(len(dc), step), task=task, action=act[part], logp=logp[part],
+                                 value=value[part], discount=np.ones(len(dc)))
+                self.open_row[chain] = rows
+                actions = np.zeros((r.k, r.n), dtype=np.int64)
+                actions[dc, da] = act[part]
+                if r.credit is not None:
+                    settled = r.credit.place(dc, task)
+                    table["credit"][rows[settled]] = 0.0  # normalised below with the step's other credits
+                fresh.append(rows)
+                observations[g], masks[g], rewards, truncated, _ = r.steps.step(actions, masks[g])
+                returns[g] += rewards.sum(axis=1)
+                r.rewards = rewards
+            decisions += at
             # the step's rewards or credits reach the open decisions
-            self._rewards(rewards, open_row, running, truncated, fresh=rows)
+            self._rewards(regimes, running, truncated, np.concatenate(fresh))
             # close what the step ends: at the agent's next decision, or everything at the episode's end
-            x, deciders = self._deciders(observation)
-            nc, na = deciders
-            next_value = self._values(x)
-            closing = open_row[nc, na] >= 0
-            self._close(open_row[nc[closing], na[closing]], next_value[closing], last=truncated)
-            open_row[nc[closing], na[closing]] = -1
+            x, deciders = self._deciders(regimes, observations, base)
+            chain = np.concatenate([c for _, _, c in deciders])
+            closing = self.open_row[chain] >= 0
+            self._close(self.open_row[chain[closing]], self._values(x)[closing], last=truncated)
+            self.open_row[chain[closing]] = -1
             if truncated:
-                self._close(open_row[open_row >= 0], None, last=True)
-                open_row[:] = -1
-            learner.env_steps += k
-            if learn and ((step + 1) % self.rollout == 0 or truncated):
-                self._update(episode_over=truncated)
+                self._close(self.open_row[self.open_row >= 0], None, last=True)
+                self.open_row[:] = -1
+            learner.env_steps += copies
+            if learn and ((step + 1) % rollout == 0 or truncated):
+                self._update(len(running), rollout * copies, episode_over=truncated)
             if truncated:
                 break
-        return self._rows(seeds, returns, decisions, time.perf_counter() - start)
+        wall = time.perf_counter() - start
+        return [self._rows(r, s, ret, decisions / copies, wall / copies)
+                for r, s, ret in zip(regimes, seeds, returns, strict=True)]
 
-    def _deciders(self, observation: np.ndarray) -> tuple[np.ndarray, tuple[np.ndarray, np.ndarray]]:
-        """The features of the agents that hold a task, and who they are (copies, agents)."""
-        dc, da = np.nonzero(self.steps.present[:, :, 0])
-        return self.features(observation[dc, da], da), (dc, da)
+    def _deciders(self, regimes: Sequence[Regime], observations: Sequence[np.ndarray], base: np.ndarray
+                  ) -> tuple[np.ndarray, list[tuple[np.ndarray, np.ndarray, np.ndarray]]]:
+        """The features of the agents that hold a task (all regimes, in order), and per regime who they are:
+        (copies, agents, chains)."""
+        who, parts = [], []
+        for r, observation, b in zip(regimes, observations, base[:-1], strict=True):
+            dc, da = np.nonzero(r.steps.present[:, :, 0])
+            who.append((dc, da, b + dc * r.n + da))
+            parts.append(r.features(observation[dc, da], da))
+        return np.concatenate(parts), who
 
-    def _rewards(self, rewards: np.ndarray, open_row: np.ndarray, running: np.ndarray, truncated: bool,
-                 fresh: np.ndarray) -> None:
+    def _rewards(self, regimes: Sequence[Regime], running: np.ndarray, truncated: bool, fresh: np.ndarray) -> None:
         """Add the step's scaled rewards to the open decisions (``Learner.observe``), or, with credit per task,
         give every decision whose tasks all settled its normalised credit (``Learner.settle``)."""
         learner, table = self.learner, self.table
         c = learner.config
-        gamma, scale = c.gamma, c.reward_scale
-        rows = open_row[open_row >= 0]
-        if self.credit is None:
-            scaled = rewards * scale
+        scale = c.reward_scale
+        open_chains = np.flatnonzero(self.open_row >= 0)
+        rows = self.open_row[open_chains]
+        if regimes[0].credit is None:
+            scaled = np.concatenate([r.rewards.ravel() for r in regimes]) * scale
             if c.normalize_reward:
                 scaled = self._normalised(scaled, running, truncated)
-            who = open_row >= 0
-            table["reward"][rows] += table["discount"][rows] * scaled[who]
+            table["reward"][rows] += table["discount"][rows] * scaled[open_chains]
         else:
-            for ledger in self.steps.ledgers:
-                self.credit.settle(ledger)
             waiting = np.flatnonzero(np.isnan(table["credit"]))
-            copy, task = table["copy"][waiting], table["task"][waiting]
-            came = waiting[~np.isnan(self.credit.credit[copy, task])]
-            table["credit"][came] = self.credit.credit[table["copy"][came], table["task"][came]]
-            came = np.concatenate([came, fresh[table["credit"][fresh] == 0.0]])  # credited 0 when placed
-            came = np.unique(came)
+            for g, r in enumerate(regimes):
+                for ledger in r.steps.ledgers:
+                    r.credit.settle(ledger)
+                mine = waiting[table["group"][waiting] == g]
+                table["credit"][mine] = r.credit.credit[table["copy"][mine], table["task"][mine]]
+            came = waiting[~np.isnan(table["credit"][waiting])]
+            came = np.union1d(came, fresh[table["credit"][fresh] == 0.0])  # with those credited 0 when placed
             values = table["credit"][came] * scale
             if c.normalize_reward:
                 sums = np.zeros(running.shape)
-                np.add.at(sums, (table["copy"][came], table["agent"][came]), values)
+                np.add.at(sums, table["chain"][came], values)
                 self._normalised(sums, running, truncated)
-                std = math.sqrt(learner.returns.rms.var + learner.returns.epsilon)
-                values = np.clip(values / std, -learner.returns.clip, learner.returns.clip)
+                r = learner.returns
+                values = np.clip(values / math.sqrt(r.rms.var + r.epsilon), -r.clip, r.clip)
             table["credit"][came] = values
-        table["discount"][rows] *= gamma
+        table["discount"][rows] *= c.gamma
 
     def _normalised(self, scaled: np.ndarray, running: np.ndarray, truncated: bool) -> np.ndarray:
-        """``ReturnScale.normalize`` for every (copy, agent) at once."""
+        """``ReturnScale.normalize`` for every chain at once."""
         r = self.learner.returns
         running *= r.gamma
         running += scaled
-        r.rms.update(running.ravel())
+        r.rms.update(running)
         if truncated:
             running[:] = 0.0
-        std = math.sqrt(r.rms.var + r.epsilon)
-        return np.clip(scaled / std, -r.clip, r.clip)
+        return np.clip(scaled / math.sqrt(r.rms.var + r.epsilon), -r.clip, r.clip)
 
     def _close(self, rows: np.ndarray, next_value: np.ndarray | None, last: bool) -> None:
         """Close decisions: bootstrapping from ``next_value`` with their discount, or as terminal (None)."""
@@ -282,28 +313,30 @@ class VectorPPO:
 
     # ----- learning -----
 
-    def _update(self, episode_over: bool) -> None:
+    def _update(self, chains: int, steps: int, episode_over: bool) -> None:
         """One PPO update on the decisions that can be learnt from now (``credited``); the others wait. At the
-        end of an episode the decisions whose credit never came are dropped (``uncredited_removed``)."""
+        end of an episode the decisions whose credit never came are dropped (``uncredited_removed``).
+        ``steps``: the copy-steps since the last update, for the learning rate's schedule."""
         learner, table = self.learner, self.table
         c = learner.config
-        if episode_over and self.credit is not None:
+        credit = c.credit == "task"
+        if episode_over and credit:
             self._drop_uncredited()
         closed = table["closed"]
-        credited = ~np.isnan(table["credit"]) if self.credit is not None else np.ones(table.rows, dtype=bool)
-        chain = table["copy"] * self.n + table["agent"]
-        # an agent's decisions from its first closed one without credit on wait (in time order)
-        first_wait = np.full(self.k * self.n, np.iinfo(np.int64).max)
+        credited = ~np.isnan(table["credit"]) if credit else np.ones(table.rows, dtype=bool)
+        chain = table["chain"]
+        # a chain's decisions from its first closed one without credit on wait (in time order)
+        first_wait = np.full(chains, np.iinfo(np.int64).max)
         blocked = np.flatnonzero(closed & ~credited)
         np.minimum.at(first_wait, chain[blocked], blocked)
         ready = np.flatnonzero(closed & credited & (np.arange(table.rows) < first_wait[chain]))
         if c.anneal_lr:  # the rate at the start of the rollout, so the last one still learns
-            started = learner.env_steps - self.rollout * self.k
+            started = learner.env_steps - steps
             for opt in learner.optimizers.values():
                 for pg in opt.param_groups:
                     pg["lr"] = c.lr * max(0.0, 1.0 - started / learner.total_steps)
         if len(ready):
-            reward = table["credit"][ready] if self.credit is not None else table["reward"][ready]
+            reward = table["credit"][ready] if credit else table["reward"][ready]
             value = table["value"][ready]
             adv = advantages(reward.tolist(), value.tolist(), table["next_value"][ready].tolist(),
                              table["discount"][ready].tolist(), table["last"][ready].tolist(),
@@ -327,40 +360,36 @@ class VectorPPO:
 
     def _drop_uncredited(self) -> None:
         """``uncredited_removed``: the decisions whose credit will never come leave, and the decision before
-        each (of the same agent) ends its chain there, bootstrapping from the state that followed it."""
+        each (of the same chain) ends its chain there, bootstrapping from the state that followed it."""
         table = self.table
         gone = np.isnan(table["credit"])
-        chain = table["copy"] * self.n + table["agent"]
-        learner = self.learner
-        learner.uncredited += int(gone.sum())
-        kept = np.flatnonzero(~gone)
-        if not len(kept):
-            self._keep(kept)
-            return
-        # a kept decision ends its chain when the chain's next decision is removed
-        order = np.lexsort((np.arange(table.rows), chain))
-        following = np.full(table.rows, -1)
+        self.learner.uncredited += int(gone.sum())
+        chain = table["chain"]
+        order = np.lexsort((np.arange(table.rows), chain))  # by chain, then time
+        following = np.full(table.rows, -1)  # the chain's next decision
         same = chain[order[1:]] == chain[order[:-1]]
         following[order[:-1][same]] = order[1:][same]
+        kept = np.flatnonzero(~gone)
         ends = kept[(following[kept] >= 0) & gone[np.maximum(following[kept], 0)]]
         table["last"][ends] = True
         self._keep(kept)
 
     # ----- episode rows -----
 
-    def _rows(self, seeds: Sequence[int], returns: np.ndarray, decisions: int, wall: float) -> list[dict[str, float]]:
-        totals = self.steps.totals()
+    def _rows(self, regime: Regime, seeds: Sequence[int], returns: np.ndarray, decisions: float,
+              wall: float) -> list[dict[str, float]]:
+        totals = regime.steps.totals()
         generated, completed, dropped = totals["generated"], totals["completed"], totals["dropped"]
         response = totals["response_time_total"]
-        penalty = self.env.penalty
+        penalty = regime.env.penalty
         stats = self.learner.stats()
         rows = []
         for c, seed in enumerate(seeds):
             g, done = float(generated[c]), float(completed[c])
-            rows.append({"seed": int(seed), "steps": self.steps.steps, "decisions": decisions / self.k,
+            rows.append({"seed": int(seed), "steps": regime.steps.steps, "decisions": decisions,
                          "return": float(returns[c]), "generated": g, "completed": done, "dropped": float(dropped[c]),
                          "completion_ratio": done / g if g else math.nan,
                          "response_time_mean": float(response[c]) / done if done else math.nan,
                          "penalised_response_time": (float(response[c]) + penalty * (g - done)) / g if g else math.nan,
-                         "wall_s": wall / self.k, **stats})
+                         "wall_s": wall, **stats})
         return rows

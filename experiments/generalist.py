@@ -40,7 +40,7 @@ import numpy as np
 from agents import BASELINES, PPO, AgentPolicy, Baseline, Learner, load_learner
 from agents.common import AgentSpec
 from agents.training import CsvWriter, progress_bar, run_episode, write_csv
-from agents.vector_ppo import VectorPPO
+from agents.vector_ppo import Regime, VectorPPO
 from env import ZenohEdgeEnv
 from env.reward import RewardSettings
 from experiments import raw, tune_baselines
@@ -176,8 +176,11 @@ def train(args: argparse.Namespace, p: Parser) -> None:
         seeds = EPISODES["train"].seeds(args.episodes, offset=args.seed * args.episodes)
         check_degrees([*regimes, *checks], args.slots)
         if args.envs > 1 and (args.episodes % args.envs or args.checkpoint_every % args.envs):
-            raise ValueError(f"--envs {args.envs} runs that many episodes of a regime at once: it must divide "
+            raise ValueError(f"--envs {args.envs} runs that many episodes at once: it must divide "
                              f"--episodes ({args.episodes}) and --checkpoint-every ({args.checkpoint_every})")
+        if args.envs % args.regimes:
+            raise ValueError(f"--regimes {args.regimes} must divide --envs {args.envs} (each regime drawn in a round "
+                             "runs as many of its episodes)")
     except ValueError as e:
         p.error(str(e))
     backends = regime_backends(p.prog, [*regimes, *checks], args.backend)
@@ -197,7 +200,8 @@ def train(args: argparse.Namespace, p: Parser) -> None:
         "algo": "ppo", "suite": str(args.suite), "regimes": [r.name for r in regimes],
         "validation": str(args.validation) if args.validation else None, "episodes": args.episodes,
         "max_steps": first.max_steps, "slots": args.slots, "reward": REWARD, "backends": backends,
-        "congestion_price": first.reward_settings.congestion_price, "envs": args.envs, "config": asdict(config)},
+        "congestion_price": first.reward_settings.congestion_price, "envs": args.envs,
+        "regimes_per_round": args.regimes, "config": asdict(config)},
         indent=1))
     learner.start_training(args.episodes * first.max_steps)
     draw = np.random.default_rng(args.seed)  # which regime each episode (each K episodes) runs: from the training seed
@@ -205,31 +209,40 @@ def train(args: argparse.Namespace, p: Parser) -> None:
     checks_log = CsvWriter(args.out / "validation.csv") if checks else None
     best, frames = -math.inf, 0
     vectorised = (args.slots, args.max_steps, args.congestion_price)
-    trainers = OpenEnvs(*vectorised, backends, make=lambda r: VectorPPO(learner, flat_env(r, *vectorised), args.envs))
+    copies = OpenEnvs(*vectorised, backends, keep=max(OPEN_ENVS, 2 * args.regimes),
+                      make=lambda r: Regime(learner, flat_env(r, *vectorised), args.envs // args.regimes))
+    trainer = VectorPPO(learner)
     progress = progress_bar() if args.progress else None
     with progress or nullcontext():
         bar = progress.add_task("train generalist", total=args.episodes, info="") if progress else None
         for k in range(0, args.episodes, args.envs):
-            regime = regimes[int(draw.integers(len(regimes)))]
+            drawn = [regimes[int(draw.integers(len(regimes)))] for _ in range(args.regimes)]
             try:
                 if args.envs == 1:
-                    env = envs.get(regime)
-                    rows = [run_episode(env, learner, seeds[k], learner) | learner.stats()]
+                    env = envs.get(drawn[0])
+                    ran = [(drawn[0], env, [run_episode(env, learner, seeds[k], learner) | learner.stats()])]
                 else:
-                    trainer = trainers.get(regime)
-                    env = trainer.env
-                    rows = trainer.episode(seeds[k:k + args.envs])
+                    groups = [copies.get(r) for r in drawn]
+                    if len(set(map(id, groups))) < len(groups):  # a regime drawn twice: its copies are busy
+                        groups = [Regime(learner, flat_env(r, *vectorised), g.k) if any(h is g for h in groups[:i])
+                                  else g for i, (r, g) in enumerate(zip(drawn, groups, strict=True))]
+                    each = args.envs // args.regimes
+                    out = trainer.episode(groups, [seeds[k + i * each:k + (i + 1) * each] for i in range(len(groups))])
+                    ran = [(r, g.env, rows) for r, g, rows in zip(drawn, groups, out, strict=True)]
             except (ValueError, ScenarioError) as e:
-                p.error(f"{regime.path}: {str(e).splitlines()[0]}")
-            for j, row in enumerate(rows):
-                frames += row["steps"] * len(env.possible_agents)  # agent-steps, the learning curves' x axis
-                log.write({"episode": k + j, "regime": regime.name, "episode_seed": row.pop("seed"),
-                           "agents": len(env.possible_agents), "frames": frames, **row})
+                p.error(f"{drawn[0].path}: {str(e).splitlines()[0]}")
+            episode = k
+            for regime, env, rows in ran:
+                for row in rows:
+                    frames += row["steps"] * len(env.possible_agents)  # agent-steps, the learning curves' x axis
+                    log.write({"episode": episode, "regime": regime.name, "episode_seed": row.pop("seed"),
+                               "agents": len(env.possible_agents), "frames": frames, **row})
+                    episode += 1
             done = k + args.envs
             if progress is not None:
-                completion = np.mean([r["completion_ratio"] for r in rows])
-                progress.update(bar, advance=args.envs, info=f"{regime.name}  completion {completion:.2f}  "
-                                                             f"{rows[0]['wall_s']:.1f} s/episode")
+                completion = np.mean([row["completion_ratio"] for _, _, rows in ran for row in rows])
+                progress.update(bar, advance=args.envs, info=f"{drawn[0].name}  completion {completion:.2f}  "
+                                                             f"{ran[0][2][0]['wall_s']:.1f} s/episode")
             if done % args.checkpoint_every == 0 or done == args.episodes:
                 path = args.out / f"ckpt-{done:05d}.pt"
                 learner.save(path)
@@ -241,7 +254,7 @@ def train(args: argparse.Namespace, p: Parser) -> None:
                     if means[CRITERION] > best:
                         best = means[CRITERION]
                         shutil.copyfile(path, args.out / "best.pt")
-    trainers.close()
+    copies.close()
     log.close()
     if checks_log is not None:
         checks_log.close()
@@ -396,8 +409,11 @@ def main(argv: Sequence[str] | None = None) -> None:
                    help="validation episodes per regime and checkpoint (default 1)")
     t.add_argument("--out", type=Path, default=Path("runs/generalist"), help="output folder (runs/generalist)")
     t.add_argument("--envs", type=positive_int, default=1,
-                   help="episodes of the drawn regime run at once, K copies on the array backend (agents.vector_ppo: "
-                        "the same learner, fed in arrays); default 1, the serial loop")
+                   help="episodes run at once, K copies on the array backend (agents.vector_ppo: the same learner, "
+                        "fed in arrays); default 1, the serial loop")
+    t.add_argument("--regimes", type=positive_int, default=1,
+                   help="regimes drawn for each round of --envs episodes, each running --envs / --regimes of them "
+                        "(default 1)")
     s = sub.add_parser("specialist", help="train one PPO per regime of a suite (experiments.train ppo on each)")
     s.add_argument("--suite", type=Path, required=True, help="a suite folder: one specialist per regime")
     s.add_argument("--episodes", type=positive_int, default=100, help="training episodes per regime (default 100)")

@@ -122,23 +122,26 @@ def test_trained_on_two_regimes_it_runs_zero_shot_on_another_family(suites, tmp_
         "generalist", "n_tier_cloud", "test", EPISODES["test"].start)
 
 
-def test_with_envs_it_trains_k_episodes_of_a_regime_at_once(suites, tmp_path, capsys):
+def test_with_envs_it_trains_rounds_of_episodes_of_several_regimes_at_once(suites, tmp_path, capsys):
     out = tmp_path / "vector"
     generalist.main(["train", "--suite", str(suites["train"]), "--validation", str(suites["validation"]),
-                     "--episodes", "6", "--envs", "3", "--max-steps", str(STEPS), "--checkpoint-every", "3",
-                     "--set", "rollout_steps=30", "--out", str(out), "--no-progress"])
+                     "--episodes", "12", "--envs", "6", "--regimes", "2", "--max-steps", str(STEPS),
+                     "--checkpoint-every", "6", "--set", "rollout_steps=30", "--out", str(out), "--no-progress"])
     log = read_rows(out / "train.csv")
-    assert [int(r["episode"]) for r in log] == list(range(6))
-    assert [int(r["episode_seed"]) for r in log] == EPISODES["train"].seeds(6)  # the serial loop's seeds
-    assert len({r["regime"] for r in log[:3]}) == len({r["regime"] for r in log[3:]}) == 1  # one regime per round
+    assert [int(r["episode"]) for r in log] == list(range(12))
+    assert [int(r["episode_seed"]) for r in log] == EPISODES["train"].seeds(12)  # the serial loop's seeds
+    for group in range(4):  # each round: 2 regimes drawn, 3 episodes of each
+        assert len({r["regime"] for r in log[3 * group:3 * group + 3]}) == 1
     assert float(log[-1]["updates"]) >= 2 and all(int(r["steps"]) == STEPS for r in log)
-    assert [r["checkpoint"] for r in read_rows(out / "validation.csv")] == ["ckpt-00003.pt", "ckpt-00006.pt"]
+    assert [r["checkpoint"] for r in read_rows(out / "validation.csv")] == ["ckpt-00006.pt", "ckpt-00012.pt"]
     assert not load_learner(out / "best.pt").config.agent_id
-    with pytest.raises(SystemExit):
-        generalist.main(["train", "--suite", str(suites["train"]), "--episodes", "5", "--envs", "3",
-                         "--out", str(tmp_path / "bad"), "--no-progress"])
-    assert "--envs 3 runs that many episodes of a regime at once: it must divide --episodes (5)" in \
-        capsys.readouterr().err
+    for bad, why in ((["--episodes", "5", "--envs", "3"], "--envs 3 runs that many episodes at once: it must "
+                      "divide --episodes (5)"), (["--episodes", "6", "--envs", "3", "--checkpoint-every", "3",
+                                                  "--regimes", "2"], "--regimes 2 must divide --envs 3")):
+        with pytest.raises(SystemExit):
+            generalist.main(["train", "--suite", str(suites["train"]), *bad, "--out", str(tmp_path / "bad"),
+                             "--no-progress"])
+        assert why in capsys.readouterr().err
 
 
 def test_the_seed_sets_never_mix(suites, tmp_path, capsys):

@@ -21,7 +21,7 @@ from agents import PPO
 from agents.common import AgentSpec
 from agents.ppo import PPOConfig
 from agents.training import evaluate
-from agents.vector_ppo import VectorPPO
+from agents.vector_ppo import Regime, VectorPPO
 from env import ZenohEdgeEnv
 from orchestrator.scenario import load_scenario
 from tests.test_array_env import draw
@@ -63,8 +63,8 @@ def test_features_and_credits_are_the_serial_learners_step_for_step(scenario):
     steps, seeds = 120, [11, 12]
     ppo = learner()
     runs = [serial(scenario, s, steps, ppo) for s in seeds]
-    trainer = VectorPPO(ppo, flat_env(scenario, steps), envs=len(seeds))
-    batched, credit = trainer.steps, trainer.credit
+    regime = Regime(ppo, flat_env(scenario, steps), len(seeds))
+    batched, credit = regime.steps, regime.credit
     observation, mask, _ = batched.reset(seeds)
     credit.reset(len(seeds), batched.sim.m)
     agents = batched.agents
@@ -72,7 +72,7 @@ def test_features_and_credits_are_the_serial_learners_step_for_step(scenario):
     compared = 0
     for step in range(steps):
         dc, da = np.nonzero(batched.present[:, :, 0])
-        x = trainer.features(observation[dc, da], da)
+        x = regime.features(observation[dc, da], da)
         for row, (c, a) in enumerate(zip(dc.tolist(), da.tolist(), strict=True)):
             assert np.array_equal(x[row], runs[c][step]["features"][agents[a]]), (step, c, agents[a])
         assert len(dc) == sum(len(r[step]["features"]) for r in runs)
@@ -102,13 +102,17 @@ def test_features_and_credits_are_the_serial_learners_step_for_step(scenario):
     assert compared > 100  # the comparison saw credits come, not an empty episode
 
 
-def train(seed: int, episodes: int = 2, k: int = 3, **settings: Any) -> tuple[VectorPPO, list[dict]]:
-    ppo = learner(seed=seed, rollout_steps=24, **settings)
-    trainer = VectorPPO(ppo, flat_env("aot1", 40), envs=k)
-    ppo.start_training(episodes * k * 40)
+def train(seed: int, episodes: int = 2, k: int = 3, scenarios: tuple[str, ...] = ("aot1",),
+          **settings: Any) -> tuple[VectorPPO, list[dict]]:
+    """``episodes`` rounds of K copies of each scenario stepped together."""
+    ppo = learner(seed=seed, rollout_steps=8 * k * len(scenarios), **settings)
+    regimes = [Regime(ppo, flat_env(s, 40), k) for s in scenarios]
+    trainer = VectorPPO(ppo)
+    ppo.start_training(episodes * k * len(scenarios) * 40)
     rows = []
     for e in range(episodes):
-        rows += trainer.episode([seed * 100 + e * k + c for c in range(k)])
+        seeds = [[seed * 100 + (e * len(scenarios) + g) * k + c for c in range(k)] for g in range(len(scenarios))]
+        rows += [row for out in trainer.episode(regimes, seeds) for row in out]
     return trainer, rows
 
 
@@ -133,6 +137,13 @@ def test_step_credit_and_discounting_train_too():
     assert trainer.learnt == pytest.approx(sum(r["decisions"] for r in rows))
 
 
+def test_regimes_of_different_sizes_train_together():
+    trainer, rows = train(seed=6, scenarios=("aot1", "aot2"))
+    assert len(rows) == 12 and trainer.learner.updates >= 4 and trainer.table.rows == 0
+    assert trainer.learnt + trainer.learner.uncredited == pytest.approx(sum(r["decisions"] for r in rows))
+    assert {r["generated"] > 0 for r in rows} == {True}
+
+
 def test_its_checkpoint_acts_on_the_emulator(tmp_path):
     trainer, _ = train(seed=5, episodes=1)
     trainer.learner.save(tmp_path / "ppo.pt")
@@ -150,4 +161,4 @@ def test_its_checkpoint_acts_on_the_emulator(tmp_path):
 ])
 def test_what_it_cannot_train_is_refused_in_one_line(settings, scenario, why):
     with pytest.raises(ValueError, match=why):
-        VectorPPO(learner(**settings), flat_env(scenario, 20), envs=2)
+        Regime(learner(**settings), flat_env(scenario, 20), 2)
