@@ -34,15 +34,18 @@ import math
 import time
 from collections.abc import Sequence
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import ClassVar
 
 import numpy as np
 import torch
+from rich.progress import Progress
 
 from agents.common import MaskedCategorical, flatten, one_hot
 from agents.learner import SHARED
 from agents.onpolicy import advantages
 from agents.ppo import PPO
+from agents.training import CsvWriter
 from env import ArrayCredit, BatchedSteps, NeighbourField, TaskField, ZenohEdgeEnv
 
 CHUNK = 1024  # decision rows added at a time when the table grows
@@ -393,3 +396,27 @@ class VectorPPO:
                          "penalised_response_time": (float(response[c]) + penalty * (g - done)) / g if g else math.nan,
                          "wall_s": wall, **stats})
         return rows
+
+
+def train(regime: Regime, learner: PPO, episodes: int, *, seed: int = 0, csv_path: str | Path | None = None,
+          progress: Progress | None = None, label: str = "") -> list[dict]:
+    """``agents.training.train`` on K copies of one regime: ``episodes`` episodes (seeds seed, seed + 1, ...),
+    K at a time, one CSV row each (``episodes`` a multiple of K)."""
+    if episodes % regime.k:
+        raise ValueError(f"{episodes} episodes cannot run {regime.k} at a time")
+    learner.start_training(episodes * regime.env.max_steps)
+    trainer = VectorPPO(learner)
+    task = progress.add_task(label or "train ppo", total=episodes, info="") if progress else None
+    writer = CsvWriter(csv_path) if csv_path else None
+    rows: list[dict] = []
+    for k in range(0, episodes, regime.k):
+        (out,) = trainer.episode([regime], [list(range(seed + k, seed + k + regime.k))])
+        for j, row in enumerate(out):
+            rows.append({"episode": k + j, **row})
+            if writer:
+                writer.write(rows[-1])
+        if progress is not None:
+            progress.update(task, advance=regime.k, info=f"return {np.mean([r['return'] for r in out]):.0f}")
+    if writer:
+        writer.close()
+    return rows

@@ -136,13 +136,14 @@ def add_learner_arguments(parser: argparse.ArgumentParser, seeds: bool = False) 
 
 def make_env(scenario: str, lam: float | None, max_steps: int | None, reward: str = "paper",
              transport: str = "inproc", seed: int = 0, congestion_price: float | None = None,
-             backend: str = "emulator") -> ZenohEdgeEnv:
+             backend: str = "emulator", flat: bool = False) -> ZenohEdgeEnv:
     """The environment every agent of a study runs in: padded spaces, so one network can serve all agents.
     ``congestion_price``: None for the environment's default; ``backend``: "emulator" or "array" (``choose_backend``
-    resolves "auto")."""
+    resolves "auto"); ``flat``: flat observations without info numbers, what ``agents.vector_ppo`` steps."""
+    shape = {"observation": "flat", "info_numbers": False} if flat else {}
     return ZenohEdgeEnv(scenario, backend=backend, transport=transport, overrides=ScenarioOverrides(arrival_rate=lam),
                         max_steps=max_steps, reward=reward, uniform_spaces=True, seed=seed,
-                        congestion_price=congestion_price)
+                        congestion_price=congestion_price, **shape)
 
 
 def coerce(text: str, default: Any) -> Any:

@@ -278,7 +278,8 @@ def specialist(args: argparse.Namespace, p: Parser) -> None:
                  *(["--hidden", *map(str, args.hidden)] if args.hidden else []),
                  *(a for o in args.overrides for a in ("--set", o)),
                  *([] if args.progress else ["--no-progress"]),
-                 "--backend", args.backend, "--reward", REWARD, "--price", str(args.congestion_price)]
+                 "--backend", args.backend, "--reward", REWARD, "--price", str(args.congestion_price),
+                 "--envs", str(args.envs)]
         train_command.main(argv)
 
 
@@ -418,6 +419,8 @@ def main(argv: Sequence[str] | None = None) -> None:
     s.add_argument("--suite", type=Path, required=True, help="a suite folder: one specialist per regime")
     s.add_argument("--episodes", type=positive_int, default=100, help="training episodes per regime (default 100)")
     s.add_argument("--out", type=Path, default=Path("runs/specialists"), help="<out>/<regime>/ppo.pt")
+    s.add_argument("--envs", type=positive_int, default=1,
+                   help="episodes of a regime run at once (experiments.train --envs; default 1, the serial loop)")
     t.add_argument("--slots", type=positive_int, default=SLOTS,
                    help=f"neighbour slots: at least the largest degree of any regime it will meet (default {SLOTS})")
     for q in (t, s):

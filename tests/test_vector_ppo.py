@@ -162,3 +162,19 @@ def test_its_checkpoint_acts_on_the_emulator(tmp_path):
 def test_what_it_cannot_train_is_refused_in_one_line(settings, scenario, why):
     with pytest.raises(ValueError, match=why):
         Regime(learner(**settings), flat_env(scenario, 20), 2)
+
+
+def test_experiments_train_takes_envs(tmp_path, capsys):
+    from experiments import train as train_command
+
+    out = tmp_path / "ppo"
+    train_command.main(["ppo", "--scenario", "aot1", "--episodes", "4", "--envs", "2", "--max-steps", "60",
+                        "--set", "rollout_steps=20", "--out", str(out), "--no-progress"])
+    rows = (out / "train.csv").read_text().splitlines()
+    assert len(rows) == 5 and rows[0].startswith("episode,seed,steps,decisions,return")
+    assert [int(r.split(",")[1]) for r in rows[1:]] == [0, 1, 2, 3]  # the serial loop's episode seeds
+    assert PPO.load(out / "ppo.pt").updates >= 1
+    with pytest.raises(SystemExit):
+        train_command.main(["ddqn", "--scenario", "aot1", "--episodes", "4", "--envs", "2", "--out", str(out),
+                            "--no-progress"])
+    assert "--envs 2 trains ppo on the array backend" in capsys.readouterr().err
