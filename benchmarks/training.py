@@ -64,9 +64,9 @@ def measure(scenario: str, k: int | None, episodes: int, max_steps: int, slots: 
             run_episode(serial, learner, seed, learner)
         serial.close()
     else:
-        trainer, copies = VectorPPO(learner), [Regime(learner, env, k)]
+        trainer, regimes = VectorPPO(learner), [Regime(learner, env, k)]
         for r in range(episodes):
-            trainer.episode(copies, [seeds[r * k:(r + 1) * k]])
+            trainer.episode(regimes, [seeds[r * k:(r + 1) * k]])
     wall = time.perf_counter() - start
     steps = episodes * copies * env.max_steps
     return {"loop": "serial" if k is None else f"vector {k}", "episodes": episodes * copies, "steps": steps,
