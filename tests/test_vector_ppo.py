@@ -11,6 +11,9 @@ ordinary PPO checkpoint that acts on the emulator.
 
 from __future__ import annotations
 
+import csv
+import subprocess
+import sys
 from typing import Any
 
 import numpy as np
@@ -24,6 +27,7 @@ from agents.training import evaluate
 from agents.vector_ppo import Regime, VectorPPO
 from env import ZenohEdgeEnv
 from orchestrator.scenario import load_scenario
+from tests.conftest import ROOT
 from tests.test_array_env import draw
 
 SLOTS = 20
@@ -178,3 +182,12 @@ def test_experiments_train_takes_envs(tmp_path, capsys):
         train_command.main(["ddqn", "--scenario", "aot1", "--episodes", "4", "--envs", "2", "--out", str(out),
                             "--no-progress"])
     assert "--envs 2 trains ppo on the array backend" in capsys.readouterr().err
+
+
+def test_the_training_benchmark_times_both_loops(tmp_path):
+    out = tmp_path / "speed.csv"
+    subprocess.run([sys.executable, str(ROOT / "benchmarks" / "training.py"), "--episodes", "1", "--ks", "2",
+                    "--max-steps", "20", "--csv", str(out)], check=True, cwd=ROOT, timeout=300, capture_output=True)
+    rows = list(csv.DictReader(out.open()))
+    assert [r["loop"] for r in rows] == ["serial", "vector 2"]
+    assert [int(r["steps"]) for r in rows] == [20, 40] and all(float(r["steps_per_s"]) > 0 for r in rows)
