@@ -52,6 +52,19 @@ def diamond(tmp_path: Path, **workload) -> Path:
     })
 
 
+def diamond_done(s: dict, mean: float, longest: float, makespan: float, cycles_b: float, cycles_c: float) -> None:
+    """The diamond's summary once its job completed: 4 tasks, 2 offloaded; the response times, the makespan and
+    each node's energy (radio on air 4 s at a, 1 s at b and c, at 0.1 W; a computes 3e6 cycles at 1 GHz, b at 2 GHz,
+    c at 1 GHz)."""
+    assert s["totals"]["generated"] == s["totals"]["completed"] == 4 and s["totals"]["offloaded"] == 2
+    assert s["response_time"]["mean"] == pytest.approx(mean) and s["response_time"]["max"] == pytest.approx(longest)
+    assert s["jobs"] == {"generated": 1, "completed": 1, "missed": 0, "completion_ratio": 1.0,
+                         "makespan_mean": makespan, "penalised_makespan": makespan, "active": 0}
+    assert s["nodes"]["a"]["energy_j"] == pytest.approx(0.4 + 1e-27 * 3e6 * 1e12)
+    assert s["nodes"]["b"]["energy_j"] == pytest.approx(0.1 + 1e-27 * cycles_b * 4e12)
+    assert s["nodes"]["c"]["energy_j"] == pytest.approx(0.1 + 1e-27 * cycles_c * 1e12)
+
+
 def check_hand_trace(s: dict, ticks: list[dict[str, str]]) -> None:
     """The diamond 0 -> {1, 2} -> 3, created at tick 0 on a (deadline 40 s). Task sizes from the edges:
     α_in = own input + in-edges, α_out = own output + out-edges: task 0 (2e6 cycles) 1e5 in, 4e5 out;
@@ -74,13 +87,7 @@ def check_hand_trace(s: dict, ticks: list[dict[str, str]]) -> None:
     Response times 4, 6, 7, 3 (mean 5); offloads at 6 and 7; a's radio is on air 4 s, b's and c's 1 s each
     (20 dBm: 0.1 W).
     """
-    assert s["totals"]["generated"] == s["totals"]["completed"] == 4 and s["totals"]["offloaded"] == 2
-    assert s["response_time"]["mean"] == pytest.approx(5.0) and s["response_time"]["max"] == pytest.approx(7.0)
-    assert s["jobs"] == {"generated": 1, "completed": 1, "missed": 0, "completion_ratio": 1.0, "makespan_mean": 14.0,
-                         "penalised_makespan": 14.0, "active": 0}
-    assert s["nodes"]["a"]["energy_j"] == pytest.approx(0.4 + 1e-27 * 3e6 * 1e12)
-    assert s["nodes"]["b"]["energy_j"] == pytest.approx(0.1 + 1e-27 * 4e6 * 4e12)
-    assert s["nodes"]["c"]["energy_j"] == pytest.approx(0.1 + 1e-27 * 2e6 * 1e12)
+    diamond_done(s, mean=5.0, longest=7.0, makespan=14.0, cycles_b=4e6, cycles_c=2e6)
     by_tick = {int(r["tick"]): r for r in ticks}
     released = {t: int(r["generated"]) for t, r in by_tick.items() if int(r["generated"])}
     back = {t: int(r["completed"]) for t, r in by_tick.items() if int(r["completed"])}
@@ -152,13 +159,7 @@ def check_payload_hand_trace(s: dict) -> None:
       job completes at 15, makespan 15 s.
 
     Response times 4, 7, 8, 3 (mean 5.5); b computes 5e6 cycles, c 3e6, a 3e6."""
-    assert s["totals"]["generated"] == s["totals"]["completed"] == 4 and s["totals"]["offloaded"] == 2
-    assert s["response_time"]["mean"] == pytest.approx(5.5) and s["response_time"]["max"] == pytest.approx(8.0)
-    assert s["jobs"] == {"generated": 1, "completed": 1, "missed": 0, "completion_ratio": 1.0, "makespan_mean": 15.0,
-                         "penalised_makespan": 15.0, "active": 0}
-    assert s["nodes"]["a"]["energy_j"] == pytest.approx(0.4 + 1e-27 * 3e6 * 1e12)
-    assert s["nodes"]["b"]["energy_j"] == pytest.approx(0.1 + 1e-27 * 5e6 * 4e12)
-    assert s["nodes"]["c"]["energy_j"] == pytest.approx(0.1 + 1e-27 * 3e6 * 1e12)
+    diamond_done(s, mean=5.5, longest=8.0, makespan=15.0, cycles_b=5e6, cycles_c=3e6)
 
 
 def test_a_jobs_tasks_run_the_payload_of_the_type_they_name(tmp_path):
