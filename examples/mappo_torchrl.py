@@ -240,8 +240,7 @@ def labelled(item: str) -> tuple[str, Path]:
 
 def plot(curves: list[str], png: Path, baselines: list[str]) -> Figure:
     """The greedy evaluations' completion, score and return of each curve (``[LABEL=]CSV``), beside the baselines'
-    means: against frames (top row) and against wall-clock seconds (bottom row), where runs of one recipe on
-    different backends or K differ."""
+    means: against frames (top row) and against wall-clock seconds (bottom row: what another backend or K buys)."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -256,8 +255,8 @@ def plot(curves: list[str], png: Path, baselines: list[str]) -> Figure:
               ("return", "return per episode (sum over agents)"))
     xs = (("frames", "frames (simulation steps)"), ("wall_s", "wall-clock (s, training and evaluations)"))
     evaluated = [(label, [r for r in rows(path) if r["eval_return"]]) for label, path in map(labelled, curves)]
-    means = [(name, rows(path)) for name, path in map(labelled, baselines)]
-    levels = {metric: [(name, float(np.mean([float(r[metric]) for r in baseline]))) for name, baseline in means]
+    tables = [(name, rows(path)) for name, path in map(labelled, baselines)]
+    levels = {metric: [(name, float(np.mean([float(r[metric]) for r in table]))) for name, table in tables]
               for metric, _ in panels}
     fig, axes = plt.subplots(len(xs), len(panels), figsize=(15, 8), squeeze=False)
     for (x, xlabel), row in zip(xs, axes, strict=True):
