@@ -3,9 +3,11 @@
     python -m pip install -e ".[marl]"
     python examples/mappo_torchrl.py --scenario aot2 --frames 200000 --seed 0 --csv runs/mappo.csv
     python examples/mappo_torchrl.py --plot runs/mappo.csv --png mappo.png --baseline local=runs/local.csv
+    python examples/mappo_torchrl.py --plot K=4=runs/k4.csv --plot K=100=runs/k100.csv --png mappo.png
 
-The second form draws a learning curve (``--baseline NAME=CSV``: the rows ``python -m experiments.evaluate
-... --csv`` writes, drawn as a level line); it trains nothing.
+The second form draws a learning curve against frames and against wall-clock seconds (``--baseline NAME=CSV``:
+the rows ``python -m experiments.evaluate ... --csv`` writes, drawn as a level line); the third draws several
+curves side by side (``--plot [LABEL=]CSV``, repeatable). Neither trains.
 
 TorchRL's own multi-agent PPO recipe, in one file: ``env.vector.ZenohEdgeVectorEnv`` (``--envs`` K
 simulations of ``observation="flat"`` stepped as one batch, on the array backend where it models the scenario:
@@ -28,6 +30,7 @@ import csv
 import math
 import time
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 import torch
@@ -44,6 +47,9 @@ from env import ScenarioOverrides, ZenohEdgeEnv
 from env.reward import REWARDS
 from env.vector import ZenohEdgeVectorEnv
 from experiments.common import BACKENDS, choose_backend
+
+if TYPE_CHECKING:
+    from matplotlib.figure import Figure
 
 OBS = ("agents", "observation", "observation")  # where PettingZooWrapper and the vector env put the flat vector
 MASK = ("agents", "action_mask")
@@ -137,14 +143,18 @@ def parse(argv: list[str] | None = None) -> argparse.Namespace:
     p.add_argument("--eval-every", type=int, default=5, help="batches between greedy evaluations (0: at the end only)")
     p.add_argument("--eval-episodes", type=int, default=3, help="episodes per evaluation (default 3)")
     p.add_argument("--csv", type=Path, default=None, help="write the learning curve here, one row per batch")
-    p.add_argument("--plot", type=Path, default=None, help="draw this learning-curve CSV (with --png) and exit")
+    p.add_argument("--plot", action="append", default=[], metavar="[LABEL=]CSV",
+                   help="draw this learning-curve CSV (repeatable: the curves side by side; with --png) and exit")
     p.add_argument("--png", type=Path, default=None, help="the picture --plot draws")
     p.add_argument("--baseline", action="append", default=[], metavar="NAME=CSV",
                    help="an experiments.evaluate CSV to draw as a level line (repeatable)")
     args = p.parse_args(argv)
     if args.envs < 1 or args.frames_per_batch % args.envs:
         p.error(f"--envs must be >= 1 and divide --frames-per-batch (got {args.envs} and {args.frames_per_batch})")
-    if args.plot is None:
+    for item in args.plot + args.baseline:
+        if not labelled(item)[1].is_file():
+            p.error(f"{labelled(item)[1]}: no such CSV file")
+    if not args.plot:
         args.backend = choose_backend(p.prog, [(args.scenario, args.lam)], args.backend)[args.scenario, args.lam]
     return args
 
@@ -175,7 +185,9 @@ def train(args: argparse.Namespace) -> tuple[dict[str, float], ProbabilisticActo
         out = open(args.csv, "w", newline="")  # noqa: SIM115 - rows are flushed one by one, closed at the end
     start, frames, row = time.perf_counter(), 0, {}
     batches = math.ceil(args.frames / args.frames_per_batch)
+    waited = start  # when the collector was last asked for a batch
     for i, data in enumerate(collector):
+        collected = time.perf_counter()
         frames += data.numel()
         done = data["next", "agents", "done"].squeeze(-1).all(-1)  # episodes that ended in this batch
         episode_return = data["next", "agents", "episode_reward"].squeeze(-1).sum(-1)[done]
@@ -193,7 +205,9 @@ def train(args: argparse.Namespace) -> tuple[dict[str, float], ProbabilisticActo
                 optim.step()
                 optim.zero_grad()
         collector.update_policy_weights_()
-        row = {"batch": i, "frames": frames, "wall_s": round(time.perf_counter() - start, 1),
+        updated = time.perf_counter()
+        row = {"batch": i, "frames": frames, "wall_s": round(updated - start, 1),
+               "collect_s": round(collected - waited, 3), "update_s": round(updated - collected, 3),
                "train_return": float(episode_return.mean()) if done.any() else math.nan,
                "train_completed": float(completed.mean()) if done.any() else math.nan,
                **{k: losses[k].item() for k in ("loss_objective", "loss_critic", "loss_entropy")}}
@@ -202,12 +216,14 @@ def train(args: argparse.Namespace) -> tuple[dict[str, float], ProbabilisticActo
         print(" ".join(f"{k}={v:.4g}" if isinstance(v, float) else f"{k}={v}" for k, v in row.items()), flush=True)
         if args.csv:
             if writer is None:
-                writer = csv.DictWriter(out, fieldnames=["batch", "frames", "wall_s", "train_return", "train_completed",
+                writer = csv.DictWriter(out, fieldnames=["batch", "frames", "wall_s", "collect_s", "update_s",
+                                                         "train_return", "train_completed",
                                                          "loss_objective", "loss_critic", "loss_entropy",
                                                          *(f"eval_{k}" for k in EVAL_METRICS)])
                 writer.writeheader()
             writer.writerow(row)
             out.flush()
+        waited = time.perf_counter()
     collector.shutdown()
     eval_env.close()
     if args.csv:
@@ -215,8 +231,16 @@ def train(args: argparse.Namespace) -> tuple[dict[str, float], ProbabilisticActo
     return row, actor
 
 
-def plot(curve: Path, png: Path, baselines: list[str]) -> None:
-    """The greedy evaluations' completion, score and return against frames, beside the baselines' means."""
+def labelled(item: str) -> tuple[str, Path]:
+    """``LABEL=CSV`` (the label may hold "=": the path is what follows the last one) or ``CSV`` (labelled by the
+    file's name) as (label, path)."""
+    label, sep, path = item.rpartition("=")
+    return (label, Path(path)) if sep else (Path(item).stem, Path(item))
+
+
+def plot(curves: list[str], png: Path, baselines: list[str]) -> Figure:
+    """The greedy evaluations' completion, score and return of each curve (``[LABEL=]CSV``), beside the baselines'
+    means: against frames (top row) and against wall-clock seconds (bottom row: what another backend or K buys)."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -229,24 +253,29 @@ def plot(curve: Path, png: Path, baselines: list[str]) -> None:
     panels = (("completion_ratio", "tasks completed (share of generated)"),
               ("penalised_response_time", "score: penalised response time (s, lower is better)"),
               ("return", "return per episode (sum over agents)"))
-    evaluated = [r for r in rows(curve) if r["eval_return"]]
-    fig, axes = plt.subplots(1, len(panels), figsize=(15, 4))
-    for ax, (metric, title) in zip(axes, panels, strict=True):
-        ax.plot([int(r["frames"]) for r in evaluated], [float(r[f"eval_{metric}"]) for r in evaluated],
-                marker="o", label="MAPPO (greedy)")
-        for item in baselines:
-            name, _, path = item.partition("=")
-            ax.axhline(float(np.mean([float(r[metric]) for r in rows(Path(path))])), ls="--", lw=1,
-                       color=f"C{1 + baselines.index(item)}", label=name)
-        ax.set(xlabel="frames (simulation steps)", title=title)
-    axes[-1].legend(fontsize=8)
+    xs = (("frames", "frames (simulation steps)"), ("wall_s", "wall-clock (s, training and evaluations)"))
+    evaluated = [(label, [r for r in rows(path) if r["eval_return"]]) for label, path in map(labelled, curves)]
+    tables = [(name, rows(path)) for name, path in map(labelled, baselines)]
+    levels = {metric: [(name, float(np.mean([float(r[metric]) for r in table]))) for name, table in tables]
+              for metric, _ in panels}
+    fig, axes = plt.subplots(len(xs), len(panels), figsize=(15, 8), squeeze=False)
+    for (x, xlabel), row in zip(xs, axes, strict=True):
+        for ax, (metric, title) in zip(row, panels, strict=True):
+            for c, (label, points) in enumerate(evaluated):
+                ax.plot([float(r[x]) for r in points], [float(r[f"eval_{metric}"]) for r in points],
+                        marker="o", ms=3, color=f"C{c}", label=f"{label} (greedy)")
+            for b, (name, level) in enumerate(levels[metric]):
+                ax.axhline(level, ls="--", lw=1, color=f"C{len(evaluated) + b}", label=name)
+            ax.set(xlabel=xlabel, title=title)
+    axes[0, -1].legend(fontsize=8)
     fig.tight_layout()
     fig.savefig(png, dpi=110)
+    return fig
 
 
 if __name__ == "__main__":
     arguments = parse()
     if arguments.plot:
-        plot(arguments.plot, arguments.png or arguments.plot.with_suffix(".png"), arguments.baseline)
+        plot(arguments.plot, arguments.png or labelled(arguments.plot[0])[1].with_suffix(".png"), arguments.baseline)
     else:
         train(arguments)
