@@ -228,6 +228,13 @@ class ArraySim:
             for a, j in enumerate(sc.neighbours[nd.id], 1):
                 self.target[i, a] = sc.index[j]
                 self.valid[i, a] = sc.node[j].has("worker")
+        # the scenario's directed links, numbered in (source, neighbour) order, so that what each link holds is a
+        # (K, links) array: ``links[i, a]`` is the link of node i's action a >= 1 (-1 for action 0 and a missing
+        # neighbour), ``link_key`` each link's src * n + dst, ascending (neighbours are in index order)
+        real = self.target[:, 1:] >= 0
+        self.links = np.full((n, width), -1)
+        self.links[:, 1:][real] = np.arange(real.sum())
+        self.link_key = (np.arange(n)[:, None] * n + self.target[:, 1:])[real]
         self.valid_list = np.full((n, width), -1)  # the valid actions of each node, in order
         self.n_valid = self.valid.sum(axis=1)
         for i in range(n):
@@ -329,7 +336,7 @@ class ArraySim:
         self.olink = np.full(shape, -1, dtype=np.int64)  # the link its offload was charged on ...
         self.ostart = np.zeros(shape)  # ... and when it occupied it, in ticks
         self.ofinish = np.zeros(shape)
-        self.busy = np.zeros((k, self.n, self.n))  # when each directed link frees up, in ticks
+        self.busy = np.zeros((k, len(self.link_key)))  # when each link frees up, in ticks
         self.heard = np.zeros((k, self.n), dtype=np.int64)  # queue lengths as last broadcast ...
         self.heard_occupancy = np.zeros((k, self.n), dtype=np.int64)  # ... and occupancies
         self.rr = np.zeros((k, self.n), dtype=np.int64)  # round robin's next
@@ -686,7 +693,7 @@ class ArraySim:
         controller's first observation holds only tasks the failure dropped: their decisions are stale whatever
         they say, so the backlogs it reads then change nothing.)"""
         to = self.target[nd]
-        busy = self.busy[c[:, None], nd[:, None], to]
+        busy = self.busy[c[:, None], np.maximum(self.links[nd], 0)]  # (action 0 and missing neighbours: never read)
         backlog = np.where(busy > t + 1, (busy - (t + 1)) * self.dt, 0.0)
         greedy = self._estimate(c, i, nd, extra)
         estimate = greedy + backlog  # GreedyBacklog.estimate
@@ -803,7 +810,7 @@ class ArraySim:
         self._enter(FAILURE)  # ``Worker.drop_all``: the queue in queue order, then the undecided in arrival order
         undecided = self.state[c, i] == UNDECIDED
         self._drop(c, i, self.worker[self.node[c, i]], "node_failure", self.order[c, i] + undecided * (1 << 40))
-        self.busy[:, went, :] = 0.0
+        self.busy[:, went[self.link_key // self.n]] = 0.0
         charged = self.olink[:, w] >= 0
         self.olink[:, w][charged & went[self.olink[:, w] // self.n]] = -1
 
@@ -855,15 +862,18 @@ class ArraySim:
         roles = self.worker[src]
         if self.recording:  # a worker tells its controller of a link's change while it has tasks to place
             self.bumped[c, src] |= self.undecided[c, src] > 0
-        start = np.maximum(float(t), self.busy[c, src, dst])
+        link = src * self.n + dst
+        number = np.searchsorted(self.link_key, link)  # the link's column of ``busy``
+        start = np.maximum(float(t), self.busy[c, number])
         late = start > self.latest[c, i]  # it could only start after its deadline: never sent
         self._drop(c[late], i[late], roles[late], "expired")
-        c, i, src, dst, bits, start, roles = (a[~late] for a in (c, i, src, dst, bits, start, roles))
+        c, i, src, dst, bits, start, roles, link, number = (a[~late] for a in
+                                                            (c, i, src, dst, bits, start, roles, link, number))
         if not len(c):
             return
         seconds = bits / self.rate[src, dst]
         finish = start + seconds / self.dt
-        self.busy[c, src, dst] = finish
+        self.busy[c, number] = finish
         # a lost message occupied the link (and is charged for it), but costs no energy and charges nothing
         lost = np.zeros(len(c), dtype=bool)
         if self.losses.streams:
@@ -871,7 +881,6 @@ class ArraySim:
             lost[lossy] = self.losses.take(c[lossy], src[lossy]) < self.loss[src[lossy], dst[lossy]]
         kept = ~lost if lost.any() else slice(None)
         self._add(c[kept], roles[kept], "energy_transmit", (self.watts[src] * seconds)[kept])
-        link = src * self.n + dst
         # the charged offloads still on the link, in the order they were sent: each charged what this one waits
         w = self.win
         on_air = (self.olink[c, w] == link[:, None]) & (self.ofinish[c, w] > t)
@@ -1032,8 +1041,8 @@ class ArraySim:
         if self.recording:  # a worker's report tells its controller how long its links stay busy
             c, nd = np.nonzero(self.bumped & (self.controller >= 0))
             if len(c):
-                to = np.maximum(self.target[nd, 1:], 0)  # (a missing neighbour's column is never read)
-                self.told_busy[c, nd] = self.busy[c[:, None], nd[:, None], to]
+                links = np.maximum(self.links[nd, 1:], 0)  # (a missing neighbour's column is never read)
+                self.told_busy[c, nd] = self.busy[c[:, None], links]
         if self.sc.colocated_control:  # what a co-located controller has heard at the end of the next tick
             self.heard_late[:], self.heard_occupancy_late[:] = self.heard, self.heard_occupancy
         if t % self.sc.state_interval == 0 and self.sc.failures:  # a node that is down is silent
