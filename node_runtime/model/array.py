@@ -1,8 +1,8 @@
 """The array backend: K copies of one scenario stepped together, every state a numpy array.
 
 The same model as the roles of ``worker.py``, ``client.py`` and ``controller.py`` (docs/model.md), held as
-arrays over (copy, task) and (copy, node) instead of objects, so that one tick of K simulations costs a few
-numpy calls rather than K of everything. It has no rule of its own: each number comes from the model's own
+arrays over (copy, task), (copy, node) and (copy, link) instead of objects, so that one tick of K simulations
+costs a few numpy calls rather than K of everything. It has no rule of its own: each number comes from the model's own
 functions (``Task.expires_at`` for a task's expiry tick, the link rates of the scenario, ``dbm_to_watts`` and
 ``compute_energy`` for energy, ``EPS_CYCLES`` for a finishing task), the arrivals are drawn by the model's
 ``Client`` with its own random streams, and ``tests/test_array_backend.py`` proves it gives the in-process
