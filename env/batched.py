@@ -309,7 +309,7 @@ class BatchedSteps:
             size = self.size[c, i]
             t_wait = sim.seen_heard[c, target] * cycles / capacity
             with np.errstate(divide="ignore"):
-                t_comm = np.where(local, 0.0, 8.0 * (size[:, 1] + size[:, 2]) / sim.rate[nd, target])
+                t_comm = np.where(local, 0.0, 8.0 * (size[:, 1] + size[:, 2]) / sim.rate[sim.links[nd, a]])
             t_exc = cycles / capacity - cycles / own_capacity
             delay = w.wait * t_wait + w.comm * t_comm + w.exc * t_exc
             occupancy = sim.seen_occupancy[c, target] - local

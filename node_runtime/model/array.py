@@ -1,8 +1,8 @@
 """The array backend: K copies of one scenario stepped together, every state a numpy array.
 
 The same model as the roles of ``worker.py``, ``client.py`` and ``controller.py`` (docs/model.md), held as
-arrays over (copy, task) and (copy, node) instead of objects, so that one tick of K simulations costs a few
-numpy calls rather than K of everything. It has no rule of its own: each number comes from the model's own
+arrays over (copy, task), (copy, node) and (copy, link) instead of objects, so that one tick of K simulations
+costs a few numpy calls rather than K of everything. It has no rule of its own: each number comes from the model's own
 functions (``Task.expires_at`` for a task's expiry tick, the link rates of the scenario, ``dbm_to_watts`` and
 ``compute_energy`` for energy, ``EPS_CYCLES`` for a finishing task), the arrivals are drawn by the model's
 ``Client`` with its own random streams, and ``tests/test_array_backend.py`` proves it gives the in-process
@@ -210,15 +210,7 @@ class ArraySim:
         self.freq = np.array([nd.frequency for nd in nodes], dtype=float)
         self.idle = np.array([idle_energy(nd.idle_power_w, sc.dt) if nd.idle_power_w else 0.0 for nd in nodes])
         self.watts = np.array([dbm_to_watts(nd.tx_power_dbm) for nd in nodes])
-        self.rate = np.ones((n, n))
-        self.loss = np.zeros((n, n))
-        for (a, b), lk in sc.link.items():
-            self.rate[sc.index[a], sc.index[b]] = lk.rate_bps
-            self.loss[sc.index[a], sc.index[b]] = lk.loss
         self.decides = np.array([nd.has("controller") and sc.max_hops > 0 for nd in nodes])
-        self.adjacent = np.zeros((n, n), dtype=bool)  # j in the radio of i: a result goes straight to its origin
-        for a, js in sc.neighbours.items():
-            self.adjacent[sc.index[a], [sc.index[j] for j in js]] = True
         # the actions of each controller: 0 keeps a task, a >= 1 sends it to neighbour a - 1 (-1: no such action)
         width = 1 + max((len(sc.neighbours[nd.id]) for nd in nodes), default=0)
         self.target = np.full((n, width), -1)
@@ -228,6 +220,19 @@ class ArraySim:
             for a, j in enumerate(sc.neighbours[nd.id], 1):
                 self.target[i, a] = sc.index[j]
                 self.valid[i, a] = sc.node[j].has("worker")
+        # the scenario's directed links, numbered in (source, neighbour) order, so that what the links hold grows
+        # with their number, not with n * n: ``links[i, a]`` is the link of node i's action a >= 1. Each array
+        # over the links has one more entry, the last, for no link (-1: action 0 and a missing neighbour), which
+        # reads as a link that is never busy, at 1 bit/s, without loss (the rates of action 0's column are never
+        # used). ``link_key`` is each link's src * n + dst, ascending (neighbours are in index order), then n * n.
+        real = self.target[:, 1:] >= 0
+        self.links = np.full((n, width), -1)
+        self.links[:, 1:][real] = np.arange(real.sum())
+        self.link_src, dst = np.nonzero(real)[0], self.target[:, 1:][real]
+        self.link_key = np.append(self.link_src * n + dst, n * n)
+        ends = [sc.link[(nodes[a].id, nodes[b].id)] for a, b in zip(self.link_src, dst, strict=True)]
+        self.rate = np.array([lk.rate_bps for lk in ends] + [1.0])
+        self.loss = np.array([lk.loss for lk in ends] + [0.0])
         self.valid_list = np.full((n, width), -1)  # the valid actions of each node, in order
         self.n_valid = self.valid.sum(axis=1)
         for i in range(n):
@@ -329,7 +334,7 @@ class ArraySim:
         self.olink = np.full(shape, -1, dtype=np.int64)  # the link its offload was charged on ...
         self.ostart = np.zeros(shape)  # ... and when it occupied it, in ticks
         self.ofinish = np.zeros(shape)
-        self.busy = np.zeros((k, self.n, self.n))  # when each directed link frees up, in ticks
+        self.busy = np.zeros((k, len(self.link_key)))  # when each link frees up, in ticks
         self.heard = np.zeros((k, self.n), dtype=np.int64)  # queue lengths as last broadcast ...
         self.heard_occupancy = np.zeros((k, self.n), dtype=np.int64)  # ... and occupancies
         self.rr = np.zeros((k, self.n), dtype=np.int64)  # round robin's next
@@ -376,7 +381,7 @@ class ArraySim:
                                lambda g, node: g.integers(self.n_valid[node], size=CHUNK), k, self.n, np.int64)
         # link loss: each worker's radio stream (``Worker.reset``), a number per transmission on a lossy link
         self.losses = Streams({(c, int(nd)): stream(int(s), int(nd), WORKER.stream) for c, s in enumerate(seeds)
-                               for nd in np.flatnonzero(self.loss.any(axis=1))},
+                               for nd in np.unique(self.link_src[self.loss[:-1] > 0.0])},
                               lambda g, node: g.random(CHUNK), k, self.n, float)
 
     def step(self) -> np.ndarray:
@@ -663,7 +668,7 @@ class ArraySim:
         queue, occupancy = self._seen(c, nd)
         wait = (queue + more) * cycles / capacity
         run = cycles / capacity
-        transfer = self.io_bytes[c, i][:, None] * 8.0 / self.rate[nd[:, None], to]
+        transfer = self.io_bytes[c, i][:, None] * 8.0 / self.rate[self.links[nd]]
         full = occupancy + more >= self.buffer[to]
         estimate = np.where(full, np.inf, transfer + wait + run)
         estimate[:, 0] = (wait + run)[:, 0]
@@ -686,7 +691,7 @@ class ArraySim:
         controller's first observation holds only tasks the failure dropped: their decisions are stale whatever
         they say, so the backlogs it reads then change nothing.)"""
         to = self.target[nd]
-        busy = self.busy[c[:, None], nd[:, None], to]
+        busy = self.busy[c[:, None], self.links[nd]]
         backlog = np.where(busy > t + 1, (busy - (t + 1)) * self.dt, 0.0)
         greedy = self._estimate(c, i, nd, extra)
         estimate = greedy + backlog  # GreedyBacklog.estimate
@@ -707,7 +712,7 @@ class ArraySim:
         # drift_plus_penalty
         service = self.cycles[c, i][:, None] / self.capacity[to]
         drift = ((self._seen(c, nd)[0] + extra[c, nd]) * service + service / 2) * service
-        transfer = self.io_bytes[c, i][:, None] * 8.0 / self.rate[nd[:, None], to]
+        transfer = self.io_bytes[c, i][:, None] * 8.0 / self.rate[self.links[nd]]
         drift[:, 1:] += ((backlog + transfer / 2) * transfer)[:, 1:]
         return np.argmin(np.where(valid, drift + DriftPlusPenalty.v * estimate, np.inf), axis=1)
 
@@ -803,7 +808,7 @@ class ArraySim:
         self._enter(FAILURE)  # ``Worker.drop_all``: the queue in queue order, then the undecided in arrival order
         undecided = self.state[c, i] == UNDECIDED
         self._drop(c, i, self.worker[self.node[c, i]], "node_failure", self.order[c, i] + undecided * (1 << 40))
-        self.busy[:, went, :] = 0.0
+        self.busy[:, np.flatnonzero(went[self.link_src])] = 0.0
         charged = self.olink[:, w] >= 0
         self.olink[:, w][charged & went[self.olink[:, w] // self.n]] = -1
 
@@ -855,23 +860,25 @@ class ArraySim:
         roles = self.worker[src]
         if self.recording:  # a worker tells its controller of a link's change while it has tasks to place
             self.bumped[c, src] |= self.undecided[c, src] > 0
-        start = np.maximum(float(t), self.busy[c, src, dst])
+        link = src * self.n + dst
+        number = np.searchsorted(self.link_key, link)  # its number (a transmission's link exists)
+        start = np.maximum(float(t), self.busy[c, number])
         late = start > self.latest[c, i]  # it could only start after its deadline: never sent
         self._drop(c[late], i[late], roles[late], "expired")
-        c, i, src, dst, bits, start, roles = (a[~late] for a in (c, i, src, dst, bits, start, roles))
+        c, i, src, dst, bits, start, roles, link, number = (a[~late] for a in
+                                                            (c, i, src, dst, bits, start, roles, link, number))
         if not len(c):
             return
-        seconds = bits / self.rate[src, dst]
+        seconds = bits / self.rate[number]
         finish = start + seconds / self.dt
-        self.busy[c, src, dst] = finish
+        self.busy[c, number] = finish
         # a lost message occupied the link (and is charged for it), but costs no energy and charges nothing
         lost = np.zeros(len(c), dtype=bool)
         if self.losses.streams:
-            lossy = np.flatnonzero(self.loss[src, dst] > 0.0)
-            lost[lossy] = self.losses.take(c[lossy], src[lossy]) < self.loss[src[lossy], dst[lossy]]
+            lossy = np.flatnonzero(self.loss[number] > 0.0)
+            lost[lossy] = self.losses.take(c[lossy], src[lossy]) < self.loss[number[lossy]]
         kept = ~lost if lost.any() else slice(None)
         self._add(c[kept], roles[kept], "energy_transmit", (self.watts[src] * seconds)[kept])
-        link = src * self.n + dst
         # the charged offloads still on the link, in the order they were sent: each charged what this one waits
         w = self.win
         on_air = (self.olink[c, w] == link[:, None]) & (self.ofinish[c, w] > t)
@@ -997,7 +1004,8 @@ class ArraySim:
         here = origin == nd
         self._send(c[here], i[here], TO_CLIENT, origin[here], np.full(here.sum(), t + 1), self.worker[nd[here]],
                    self.worker_rank[nd[here]])
-        near = ~here & self.adjacent[nd, origin]
+        key = nd * self.n + origin  # the origin in its radio: the result goes straight to it
+        near = ~here & (self.link_key[np.searchsorted(self.link_key, key)] == key)
         if near.any():
             self._transmit(t, c[near], i[near], nd[near], origin[near], self.out_bits[c[near], i[near]], TO_CLIENT)
         far = ~here & ~near
@@ -1032,8 +1040,7 @@ class ArraySim:
         if self.recording:  # a worker's report tells its controller how long its links stay busy
             c, nd = np.nonzero(self.bumped & (self.controller >= 0))
             if len(c):
-                to = np.maximum(self.target[nd, 1:], 0)  # (a missing neighbour's column is never read)
-                self.told_busy[c, nd] = self.busy[c[:, None], nd[:, None], to]
+                self.told_busy[c, nd] = self.busy[c[:, None], self.links[nd, 1:]]
         if self.sc.colocated_control:  # what a co-located controller has heard at the end of the next tick
             self.heard_late[:], self.heard_occupancy_late[:] = self.heard, self.heard_occupancy
         if t % self.sc.state_interval == 0 and self.sc.failures:  # a node that is down is silent
