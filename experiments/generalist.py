@@ -10,6 +10,8 @@ the validation suite, for model selection only (``best.pt``); the test suite is 
     python -m experiments.suite --out runs/suites
     python -m experiments.generalist train --suite runs/suites/train --validation runs/suites/validation \\
         --episodes 300 --seed 0 --out runs/generalist/seed-0
+    python -m experiments.generalist train --suite runs/suites/train --validation runs/suites/validation \\
+        --envs 25 --regimes 5 --seed 0 --out runs/generalist-vector/seed-0   # 5 regimes x 5 copies at a time
     python -m experiments.generalist specialist --suite runs/suites/test --episodes 100 --out runs/specialists
     python -m experiments.generalist evaluate runs/generalist/seed-*/best.pt --specialists runs/specialists \\
         --baselines local greedy --suite runs/suites/test --episodes 5 --csv runs/generalist/test.csv
