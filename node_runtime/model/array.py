@@ -361,8 +361,8 @@ class ArraySim:
         self._reset_driven()
         self.t = 0
         self.ticks = ticks
-        # the live window of the task arrays: before ``lo`` every task is gone in every copy, from ``hi_at[t]`` on
-        # none is created by tick t in any copy
+        # the live window of the task arrays: before ``lo`` every task is gone in every copy (and off its link),
+        # from ``hi_at[t]`` on none is created by tick t in any copy
         self.lo = 0
         self.hi_at = np.array([np.searchsorted(row, np.arange(ticks), side="right") for row in self.created]).max(
             axis=0)
@@ -404,7 +404,10 @@ class ArraySim:
         self._levels(t)
         if self.recording:
             self._settle_ledger()
-        gone = (self.state[:, self.win] == GONE).all(axis=0)  # tasks before the window are gone in every copy
+        # tasks before the window are gone in every copy, and off their links: a lost offload occupies its link
+        # to the end, and charges the messages that wait for it meanwhile (``LinkTransmitter.occupy``)
+        w = self.win
+        gone = ((self.state[:, w] == GONE) & ((self.olink[:, w] < 0) | (self.ofinish[:, w] <= t + 1))).all(axis=0)
         self.lo += len(gone) if gone.all() else int(np.argmin(gone))
         self.t += 1
         return self.counters
