@@ -222,6 +222,24 @@ def test_a_policy_it_does_not_run_is_refused():
     assert all(refusal(load_scenario("aot2"), policy) is None for policy in POLICIES)
 
 
+def swapped(method, **values):
+    """``method`` run with some of its instance's attributes replaced, each by a function of the instance (all
+    computed before any is set), and restored after: a broken rule for one part of the tick."""
+
+    def run(self, *args):
+        saved = {name: getattr(self, name) for name in values}
+        new = {name: value(self) for name, value in values.items()}
+        for name, value in new.items():
+            setattr(self, name, value)
+        try:
+            return method(self, *args)
+        finally:
+            for name, value in saved.items():
+                setattr(self, name, value)
+
+    return run
+
+
 def test_a_random_policy_on_another_stream_is_caught(monkeypatch):
     """``random`` must draw the controller's own stream, draw for draw: another stream of the same seed differs."""
     own = array.stream
@@ -231,46 +249,19 @@ def test_a_random_policy_on_another_stream_is_caught(monkeypatch):
 
 def test_backlogs_ignored_are_caught(monkeypatch):
     """greedy_backlog with every link's backlog read as empty is plain greedy, and the comparison sees it."""
-    by_backlog = ArraySim._by_backlog
-
-    def idle_links(self, name, t, *rest):
-        busy, self.busy = self.busy, np.zeros_like(self.busy)
-        try:
-            return by_backlog(self, name, t, *rest)
-        finally:
-            self.busy = busy
-
-    monkeypatch.setattr(ArraySim, "_by_backlog", idle_links)
+    monkeypatch.setattr(ArraySim, "_by_backlog", swapped(ArraySim._by_backlog, busy=lambda s: np.zeros_like(s.busy)))
     assert first_difference("aot4", "greedy_backlog", 150, 3) is not None
 
 
 def test_a_deadline_one_tick_later_for_local_first_is_caught(monkeypatch):
     """local_first keeps a task whose estimate meets its time left; a tick more of it is caught."""
-    by_backlog = ArraySim._by_backlog
-
-    def later(self, name, t, *rest):
-        deadline, self.deadline = self.deadline, self.deadline + self.dt
-        try:
-            return by_backlog(self, name, t, *rest)
-        finally:
-            self.deadline = deadline
-
-    monkeypatch.setattr(ArraySim, "_by_backlog", later)
+    monkeypatch.setattr(ArraySim, "_by_backlog", swapped(ArraySim._by_backlog, deadline=lambda s: s.deadline + s.dt))
     assert first_difference("aot3_compute", "local_first", 200, 3) is not None
 
 
 def test_a_started_task_offered_for_diversion_is_caught(monkeypatch):
     """queue_first: a task that has had cycles may not be diverted; offering it to the controller is caught."""
-    divertible = ArraySim._divertible
-
-    def never_started(self, w):
-        rem, serving = self.rem, self.serving
-        self.rem, self.serving = self.cycles, np.full_like(serving, -1)
-        try:
-            return divertible(self, w)
-        finally:
-            self.rem, self.serving = rem, serving
-
+    never_started = swapped(ArraySim._divertible, rem=lambda s: s.cycles, serving=lambda s: np.full_like(s.serving, -1))
     monkeypatch.setattr(ArraySim, "_divertible", never_started)
     assert first_difference("aot2_reference", "least_queue", 100, 3) is not None
 
@@ -278,16 +269,8 @@ def test_a_started_task_offered_for_diversion_is_caught(monkeypatch):
 def test_a_colocated_controller_seeing_its_worker_as_broadcast_is_caught(monkeypatch):
     """control_latency 0: the controller reads its own worker as it is (age 0); its broadcast state is a tick
     older, and reading that is caught."""
-    seen = ArraySim._seen
-
-    def as_broadcast(self, c, nd):
-        queued, undecided = self.queued, self.undecided
-        self.queued, self.undecided = self.heard_late, self.heard_occupancy_late - self.heard_late
-        try:
-            return seen(self, c, nd)
-        finally:
-            self.queued, self.undecided = queued, undecided
-
+    as_broadcast = swapped(ArraySim._seen, queued=lambda s: s.heard_late,
+                           undecided=lambda s: s.heard_occupancy_late - s.heard_late)
     monkeypatch.setattr(ArraySim, "_seen", as_broadcast)
     assert first_difference("aot2_reference", "least_queue", 300, 3) is not None
 
