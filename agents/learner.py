@@ -325,9 +325,22 @@ class ReturnScale:
         clip = self.clip
         return {a: max(-clip, min(clip, r / std)) for a, r in rewards.items()}  # every step: no numpy per scalar
 
-    def divide(self, reward: float) -> float:
-        """One reward normalised by the running std as it stands (``normalize`` updates it)."""
-        return max(-self.clip, min(self.clip, reward / float(np.sqrt(self.rms.var + self.epsilon))))
+    def normalize_all(self, rewards: np.ndarray, running: np.ndarray, ended: bool) -> np.ndarray:
+        """``normalize`` for agents held as an array: ``running`` (their discounted returns, updated in place, reset
+        when ``ended``) beside ``rewards``, all of them in one update of the statistics."""
+        running *= self.gamma
+        running += rewards
+        self.rms.update(running.ravel())
+        if ended:
+            running[:] = 0.0
+        return self.divide(rewards)
+
+    def divide(self, reward: Any) -> Any:
+        """A reward (or an array of them) normalised by the running std as it stands (``normalize`` updates it)."""
+        scaled = reward / float(np.sqrt(self.rms.var + self.epsilon))
+        if isinstance(scaled, np.ndarray):
+            return np.clip(scaled, -self.clip, self.clip)
+        return max(-self.clip, min(self.clip, scaled))
 
     def stats(self) -> list[float]:
         return [float(self.rms.mean), float(self.rms.var), float(self.rms.count)]

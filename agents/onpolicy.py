@@ -234,12 +234,7 @@ class OnPolicyLearner(Learner):
                     float(p.extras["value"]), p.reward, c.discount, next_values.get(c.agent, 0.0), c.last,
                     int(p.extras.get("teacher", -1)), p if self.config.credit == "task" else None))
         if self.env_steps % self.config.rollout_steps == 0:
-            if self.config.anneal_lr:  # the rate at the start of the rollout, so the last one still learns
-                started = self.env_steps - self.config.rollout_steps
-                lr = self.config.lr * max(0.0, 1.0 - started / self.total_steps)
-                for opt in self.optimizers.values():
-                    for pg in opt.param_groups:
-                        pg["lr"] = lr
+            self.anneal(self.env_steps - self.config.rollout_steps)
             stats = []
             for group, records in self.rollout.items():
                 ready, waiting = credited(records)
@@ -249,6 +244,15 @@ class OnPolicyLearner(Learner):
                 records[:] = waiting
             if stats:  # averaged over the networks updated (one per agent when independent)
                 self.last_stats = {k: float(np.mean([s[k] for s in stats])) for k in self.stat_names}
+
+    def anneal(self, started: int) -> None:
+        """With ``anneal_lr``, the learning rate for a rollout that started after ``started`` environment steps:
+        the rate at its start, so that the last one still learns."""
+        if self.config.anneal_lr:
+            lr = self.config.lr * max(0.0, 1.0 - started / self.total_steps)
+            for opt in self.optimizers.values():
+                for pg in opt.param_groups:
+                    pg["lr"] = lr
 
     def batch(self, records: list[Record]) -> dict[str, torch.Tensor]:
         """Tensors of a rollout, with GAE advantages and the critic's targets (returns)."""

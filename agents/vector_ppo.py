@@ -272,7 +272,7 @@ class VectorPPO:
         if regimes[0].credit is None:
             scaled = np.concatenate([r.rewards.ravel() for r in regimes]) * scale
             if c.normalize_reward:
-                scaled = self._normalised(scaled, running, truncated)
+                scaled = learner.returns.normalize_all(scaled, running, truncated)
             table["reward"][rows] += table["discount"][rows] * scaled[open_chains]
         else:
             waiting = np.flatnonzero(np.isnan(table["credit"]))
@@ -287,21 +287,10 @@ class VectorPPO:
             if c.normalize_reward:
                 sums = np.zeros(running.shape)
                 np.add.at(sums, table["chain"][came], values)
-                self._normalised(sums, running, truncated)
-                r = learner.returns
-                values = np.clip(values / math.sqrt(r.rms.var + r.epsilon), -r.clip, r.clip)
+                learner.returns.normalize_all(sums, running, truncated)
+                values = learner.returns.divide(values)
             table["credit"][came] = values
         table["discount"][rows] *= c.gamma
-
-    def _normalised(self, scaled: np.ndarray, running: np.ndarray, truncated: bool) -> np.ndarray:
-        """``ReturnScale.normalize`` for every chain at once."""
-        r = self.learner.returns
-        running *= r.gamma
-        running += scaled
-        r.rms.update(running)
-        if truncated:
-            running[:] = 0.0
-        return np.clip(scaled / math.sqrt(r.rms.var + r.epsilon), -r.clip, r.clip)
 
     def _close(self, rows: np.ndarray, next_value: np.ndarray | None, last: bool) -> None:
         """Close decisions: bootstrapping from ``next_value`` with their discount, or as terminal (None)."""
@@ -333,11 +322,7 @@ class VectorPPO:
         blocked = np.flatnonzero(closed & ~credited)
         np.minimum.at(first_wait, chain[blocked], blocked)
         ready = np.flatnonzero(closed & credited & (np.arange(table.rows) < first_wait[chain]))
-        if c.anneal_lr:  # the rate at the start of the rollout, so the last one still learns
-            started = learner.env_steps - steps
-            for opt in learner.optimizers.values():
-                for pg in opt.param_groups:
-                    pg["lr"] = c.lr * max(0.0, 1.0 - started / learner.total_steps)
+        learner.anneal(learner.env_steps - steps)
         if len(ready):
             reward = table["credit"][ready] if credit else table["reward"][ready]
             value = table["value"][ready]

@@ -225,9 +225,9 @@ def train(args: argparse.Namespace, p: Parser) -> None:
                     ran = [(drawn[0], env, [run_episode(env, learner, seeds[k], learner) | learner.stats()])]
                 else:
                     groups = [copies.get(r) for r in drawn]
-                    if len(set(map(id, groups))) < len(groups):  # a regime drawn twice: its copies are busy
-                        groups = [Regime(learner, flat_env(r, *vectorised), g.k) if any(h is g for h in groups[:i])
-                                  else g for i, (r, g) in enumerate(zip(drawn, groups, strict=True))]
+                    # a regime drawn twice in a round: its second draw gets copies of its own
+                    groups = [copies.make(r) if any(h is g for h in groups[:i]) else g
+                              for i, (r, g) in enumerate(zip(drawn, groups, strict=True))]
                     each = args.envs // args.regimes
                     out = trainer.episode(groups, [seeds[k + i * each:k + (i + 1) * each] for i in range(len(groups))])
                     ran = [(r, g.env, rows) for r, g, rows in zip(drawn, groups, out, strict=True)]
