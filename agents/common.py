@@ -163,9 +163,17 @@ def one_hot(index: int, size: int) -> np.ndarray:
 
 # ----- masked distributions -----
 
+TIE = 1e-4  # values this close to the largest (relative, at least absolute) tie with it: the first wins
+
+
 def masked_argmax(values: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
-    """Index of the largest value among the allowed actions; masked actions count as -inf."""
-    return values.masked_fill(~mask, -torch.inf).argmax(dim=-1)
+    """Index of the largest value among the allowed actions (masked ones count as -inf), the first of those within
+    ``TIE`` of it. Two identical targets score the same in exact arithmetic, but a forward pass rounds a row
+    differently with the batch it is in (about 1e-6): without the tolerance the greedy action would depend on how
+    many agents decide at once, and the serial and the batched evaluation would part."""
+    v = values.masked_fill(~mask, -torch.inf)
+    top = v.max(dim=-1, keepdim=True).values
+    return (v >= top - TIE * top.abs().clamp(min=1.0)).to(torch.uint8).argmax(dim=-1)
 
 
 class MaskedCategorical:

@@ -246,9 +246,49 @@ class VectorPPO:
                 self._update(len(running), rollout * copies, episode_over=truncated)
             if truncated:
                 break
-        wall = time.perf_counter() - start
-        return [self._rows(r, s, ret, decisions / copies, wall / copies)
+        wall, stats = time.perf_counter() - start, learner.stats()
+        return [self._rows(r, s, ret, np.full(r.k, decisions / copies), wall / copies, stats)
                 for r, s, ret in zip(regimes, seeds, returns, strict=True)]
+
+    def play(self, regimes: Sequence[Regime], seeds: Sequence[Sequence[int]], greedy: bool = True
+             ) -> list[list[dict[str, float]]]:
+        """One episode of every copy of every regime with the learnt policy and no learning (``episode``'s rows):
+        its most likely action (``greedy``, the serial ``sample_eval=false``: the same episodes, action for
+        action) or a sample at ``eval_temperature`` (the serial policy's distribution, but another random stream:
+        the draws of all copies come from one generator). The learner's state is left as it was, its sampling
+        streams aside."""
+        start = time.perf_counter()
+        learner = self.learner
+        lengths = {r.env.max_steps for r in regimes}
+        if len(lengths) > 1 or len({r.steps.n_actions for r in regimes}) > 1:
+            raise ValueError("regimes stepped together need one episode length and one action space")
+        learner.generator.manual_seed(int(seeds[0][0]))
+        base = np.cumsum([0] + [r.k * r.n for r in regimes])
+        returns, decided = [np.zeros(r.k) for r in regimes], [np.zeros(r.k) for r in regimes]
+        observations, masks = zip(*(r.steps.reset(s)[:2] for r, s in zip(regimes, seeds, strict=True)), strict=True)
+        observations, masks = list(observations), list(masks)
+        for _ in range(lengths.pop()):
+            x, deciders = self._deciders(regimes, observations, base)
+            mask = np.concatenate([m[dc, da] for m, (dc, da, _) in zip(masks, deciders, strict=True)])
+            with torch.no_grad():
+                logits = learner.nets[SHARED].actor(torch.as_tensor(x, device=learner.device))
+                if not greedy:
+                    logits = logits / learner.config.eval_temperature
+                dist = MaskedCategorical(logits, torch.as_tensor(mask, device=learner.device))
+                act = (dist.mode() if greedy else dist.sample(learner.generator)).cpu().numpy()
+            at, truncated = 0, False
+            for g, (r, (dc, da, _)) in enumerate(zip(regimes, deciders, strict=True)):
+                actions = np.zeros((r.k, r.n), dtype=np.int64)
+                actions[dc, da] = act[at:at + len(dc)]
+                at += len(dc)
+                np.add.at(decided[g], dc, 1)
+                observations[g], masks[g], rewards, truncated, _ = r.steps.step(actions, masks[g])
+                returns[g] += rewards.sum(axis=1)
+            if truncated:
+                break
+        wall = (time.perf_counter() - start) / sum(r.k for r in regimes)
+        return [self._rows(r, s, ret, d, wall, {})
+                for r, s, ret, d in zip(regimes, seeds, returns, decided, strict=True)]
 
     def _deciders(self, regimes: Sequence[Regime], observations: Sequence[np.ndarray], base: np.ndarray
                   ) -> tuple[np.ndarray, list[tuple[np.ndarray, np.ndarray, np.ndarray]]]:
@@ -364,22 +404,21 @@ class VectorPPO:
 
     # ----- episode rows -----
 
-    def _rows(self, regime: Regime, seeds: Sequence[int], returns: np.ndarray, decisions: float,
-              wall: float) -> list[dict[str, float]]:
+    def _rows(self, regime: Regime, seeds: Sequence[int], returns: np.ndarray, decisions: np.ndarray,
+              wall: float, extra: dict[str, float]) -> list[dict[str, float]]:
         totals = regime.steps.totals()
         generated, completed, dropped = totals["generated"], totals["completed"], totals["dropped"]
         response = totals["response_time_total"]
         penalty = regime.env.penalty
-        stats = self.learner.stats()
         rows = []
         for c, seed in enumerate(seeds):
             g, done = float(generated[c]), float(completed[c])
-            rows.append({"seed": int(seed), "steps": regime.steps.steps, "decisions": decisions,
+            rows.append({"seed": int(seed), "steps": regime.steps.steps, "decisions": float(decisions[c]),
                          "return": float(returns[c]), "generated": g, "completed": done, "dropped": float(dropped[c]),
                          "completion_ratio": done / g if g else math.nan,
                          "response_time_mean": float(response[c]) / done if done else math.nan,
                          "penalised_response_time": (float(response[c]) + penalty * (g - done)) / g if g else math.nan,
-                         "wall_s": wall, **stats})
+                         "wall_s": wall, **extra})
         return rows
 
 

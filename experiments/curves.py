@@ -74,15 +74,16 @@ def _columns(path: Path, columns: Sequence[str], text: Sequence[str] = ()) -> di
     return out
 
 
-def read(folders: Sequence[Path]) -> list[Run]:
-    """The training runs in ``folders`` (each an ``--out`` of ``experiments.generalist train``), by seed."""
+def read(folders: Sequence[Path], episodes: bool = True) -> list[Run]:
+    """The training runs in ``folders`` (each an ``--out`` of ``experiments.generalist train``), by seed; without
+    ``episodes``, their checkpoints only (no ``train.csv`` needed)."""
     runs = []
     for folder in folders:
         try:
             seed = int(json.loads((folder / "config.json").read_text())["config"]["seed"])
         except (OSError, ValueError, KeyError, TypeError) as e:
             raise RawError(f"{folder / 'config.json'}: no training seed (config.seed) in it ({e})") from None
-        train = _columns(folder / "train.csv", TRAIN_COLUMNS)
+        train = _columns(folder / "train.csv", TRAIN_COLUMNS) if episodes else {}
         checks = _columns(folder / "validation.csv", CHECK_COLUMNS, text=("checkpoint",))
         names = tuple(checks.pop("checkpoint"))
         runs.append(Run(seed, folder, {k: np.asarray(v) for k, v in train.items()},
@@ -178,3 +179,41 @@ def section(runs: Sequence[Run], figures: Path, link: str, reps: int) -> str:
               f"each run's episodes are averaged in {BINS} equal spans of frames). Bottom: the checkpoints on the "
               "validation suite.", "", f"![{title}]({link}/{name})", ""]
     return "\n".join(lines)
+
+
+def _settings(run: Run) -> dict[str, Any]:
+    """A run's settings as its ``config.json`` has them, flattened (``config.lr``), its seed left out."""
+    data = json.loads((run.folder / "config.json").read_text())
+    flat = {k: v for k, v in data.items() if k not in ("config", "regimes", "suite", "validation")}
+    flat.update({f"config.{k}": v for k, v in data["config"].items() if k != "seed"})
+    return flat
+
+
+def settings_section(candidates: dict[str, Sequence[Run]], default: str, last: int = 4) -> str:
+    """The generalist's settings as chosen on the validation suite: for each candidate (a folder of training runs),
+    what its settings change from ``default``'s, its runs' ``best.pt`` validation completion and the mean of their
+    last ``last`` checkpoints; the chosen one has the highest mean ``best.pt`` completion over its seeds."""
+    def mean_best(runs: Sequence[Run]) -> float:
+        return float(np.mean([r.checks["completion_ratio"][r.best] for r in runs]))
+
+    base = _settings(candidates[default][0])
+    chosen = max(candidates, key=lambda name: mean_best(candidates[name]))
+    lines = ["## Settings chosen on validation", "",
+             "Each candidate is a set of training runs of `python -m experiments.generalist train` (one per training "
+             f"seed); `{default}` holds the settings the search started from, and each other candidate says what it "
+             "changed (the value, then the starting one in brackets). Every checkpoint is scored on the validation "
+             "suite; a run's score is its `best.pt`'s validation completion, a candidate's the mean over its seeds. "
+             f"Chosen: **{chosen}**.", "",
+             f"| candidate | changes | seeds | best.pt completion %, mean | per seed | last {last} checkpoints % | "
+             "penalised response at best.pt [s] |", "| --- | --- | --- | --- | --- | --- | --- |"]
+    for name, runs in sorted(candidates.items(), key=lambda kv: -mean_best(kv[1])):
+        mine = _settings(runs[0])
+        changes = "; ".join(f"`{k}` {mine.get(k)} ({base.get(k)})" for k in sorted({*mine, *base})
+                            if mine.get(k) != base.get(k)) or "—"
+        best = [100 * r.checks["completion_ratio"][r.best] for r in runs]
+        tail = np.mean([r.checks["completion_ratio"][-last:] for r in runs]) * 100
+        response = np.mean([r.checks["penalised_response_time"][r.best] for r in runs])
+        mark = f"**{name}**" if name == chosen else name
+        lines.append(f"| {mark} | {changes} | {', '.join(str(r.seed) for r in runs)} | {np.mean(best):.2f} | "
+                     f"{', '.join(f'{b:.2f}' for b in best)} | {tail:.2f} | {response:.2f} |")
+    return "\n".join([*lines, ""])

@@ -70,6 +70,9 @@ SLOTS = 32  # neighbour slots: the largest degree is 18 in the first 100 train, 
 REWARD = "marginal"  # experiments.train's for PPO: each decision learns from its own tasks' credit
 MODES = ("sampled", "greedy")  # how a learner acts when evaluated
 OPEN_ENVS = 8  # regimes whose simulation stays open between the episodes that draw them
+# train's defaults, chosen on the validation suite (docs/benchmark.md, "Settings chosen on validation"):
+PRICE = 1.0  # the marginal reward's congestion price, below the environment's default
+ENVS, REGIMES = 25, 5  # episodes at a time on the array backend, and regimes drawn per round (5 copies each)
 
 
 def scenarios(names: Sequence[str]) -> list[SuiteRegime]:
@@ -148,12 +151,22 @@ def generalist(slots: int, config: Any, device: str = "cpu") -> PPO:
 CURVES = ("return", CRITERION, "penalised_response_time")  # each checkpoint's validation means: learning curves
 
 
-def validate(policy: AgentPolicy, regimes: Sequence[SuiteRegime], envs: OpenEnvs, episodes: int,
-             progress: Any = None) -> dict[str, float]:
+def validate(policy: Learner, regimes: Sequence[SuiteRegime], envs: OpenEnvs | list[Regime], episodes: int,
+             greedy: bool, progress: Any = None) -> dict[str, float]:
     """Means over the validation regimes, on the validation episode seeds, of ``CURVES``: ``CRITERION``
-    (completion ratio) chooses the checkpoint, the others are logged for the learning curves."""
-    task = progress.add_task("validate", total=len(regimes) * episodes, info="") if progress else None
+    (completion ratio) chooses the checkpoint, the others are logged for the learning curves. The policy acts
+    as it will be evaluated: its most likely action (``greedy``) or a sample. ``envs``: the regimes' open
+    environments, played one episode at a time, or their ``Regime``s of ``episodes`` copies each, played all at
+    once (``VectorPPO.play``: the same episodes, action for action when greedy)."""
     values: dict[str, list[float]] = {m: [] for m in CURVES}
+    if isinstance(envs, list):
+        seeds = [EPISODES["validation"].seeds(episodes)] * len(envs)
+        for rows in VectorPPO(policy).play(envs, seeds, greedy):
+            for m in CURVES:
+                values[m] += [row[m] for row in rows]
+        return {m: float(np.nanmean(v)) for m, v in values.items()}
+    task = progress.add_task("validate", total=len(regimes) * episodes, info="") if progress else None
+    sampled, policy.config.sample_eval = policy.config.sample_eval, not greedy
     for regime in regimes:
         for seed in EPISODES["validation"].seeds(episodes):
             row = run_episode(envs.get(regime), policy, seed)
@@ -161,6 +174,7 @@ def validate(policy: AgentPolicy, regimes: Sequence[SuiteRegime], envs: OpenEnvs
                 values[m].append(row[m])
             if progress is not None:
                 progress.update(task, advance=1)
+    policy.config.sample_eval = sampled
     if progress is not None:
         progress.remove_task(task)
     return {m: float(np.nanmean(v)) for m, v in values.items()}
@@ -180,6 +194,7 @@ def train(args: argparse.Namespace, p: Parser) -> None:
         if args.envs > 1 and (args.episodes % args.envs or args.checkpoint_every % args.envs):
             raise ValueError(f"--envs {args.envs} runs that many episodes at once: it must divide "
                              f"--episodes ({args.episodes}) and --checkpoint-every ({args.checkpoint_every})")
+        args.regimes = args.regimes or (REGIMES if args.envs % REGIMES == 0 else 1)
         if args.envs % args.regimes:
             raise ValueError(f"--regimes {args.regimes} must divide --envs {args.envs} (each regime drawn in a round "
                              "runs as many of its episodes)")
@@ -192,8 +207,11 @@ def train(args: argparse.Namespace, p: Parser) -> None:
     set_threads(args.threads)
     args.out.mkdir(parents=True, exist_ok=True)
     envs = OpenEnvs(args.slots, args.max_steps, args.congestion_price, backends)
-    checked = OpenEnvs(args.slots, args.max_steps, args.congestion_price, backends, keep=len(checks))
     learner = generalist(args.slots, config, args.device)
+    vectorised = (args.slots, args.max_steps, args.congestion_price)
+    checked: OpenEnvs | list[Regime] = OpenEnvs(*vectorised, backends, keep=len(checks))
+    if args.envs > 1 and all(backends[r.name] == "array" for r in checks):  # every validation episode at once
+        checked = [Regime(learner, flat_env(r, *vectorised), args.validation_episodes) for r in checks]
     try:
         first = envs.get(regimes[0])  # every regime's shape is checked as it is drawn; this sizes the schedules
     except (ValueError, ScenarioError) as e:
@@ -203,14 +221,13 @@ def train(args: argparse.Namespace, p: Parser) -> None:
         "validation": str(args.validation) if args.validation else None, "episodes": args.episodes,
         "max_steps": first.max_steps, "slots": args.slots, "reward": REWARD, "backends": backends,
         "congestion_price": first.reward_settings.congestion_price, "envs": args.envs,
-        "regimes_per_round": args.regimes, "config": asdict(config)},
+        "regimes_per_round": args.regimes, "validation_mode": args.validation_mode, "config": asdict(config)},
         indent=1))
     learner.start_training(args.episodes * first.max_steps)
     draw = np.random.default_rng(args.seed)  # which regime each episode (each K episodes) runs: from the training seed
     log = CsvWriter(args.out / "train.csv")
     checks_log = CsvWriter(args.out / "validation.csv") if checks else None
     best, frames = -math.inf, 0
-    vectorised = (args.slots, args.max_steps, args.congestion_price)
     copies = OpenEnvs(*vectorised, backends, keep=max(OPEN_ENVS, 2 * args.regimes),
                       make=lambda r: Regime(learner, flat_env(r, *vectorised), args.envs // args.regimes))
     trainer = VectorPPO(learner)
@@ -250,7 +267,8 @@ def train(args: argparse.Namespace, p: Parser) -> None:
                 learner.save(path)
                 if checks_log is not None:
                     start = time.perf_counter()
-                    means = validate(learner, checks, checked, args.validation_episodes, progress)
+                    means = validate(learner, checks, checked, args.validation_episodes,
+                                     args.validation_mode == "greedy", progress)
                     checks_log.write({"episode": done, "frames": frames, "checkpoint": path.name, **means,
                                       "wall_s": time.perf_counter() - start})
                     if means[CRITERION] > best:
@@ -261,7 +279,8 @@ def train(args: argparse.Namespace, p: Parser) -> None:
     if checks_log is not None:
         checks_log.close()
     envs.close()
-    checked.close()
+    for opened in checked if isinstance(checked, list) else [checked]:
+        opened.close()
     learner.save(args.out / "last.pt")
     chosen = f"best.pt (validation {CRITERION} {best:.3f})" if checks else "no validation suite: no best.pt"
     print(f"wrote {args.out / 'train.csv'}, checkpoints and last.pt; {chosen}")
@@ -359,6 +378,9 @@ def evaluate(args: argparse.Namespace, p: Parser) -> None:
     except ValueError as e:
         p.error(str(e))
     backends = regime_backends(p.prog, regimes, args.backend)
+    if args.batched and (emulated := [r.name for r in regimes if backends[r.name] != "array"]):
+        p.error(f"--batched plays on the array backend, which does not run {emulated[0]} (--backend {args.backend}); "
+                "evaluate it without --batched")
     set_threads(1)
     rows: list[dict[str, Any]] = []
     progress = progress_bar() if args.progress else None
@@ -366,6 +388,11 @@ def evaluate(args: argparse.Namespace, p: Parser) -> None:
         runs = sum(len(args.modes) if e.baseline is None else 1 for e in todo) * len(regimes) * len(seeds)
         bar = progress.add_task("evaluate", total=runs, info="") if progress else None
         for entry in todo:
+            if args.batched and entry.checkpoint is not None:
+                rows += batched(entry, regimes, seeds, args)
+                if progress is not None:
+                    progress.update(bar, advance=len(args.modes) * len(regimes) * len(seeds), info=entry.label)
+                continue
             for regime in regimes:
                 policy = entry.policy(regime, args.device)
                 try:
@@ -393,8 +420,33 @@ def evaluate(args: argparse.Namespace, p: Parser) -> None:
           f"{', '.join(args.modes)})")
 
 
-def add_price_argument(parser: argparse.ArgumentParser, what: str) -> None:
-    price = RewardSettings().congestion_price
+def batched(entry: Entry, regimes: Sequence[SuiteRegime], seeds: Sequence[int], args: argparse.Namespace
+            ) -> list[dict[str, Any]]:
+    """``evaluate``'s rows of a generalist checkpoint with every episode of every regime played at once, copies on
+    the array backend (``VectorPPO.play``); regimes of one episode length step together."""
+    policy = load_learner(entry.checkpoint, args.device)
+    slots = policy.specs["agent"].slots
+    groups: dict[int, list[tuple[SuiteRegime, Regime]]] = {}
+    for regime in regimes:
+        played = Regime(policy, flat_env(regime, slots, args.max_steps, args.congestion_price), len(seeds))
+        groups.setdefault(played.env.max_steps, []).append((regime, played))
+    out: dict[tuple[str, str], list[dict[str, Any]]] = {}
+    for mode in args.modes:
+        label = entry.label + ("" if mode == "sampled" else "_greedy")
+        for group in groups.values():
+            played = VectorPPO(policy).play([g for _, g in group], [seeds] * len(group), greedy=mode == "greedy")
+            for (regime, _), episodes in zip(group, played, strict=True):
+                out[regime.name, mode] = [
+                    raw.row(label, policy.config.seed, regime.path, regime.name, {"episode": k, **episode},
+                            {"backend": "array"}) for k, episode in enumerate(episodes)]
+    for group in groups.values():
+        for _, played in group:
+            played.close()
+    return [row for regime in regimes for mode in args.modes for row in out[regime.name, mode]]
+
+
+def add_price_argument(parser: argparse.ArgumentParser, what: str, price: float | None = None) -> None:
+    price = RewardSettings().congestion_price if price is None else price
     parser.add_argument("--price", dest="congestion_price", type=congestion_price, default=price,
                         help=f"congestion price of the marginal reward{what} (default {price:g}; docs/reward.md)")
 
@@ -408,15 +460,18 @@ def main(argv: Sequence[str] | None = None) -> None:
                    help="the validation suite: scores every checkpoint, the best is best.pt")
     t.add_argument("--episodes", type=positive_int, default=200, help="training episodes (default 200)")
     t.add_argument("--checkpoint-every", type=positive_int, default=25, help="episodes between checkpoints (25)")
-    t.add_argument("--validation-episodes", type=positive_int, default=1,
-                   help="validation episodes per regime and checkpoint (default 1)")
+    t.add_argument("--validation-episodes", type=positive_int, default=2,
+                   help="validation episodes per regime and checkpoint (default 2)")
+    t.add_argument("--validation-mode", choices=MODES, default="greedy",
+                   help="how the learner acts on validation: greedy (default: its most likely action, the evaluation "
+                        "mode chosen on validation) or sampled")
     t.add_argument("--out", type=Path, default=Path("runs/generalist"), help="output folder (runs/generalist)")
-    t.add_argument("--envs", type=positive_int, default=1,
-                   help="episodes run at once, K copies on the array backend (agents.vector_ppo: the same learner, "
-                        "fed in arrays); default 1, the serial loop")
-    t.add_argument("--regimes", type=positive_int, default=1,
+    t.add_argument("--envs", type=positive_int, default=ENVS,
+                   help=f"episodes run at once, K copies on the array backend (agents.vector_ppo: the same learner, "
+                        f"fed in arrays; default {ENVS}); 1: the serial loop, one episode at a time on any backend")
+    t.add_argument("--regimes", type=positive_int, default=None,
                    help="regimes drawn for each round of --envs episodes, each running --envs / --regimes of them "
-                        "(default 1)")
+                        f"(default {REGIMES} where it divides --envs, else 1)")
     s = sub.add_parser("specialist", help="train one PPO per regime of a suite (experiments.train ppo on each)")
     s.add_argument("--suite", type=Path, required=True, help="a suite folder: one specialist per regime")
     s.add_argument("--episodes", type=positive_int, default=100, help="training episodes per regime (default 100)")
@@ -425,10 +480,10 @@ def main(argv: Sequence[str] | None = None) -> None:
                    help="episodes of a regime run at once (experiments.train --envs; default 1, the serial loop)")
     t.add_argument("--slots", type=positive_int, default=SLOTS,
                    help=f"neighbour slots: at least the largest degree of any regime it will meet (default {SLOTS})")
-    for q in (t, s):
+    for q, price in ((t, PRICE), (s, None)):
         add_backend_argument(q, "auto")
         q.add_argument("--max-steps", type=positive_int, default=None, help="steps per episode (default: the regime's)")
-        add_price_argument(q, "")
+        add_price_argument(q, "", price)
         add_learner_arguments(q)
     e = sub.add_parser("evaluate", help="evaluate generalists, specialists and baselines on a suite: one CSV")
     e.add_argument("checkpoints", type=Path, nargs="*", help="generalist checkpoints (best.pt of each seed)")
@@ -448,6 +503,10 @@ def main(argv: Sequence[str] | None = None) -> None:
                    help="how learners act: sampled (default: a sample of the learnt policy) and/or greedy (its most "
                         "likely action, as <policy>_greedy); the default is chosen on validation")
     add_price_argument(e, ", for the return column")
+    e.add_argument("--batched", action="store_true",
+                   help="play a generalist's episodes of every regime at once, copies on the array backend "
+                        "(agents.vector_ppo): greedy, the same episodes action for action, faster; "
+                        "sampled, the same policy with another random stream. Baselines and specialists run as before")
     e.add_argument("--csv", type=Path, required=True, help="one row per policy, regime and episode")
     add_backend_argument(e, EVAL_BACKEND)
     e.add_argument("--device", default="cpu", help="cpu (default) or cuda")

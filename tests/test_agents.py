@@ -180,6 +180,9 @@ def test_masked_distribution_and_argmax_never_pick_masked_actions():
     logits = torch.tensor([[5.0, 9.0, 1.0], [0.0, 0.0, 0.0]])
     mask = torch.tensor([[True, False, True], [False, True, False]])
     assert masked_argmax(logits, mask).tolist() == [0, 1]
+    # near-ties (a forward pass's rounding, ~1e-6) go to the first: the greedy action is the batch's any way
+    near = torch.tensor([[1.0, 1.0 + 1e-6, 0.5], [-3.0, 200.0 + 1e-4, 200.0], [0.0, 0.1, 0.1 - 1e-3]])
+    assert masked_argmax(near, torch.ones(3, 3, dtype=torch.bool)).tolist() == [0, 1, 1]
     dist = MaskedCategorical(logits, mask)
     draws = torch.stack([dist.sample(torch.Generator().manual_seed(s)) for s in range(50)])
     assert mask.gather(1, draws.T).all()

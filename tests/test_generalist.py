@@ -81,7 +81,7 @@ def read_rows(path):
 def test_trained_on_two_regimes_it_runs_zero_shot_on_another_family(suites, tmp_path, capsys):
     out = tmp_path / "run"
     generalist.main(["train", "--suite", str(suites["train"]), "--validation", str(suites["validation"]),
-                     "--episodes", "4", "--max-steps", str(STEPS), "--checkpoint-every", "2",
+                     "--episodes", "4", "--max-steps", str(STEPS), "--checkpoint-every", "2", "--envs", "1",
                      "--set", "rollout_steps=16", "--out", str(out), "--no-progress"])
     log = read_rows(out / "train.csv")
     assert {r["regime"] for r in log} <= {"train-000-ring", "train-001-grid"}

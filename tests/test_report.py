@@ -6,6 +6,7 @@ in one line."""
 from __future__ import annotations
 
 import csv
+import json
 import re
 from pathlib import Path
 
@@ -158,7 +159,7 @@ def test_the_committed_page_is_what_the_committed_rows_give(tmp_path, monkeypatc
 
 @pytest.fixture(scope="module")
 def training(tmp_path_factory) -> list[Path]:
-    """Two real generalist training runs (seeds 0 and 1) of 4 episodes of 20 steps, a checkpoint every 2."""
+    """Two real generalist training runs (seeds 0 and 1) of 4 episodes of 20 steps, 2 at a time, a checkpoint every 2."""
     folder = tmp_path_factory.mktemp("training")
     suite.write(suite.suite("train", 2, steps=20), folder / "train")
     suite.write(suite.suite("validation", 1, steps=20), folder / "validation")
@@ -166,9 +167,43 @@ def training(tmp_path_factory) -> list[Path]:
     for seed in (0, 1):
         runs.append(folder / f"seed-{seed}")
         generalist.main(["train", "--suite", str(folder / "train"), "--validation", str(folder / "validation"),
-                         "--episodes", "4", "--checkpoint-every", "2", "--set", "rollout_steps=16", "--seed",
+                         "--episodes", "4", "--checkpoint-every", "2", "--envs", "2", "--set", "rollout_steps=16", "--seed",
                          str(seed), "--out", str(runs[-1]), "--no-progress"])
     return runs
+
+
+def test_the_settings_table_chooses_the_best_validation_candidate(pipeline, training, tmp_path, capsys):
+    """Candidates are folders of training runs; the table says what each changed from default/ (read from the
+    runs' config.json), and chooses the highest mean best.pt validation completion."""
+    settings = tmp_path / "settings"
+    shifts = {"default": 0.0, "price": 0.1, "wider": -0.1}  # completions moved so that "price" must win
+    for name, shift in shifts.items():
+        for run in training:
+            folder = settings / name / run.name
+            folder.mkdir(parents=True)
+            config = json.loads((run / "config.json").read_text())
+            config["congestion_price"] += 1.0 if name == "price" else 0.0
+            config["config"]["hidden"] = [256, 256] if name == "wider" else config["config"]["hidden"]
+            (folder / "config.json").write_text(json.dumps(config))
+            rows = rows_of(run / "validation.csv")
+            write(folder / "validation.csv", [{**r, "completion_ratio": str(float(r["completion_ratio"]) + shift)}
+                                              for r in rows])
+    out = tmp_path / "page.md"
+    report.main([str(pipeline / "raw.csv"), "--settings", str(settings), "--out", str(out), "--reps", "50",
+                 "--no-progress"])
+    table = out.read_text().split("## Settings chosen on validation")[1].split("##")[0]
+    assert "Chosen: **price**." in table
+    lines = [line for line in table.splitlines() if line.startswith("| ") and "---" not in line][1:]
+    assert [line.split("|")[1].strip() for line in lines] == ["**price**", "default", "wider"]
+    base = json.loads((training[0] / "config.json").read_text())["congestion_price"]
+    assert f"`congestion_price` {base + 1.0} ({base})" in lines[0]
+    assert "`config.hidden` [256, 256]" in lines[2] and lines[1].split("|")[2].strip() == "—"
+    best = np.mean([max(float(r["completion_ratio"]) for r in rows_of(run / "validation.csv")) for run in training])
+    assert float(lines[1].split("|")[4]) == pytest.approx(100 * best, abs=0.005)
+    (settings / "default").rename(settings / "start")
+    with pytest.raises(SystemExit):
+        report.main([str(pipeline / "raw.csv"), "--settings", str(settings), "--out", str(out), "--no-progress"])
+    assert "expected default/ and every candidate with seed-*/ training runs" in capsys.readouterr().err
 
 
 def test_learning_curves_and_wall_clock_follow_their_csv(pipeline, training, tmp_path, capsys):

@@ -23,7 +23,7 @@ import torch
 from agents import PPO
 from agents.common import AgentSpec
 from agents.ppo import PPOConfig
-from agents.training import evaluate
+from agents.training import evaluate, run_episode
 from agents.vector_ppo import Regime, VectorPPO
 from env import ZenohEdgeEnv
 from orchestrator.scenario import load_scenario
@@ -156,6 +156,36 @@ def test_its_checkpoint_acts_on_the_emulator(tmp_path):
     rows = evaluate(env, loaded, 1)
     env.close()
     assert rows[0]["generated"] > 0 and rows[0]["steps"] == 30
+
+
+def test_playing_greedy_is_the_serial_greedy_policy_episode_for_episode():
+    trainer, _ = train(seed=7, episodes=1)  # a policy that is not uniform
+    ppo = trainer.learner
+    ppo.config.sample_eval = False  # the serial evaluation's greedy policy
+    steps, seeds = 60, [[21, 22], [23]]
+    regimes = [Regime(ppo, flat_env(name, steps), len(s)) for name, s in zip(("aot1", "aot2"), seeds, strict=True)]
+    before = (ppo.env_steps, ppo.updates, {k: v.clone() for k, v in ppo.nets["shared"].state_dict().items()})
+    played = trainer.play(regimes, seeds, greedy=True)
+    for name, rows, regime_seeds in zip(("aot1", "aot2"), played, seeds, strict=True):
+        env = ZenohEdgeEnv(name, backend="emulator", transport="inproc", neighbour_slots=SLOTS, max_steps=steps,
+                           reward="marginal")
+        for row, seed in zip(rows, regime_seeds, strict=True):
+            expected = run_episode(env, ppo, seed)
+            for key in ("steps", "decisions", "generated", "completed", "dropped", "completion_ratio",
+                        "penalised_response_time"):
+                assert row[key] == pytest.approx(expected[key], rel=1e-12), (name, seed, key)
+            assert row["return"] == pytest.approx(expected["return"], rel=1e-9)
+        env.close()
+    assert trainer.table.rows == 0 and (ppo.env_steps, ppo.updates) == before[:2]  # nothing learnt, nothing kept
+    assert all(torch.equal(v, before[2][k]) for k, v in ppo.nets["shared"].state_dict().items())
+
+    def completed(greedy: bool) -> list[float]:
+        return [row["completed"] for rows in trainer.play(regimes, seeds, greedy) for row in rows]
+
+    assert completed(False) == completed(False)  # sampled: one stream from the first seed, the same episodes
+    assert completed(False) != completed(True)  # ... and not the most likely actions
+    for regime in regimes:
+        regime.close()
 
 
 @pytest.mark.parametrize("settings, scenario, why", [
