@@ -71,7 +71,7 @@ REWARD = "marginal"  # experiments.train's for PPO: each decision learns from it
 MODES = ("sampled", "greedy")  # how a learner acts when evaluated
 OPEN_ENVS = 8  # regimes whose simulation stays open between the episodes that draw them
 # train's defaults, chosen on the validation suite (docs/benchmark.md, "Settings chosen on validation"):
-PRICE = 1.0  # the marginal reward's congestion price, below the environment's default
+PRICE = 0.5  # the marginal reward's congestion price, below the environment's default
 ENVS, REGIMES = 25, 5  # episodes at a time on the array backend, and regimes drawn per round (5 copies each)
 
 

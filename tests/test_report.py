@@ -200,6 +200,13 @@ def test_the_settings_table_chooses_the_best_validation_candidate(pipeline, trai
     assert "`config.hidden` [256, 256]" in lines[2] and lines[1].split("|")[2].strip() == "—"
     best = np.mean([max(float(r["completion_ratio"]) for r in rows_of(run / "validation.csv")) for run in training])
     assert float(lines[1].split("|")[4]) == pytest.approx(100 * best, abs=0.005)
+    mixed = settings / "wider" / training[0].name / "config.json"
+    config = json.loads(mixed.read_text())
+    mixed.write_text(json.dumps({**config, "congestion_price": config["congestion_price"] + 2.0}))
+    with pytest.raises(SystemExit):
+        report.main([str(pipeline / "raw.csv"), "--settings", str(settings), "--out", str(out), "--no-progress"])
+    assert "its runs differ in more than the training seed" in capsys.readouterr().err
+    (settings / "wider").rename(tmp_path / "wider")
     (settings / "default").rename(settings / "start")
     with pytest.raises(SystemExit):
         report.main([str(pipeline / "raw.csv"), "--settings", str(settings), "--out", str(out), "--no-progress"])
