@@ -196,7 +196,7 @@ def settings_section(candidates: dict[str, Sequence[Run]], default: str, last: i
     def mean_best(runs: Sequence[Run]) -> float:
         return float(np.mean([r.checks["completion_ratio"][r.best] for r in runs]))
 
-    for name, runs in candidates.items():
+    for runs in candidates.values():
         if any(_settings(r) != _settings(runs[0]) for r in runs):
             raise RawError(f"{runs[0].folder.parent}: its runs differ in more than the training seed (config.json)")
     base = _settings(candidates[default][0])

@@ -4,18 +4,20 @@ Every training episode draws a regime from the training suite and an episode see
 episode seeds; one PPO network with shared parameters acts for every agent of every regime. It sees a
 regime only through its observations: every agent has ``neighbour_slots`` slots whatever its degree (the
 absent ones masked), its features are the scale-free ones of ``agents.common.flatten``, and no agent id
-is appended (``agent_id=false``: the number of agents differs between regimes). Checkpoints are scored on
-the validation suite, for model selection only (``best.pt``); the test suite is for ``evaluate``, once.
+is appended (``agent_id=false``: the number of agents differs between regimes). By default 25 episodes run at
+once on the array backend, 5 regimes a round (``agents.vector_ppo``). Checkpoints are scored on the
+validation suite, for model selection only (``best.pt``); the test suite is for ``evaluate``, once. The
+defaults of ``train`` were chosen on the validation suite (``PRICE``, ``ENVS``, ``REGIMES``).
 
     python -m experiments.suite --out runs/suites
     python -m experiments.generalist train --suite runs/suites/train --validation runs/suites/validation \\
-        --episodes 300 --seed 0 --out runs/generalist/seed-0
+        --seed 0 --out runs/generalist/seed-0                        # 200 episodes, 25 at a time
     python -m experiments.generalist train --suite runs/suites/train --validation runs/suites/validation \\
-        --envs 25 --regimes 5 --seed 0 --out runs/generalist-vector/seed-0   # 5 regimes x 5 copies at a time
+        --envs 1 --seed 0 --out runs/generalist-serial/seed-0        # one episode at a time, on any backend
     python -m experiments.generalist specialist --suite runs/suites/test --episodes 100 --out runs/specialists
     python -m experiments.generalist evaluate runs/generalist/seed-*/best.pt --specialists runs/specialists \\
         --baselines local greedy --suite runs/suites/test --episodes 5 --csv runs/generalist/test.csv
-    python -m experiments.generalist evaluate runs/generalist/seed-*/best.pt --baselines \\
+    python -m experiments.generalist evaluate runs/generalist/seed-*/best.pt --baselines --batched \\
         --scenarios aot1 aot2 aot3 aot4 --episodes 5 --csv runs/generalist/aot.csv   # topologies it never saw
 
 ``evaluate`` writes one raw row (``experiments.raw``) per policy, training run, regime and episode, which

@@ -159,7 +159,8 @@ def test_the_committed_page_is_what_the_committed_rows_give(tmp_path, monkeypatc
 
 @pytest.fixture(scope="module")
 def training(tmp_path_factory) -> list[Path]:
-    """Two real generalist training runs (seeds 0 and 1) of 4 episodes of 20 steps, 2 at a time, a checkpoint every 2."""
+    """Two real generalist training runs (seeds 0 and 1) of 4 episodes of 20 steps, 2 at a time, a checkpoint
+    every 2."""
     folder = tmp_path_factory.mktemp("training")
     suite.write(suite.suite("train", 2, steps=20), folder / "train")
     suite.write(suite.suite("validation", 1, steps=20), folder / "validation")
@@ -167,8 +168,8 @@ def training(tmp_path_factory) -> list[Path]:
     for seed in (0, 1):
         runs.append(folder / f"seed-{seed}")
         generalist.main(["train", "--suite", str(folder / "train"), "--validation", str(folder / "validation"),
-                         "--episodes", "4", "--checkpoint-every", "2", "--envs", "2", "--set", "rollout_steps=16", "--seed",
-                         str(seed), "--out", str(runs[-1]), "--no-progress"])
+                         "--episodes", "4", "--checkpoint-every", "2", "--envs", "2", "--set", "rollout_steps=16",
+                         "--seed", str(seed), "--out", str(runs[-1]), "--no-progress"])
     return runs
 
 
