@@ -883,14 +883,9 @@ class ArraySim:
         kept = ~lost if lost.any() else slice(None)
         self._add(c[kept], roles[kept], "energy_transmit", (self.watts[src] * seconds)[kept])
         # the charged offloads still on the link, in the order they were sent: each charged what this one waits
-        w = self.win
-        on_air = (self.olink[c, w] == link[:, None]) & (self.ofinish[c, w] > t)
-        s, j = np.nonzero(on_air & ~lost[:, None] if lost.any() else on_air)
-        j += w.start
+        s, j = self._on_air(t, c, link, lost)
         if len(s):
             cs = c[s]
-            by = np.lexsort((self.ostart[cs, j], s))
-            s, j, cs = s[by], j[by], cs[by]
             waited = (self.ofinish[cs, j] - np.maximum(float(t), self.ostart[cs, j])) * self.dt
             self._add(cs, roles[s], "delay_imposed", waited * self.urgency[cs, i[s]])
             if self.recording:  # each charged offload ahead, in sending order
@@ -902,6 +897,27 @@ class ArraySim:
             c, i, dst, finish, roles, src = (a[~lost] for a in (c, i, dst, finish, roles, src))
         arrive = np.maximum(t + 1, np.ceil(finish).astype(np.int64))
         self._send(c, i, kind, dst, arrive, roles, self.worker_rank[src])
+
+    def _on_air(self, t: int, c: np.ndarray, link: np.ndarray, lost: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The charged offloads still on the air on each transmission's link (copy ``c``, link ``link``; none for
+        a ``lost`` one): pairs (transmission, task), by transmission, then by when the offload started, then by
+        task. A join on (copy, link): the offloads on the air in the transmissions' copies are found in one pass
+        over the live window and sorted, and each transmission takes its run of them, so that what it builds
+        grows with the window and the pairs, not with their product."""
+        w = self.win
+        copies = np.unique(c)
+        links = self.olink[copies, w]
+        r, j = np.nonzero((links >= 0) & (self.ofinish[copies, w] > t))
+        key = copies[r] * (self.n * self.n) + links[r, j]  # (copy, link), as the transmissions' below
+        j += w.start
+        by = np.lexsort((self.ostart[copies[r], j], key))  # stable: equal starts stay in task order
+        key, j = key[by], j[by]
+        want = c * (self.n * self.n) + link
+        first = np.searchsorted(key, want)
+        count = np.searchsorted(key, want, side="right") - first
+        count[lost] = 0
+        s = np.repeat(np.arange(len(c)), count)
+        return s, j[first[s] + np.arange(len(s)) - (np.cumsum(count) - count)[s]]
 
     def _mail(self, state: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """This tick's messages of ``state`` (tasks or relayed results): copy, task and the worker they reach,
