@@ -334,6 +334,10 @@ class ArraySim:
         self.olink = np.full(shape, -1, dtype=np.int64)  # the link its offload was charged on ...
         self.ostart = np.zeros(shape)  # ... and when it occupied it, in ticks
         self.ofinish = np.zeros(shape)
+        # the offloads sent that may still be on the air (copy, task, link, start, finish) and the (copy, link)s of
+        # a transmission: ``_on_air``'s join
+        self.air = (NONE, NONE, NONE, np.zeros(0), np.zeros(0))
+        self.sending = np.zeros((k, len(self.link_key)), dtype=bool)
         self.busy = np.zeros((k, len(self.link_key)))  # when each link frees up, in ticks
         self.heard = np.zeros((k, self.n), dtype=np.int64)  # queue lengths as last broadcast ...
         self.heard_occupancy = np.zeros((k, self.n), dtype=np.int64)  # ... and occupancies
@@ -390,6 +394,9 @@ class ArraySim:
             raise ValueError(f"the episode has {self.ticks} ticks")
         t = self.t
         self.win = slice(self.lo, self.hi_at[t])
+        off = self.air[4] <= t  # offloads off the air for good
+        if off.any():
+            self.air = tuple(a[~off] for a in self.air)
         mail = self.mail.pop(t, [])
         self.arriving = tuple(np.concatenate(a) for a in zip(*mail, strict=True)) if mail else (NONE, NONE)
         c, i = self.arriving
@@ -883,7 +890,7 @@ class ArraySim:
         kept = ~lost if lost.any() else slice(None)
         self._add(c[kept], roles[kept], "energy_transmit", (self.watts[src] * seconds)[kept])
         # the charged offloads still on the link, in the order they were sent: each charged what this one waits
-        s, j = self._on_air(t, c, link, lost)
+        s, j = self._on_air(t, c, number, lost)
         if len(s):
             cs = c[s]
             waited = (self.ofinish[cs, j] - np.maximum(float(t), self.ostart[cs, j])) * self.dt
@@ -892,27 +899,29 @@ class ArraySim:
                 self._record(cs, roles[s], np.arange(len(s)), j, CHARGED, waited * self.urgency[cs, i[s]])
         if kind == TO_WORKER:  # an offload: charged for what it makes later messages wait
             self.olink[c, i], self.ostart[c, i], self.ofinish[c, i] = link, start, finish
+            self.air = tuple(np.concatenate(a) for a in zip(self.air, (c, i, number, start, finish), strict=True))
         if lost.any():
             self._drop(c[lost], i[lost], roles[lost], "link_loss")
             c, i, dst, finish, roles, src = (a[~lost] for a in (c, i, dst, finish, roles, src))
         arrive = np.maximum(t + 1, np.ceil(finish).astype(np.int64))
         self._send(c, i, kind, dst, arrive, roles, self.worker_rank[src])
 
-    def _on_air(self, t: int, c: np.ndarray, link: np.ndarray, lost: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """The charged offloads still on the air on each transmission's link (copy ``c``, link ``link``; none for
-        a ``lost`` one): pairs (transmission, task), by transmission, then by when the offload started, then by
-        task. A join on (copy, link): the offloads on the air in the transmissions' copies are found in one pass
-        over the live window and sorted, and each transmission takes its run of them, so that what it builds
-        grows with the window and the pairs, not with their product."""
-        w = self.win
-        copies = np.unique(c)
-        links = self.olink[copies, w]
-        r, j = np.nonzero((links >= 0) & (self.ofinish[copies, w] > t))
-        key = copies[r] * (self.n * self.n) + links[r, j]  # (copy, link), as the transmissions' below
-        j += w.start
-        by = np.lexsort((self.ostart[copies[r], j], key))  # stable: equal starts stay in task order
-        key, j = key[by], j[by]
-        want = c * (self.n * self.n) + link
+    def _on_air(self, t: int, c: np.ndarray, number: np.ndarray, lost: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The charged offloads still on the air on each transmission's link (copy ``c``, link ``number``; none
+        for a ``lost`` one): pairs (transmission, task), by transmission, then by when the offload started, then
+        by task. A join on (copy, link) with the offloads sent (``air``), so that it costs what they and the
+        pairs do, not the live window times the transmissions."""
+        mark = self.sending
+        mark[c[~lost], number[~lost]] = True
+        hit = np.flatnonzero(mark[self.air[0], self.air[2]])
+        mark[c, number] = False
+        ac, ai, an, astart, afinish = (a[hit] for a in self.air)
+        # as sent, unless charged anew since: its link reset by a failure, or the task offloaded again
+        on = (afinish > t) & (self.olink[ac, ai] == self.link_key[an]) & (self.ostart[ac, ai] == astart)
+        key = ac[on] * mark.shape[1] + an[on]
+        by = np.lexsort((ai[on], astart[on], key))
+        key, j = key[by], ai[on][by]
+        want = c * mark.shape[1] + number
         first = np.searchsorted(key, want)
         count = np.searchsorted(key, want, side="right") - first
         count[lost] = 0
