@@ -334,6 +334,12 @@ class ArraySim:
         self.olink = np.full(shape, -1, dtype=np.int64)  # the link its offload was charged on ...
         self.ostart = np.zeros(shape)  # ... and when it occupied it, in ticks
         self.ofinish = np.zeros(shape)
+        # the offloads charged on a link that may still be on the air (copy * links + link, task, start, finish),
+        # how many were left when those off it were last dropped, and a mark on the (copy, link)s of a call's
+        # transmissions: ``_on_air``'s join
+        self.air = (NONE, NONE, np.zeros(0), np.zeros(0))
+        self.air_left = 0
+        self.sending = np.zeros(k * len(self.link_key), dtype=np.int32)
         self.busy = np.zeros((k, len(self.link_key)))  # when each link frees up, in ticks
         self.heard = np.zeros((k, self.n), dtype=np.int64)  # queue lengths as last broadcast ...
         self.heard_occupancy = np.zeros((k, self.n), dtype=np.int64)  # ... and occupancies
@@ -814,6 +820,8 @@ class ArraySim:
         self.busy[:, np.flatnonzero(went[self.link_src])] = 0.0
         charged = self.olink[:, w] >= 0
         self.olink[:, w][charged & went[self.olink[:, w] // self.n]] = -1
+        reset = went[self.link_src[self.air[0] % len(self.link_key)]]
+        self.air = tuple(a[~reset] for a in self.air)
 
     def _decisions(self, t: int) -> None:
         c, i = self.decided.pop(t, (NONE, NONE))
@@ -883,25 +891,51 @@ class ArraySim:
         kept = ~lost if lost.any() else slice(None)
         self._add(c[kept], roles[kept], "energy_transmit", (self.watts[src] * seconds)[kept])
         # the charged offloads still on the link, in the order they were sent: each charged what this one waits
-        w = self.win
-        on_air = (self.olink[c, w] == link[:, None]) & (self.ofinish[c, w] > t)
-        s, j = np.nonzero(on_air & ~lost[:, None] if lost.any() else on_air)
-        j += w.start
+        s, j = self._on_air(t, c, number, lost)
         if len(s):
             cs = c[s]
-            by = np.lexsort((self.ostart[cs, j], s))
-            s, j, cs = s[by], j[by], cs[by]
             waited = (self.ofinish[cs, j] - np.maximum(float(t), self.ostart[cs, j])) * self.dt
             self._add(cs, roles[s], "delay_imposed", waited * self.urgency[cs, i[s]])
             if self.recording:  # each charged offload ahead, in sending order
                 self._record(cs, roles[s], np.arange(len(s)), j, CHARGED, waited * self.urgency[cs, i[s]])
         if kind == TO_WORKER:  # an offload: charged for what it makes later messages wait
             self.olink[c, i], self.ostart[c, i], self.ofinish[c, i] = link, start, finish
+            self._charge(t, c * len(self.link_key) + number, i, start, finish)
         if lost.any():
             self._drop(c[lost], i[lost], roles[lost], "link_loss")
             c, i, dst, finish, roles, src = (a[~lost] for a in (c, i, dst, finish, roles, src))
         arrive = np.maximum(t + 1, np.ceil(finish).astype(np.int64))
         self._send(c, i, kind, dst, arrive, roles, self.worker_rank[src])
+
+    def _charge(self, t: int, key: np.ndarray, i: np.ndarray, start: np.ndarray, finish: np.ndarray) -> None:
+        """Offloads charged on links (``key``: copy * links + link): into ``air``, from which those off the air
+        for good are dropped whenever it has doubled since, so that it holds about what is on the air."""
+        air = self.air
+        if len(air[0]) > 2 * self.air_left + 64:
+            on = air[3] > t
+            air = tuple(a[on] for a in air)
+            self.air_left = len(air[0])
+        self.air = tuple(np.concatenate(a) for a in zip(air, (key, i, start, finish), strict=True))
+
+    def _on_air(self, t: int, c: np.ndarray, number: np.ndarray, lost: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The charged offloads still on the air on each transmission's link (copy ``c``, link ``number``, at most
+        one per (copy, link), as ``_transmit``'s callers send; none for a ``lost`` one): pairs (transmission,
+        task), by transmission, then by when the offload started, then by task. A join on (copy, link) with the
+        offloads sent (``air``), so that it costs what they and the pairs do, not the live window times the
+        transmissions."""
+        mark, want = self.sending, c * len(self.link_key) + number
+        mark[want] = np.where(lost, 0, np.arange(1, len(c) + 1))
+        s = mark.take(self.air[0])
+        mark[want] = 0
+        hit = np.flatnonzero(s)
+        if not len(hit):
+            return hit, hit
+        j, start, finish = (a[hit] for a in self.air[1:])
+        # still on the air (a task is charged again only once it has reached a worker: after its last charge left)
+        on = finish > t
+        s, j, start = s[hit][on] - 1, j[on], start[on]
+        by = np.lexsort((j, start, s))
+        return s[by], j[by]
 
     def _mail(self, state: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """This tick's messages of ``state`` (tasks or relayed results): copy, task and the worker they reach,
