@@ -501,9 +501,9 @@ def main(argv: Sequence[str] | None = None) -> None:
                    help="a chosen.json of python -m experiments.tune_baselines: its baselines run too, as <name>_tuned")
     e.add_argument("--episodes", type=positive_int, default=5, help="episodes per regime (default 5)")
     e.add_argument("--max-steps", type=positive_int, default=None, help="steps per episode (default: the regime's)")
-    e.add_argument("--modes", nargs="+", choices=MODES, default=["sampled"],
-                   help="how learners act: sampled (default: a sample of the learnt policy) and/or greedy (its most "
-                        "likely action, as <policy>_greedy); the default is chosen on validation")
+    e.add_argument("--modes", nargs="+", choices=MODES, default=["greedy"],
+                   help="how learners act: greedy (default, chosen on validation: its most likely action, as "
+                        "<policy>_greedy) and/or sampled (a sample of the learnt policy)")
     add_price_argument(e, ", for the return column")
     e.add_argument("--batched", action="store_true",
                    help="play a generalist's episodes of every regime at once, copies on the array backend "

@@ -115,11 +115,23 @@ def test_trained_on_two_regimes_it_runs_zero_shot_on_another_family(suites, tmp_
     assert ((ratios >= 0) & (ratios <= 1)).all() and all(int(r["steps"]) == STEPS for r in rows)
     assert int(rows[0]["decisions"]) > 0  # the generalist decided on a topology it never saw
 
+    batched = tmp_path / "batched.csv"  # every episode at once over copies: greedy, the same episodes
+    generalist.main(["evaluate", str(out / "best.pt"), "--suite", str(suites["test"]), "--episodes", "2",
+                     "--max-steps", str(STEPS), "--modes", "greedy", "sampled", "--batched", "--csv", str(batched),
+                     "--no-progress"])
+    together = read_rows(batched)
+    assert [(r["policy"], r["seed"]) for r in together] == [
+        (p, str(s)) for p in ("generalist_greedy", "generalist") for s in EPISODES["test"].seeds(2)]
+    for a, b in zip([r for r in rows if r["policy"] == "generalist_greedy"], together[:2], strict=True):
+        for key in ("generated", "completed", "dropped", "decisions", "steps"):
+            assert float(a[key]) == float(b[key]), key
+        assert float(a["penalised_response_time"]) == pytest.approx(float(b["penalised_response_time"]), rel=1e-12)
+
     generalist.main(["evaluate", str(out / "best.pt"), "--scenarios", "examples/n_tier_cloud", "--episodes", "1",
                      "--max-steps", str(STEPS), "--csv", str(csv_path), "--no-progress"])  # a scenario of no suite
     (row,) = read_rows(csv_path)
     assert (row["policy"], row["regime"], row["split"], int(row["seed"])) == (
-        "generalist", "n_tier_cloud", "test", EPISODES["test"].start)
+        "generalist_greedy", "n_tier_cloud", "test", EPISODES["test"].start)  # the default mode
 
 
 def test_with_envs_it_trains_rounds_of_episodes_of_several_regimes_at_once(suites, tmp_path, capsys):
@@ -175,3 +187,6 @@ def test_the_seed_sets_never_mix(suites, tmp_path, capsys):
     err = refused("evaluate", "--baselines", "greedy", "oracle", "--suite", str(suites["test"]),
                   "--csv", str(tmp_path / "x.csv"))
     assert "--baselines oracle: not a baseline" in err and not (tmp_path / "x.csv").exists()
+    err = refused("evaluate", "--baselines", "greedy", "--suite", str(suites["test"]), "--batched", "--backend",
+                  "emulator", "--csv", str(tmp_path / "x.csv"))
+    assert "--batched plays on the array backend, which does not run test-005-ether (--backend emulator)" in err
