@@ -164,8 +164,9 @@ def section(runs: Sequence[Run], figures: Path, link: str, reps: int) -> str:
              f"(logs: `{runs[0].folder.parent.as_posix()}/`). "
              "Frames: agent-steps (steps × the regime's agents), summed over the training episodes. [x, y]: the 95 % "
              f"bootstrap interval over the training seeds ({reps} resamples). Each checkpoint is scored on the "
-             "validation suite (its first validation episode of every regime); `best.pt` is the checkpoint of "
-             "highest completion in each run, and the test numbers come from it.", "",
+             "validation suite (the first `--validation-episodes` of every regime, acting as `--validation-mode` "
+             "says); `best.pt` is the checkpoint of highest completion in each run, and the test numbers come from "
+             "it.", "",
              "| checkpoint (episode) | frames (mean) | validation completion % | penalised response [s] | return "
              "| best.pt of |", "| --- | --- | --- | --- | --- | --- |"]
     for k, episode in enumerate(episodes):

@@ -223,7 +223,8 @@ def train(args: argparse.Namespace, p: Parser) -> None:
         "validation": str(args.validation) if args.validation else None, "episodes": args.episodes,
         "max_steps": first.max_steps, "slots": args.slots, "reward": REWARD, "backends": backends,
         "congestion_price": first.reward_settings.congestion_price, "envs": args.envs,
-        "regimes_per_round": args.regimes, "validation_mode": args.validation_mode, "config": asdict(config)},
+        "regimes_per_round": args.regimes, "validation_episodes": args.validation_episodes,
+        "validation_mode": args.validation_mode, "config": asdict(config)},
         indent=1))
     learner.start_training(args.episodes * first.max_steps)
     draw = np.random.default_rng(args.seed)  # which regime each episode (each K episodes) runs: from the training seed
