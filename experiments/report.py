@@ -328,31 +328,52 @@ def load_classes(manifest: Path | None) -> dict[str, str]:
             raise raw.RawError(f"{manifest}: not a suite manifest (name, load_class, load_ratio): {e}") from None
 
 
+REGIME_COLUMNS = {"completion_ratio": ("completion %", "[points]"),
+                  "penalised_response_time": ("penalised response [s]", "[s]"),
+                  "job_completion_ratio": ("jobs done %", "[points]"),
+                  "penalised_makespan": ("penalised makespan [s]", "[s]")}
+"""The regime-by-regime table's columns of each paired metric: its header and its Δ's unit."""
+
+
 def regime_by_regime(table: Table, learner: str, baselines: Sequence[str], loads: dict[str, str]) -> list[str]:
-    """Regime by regime, the learner's mean completion and penalised response beside the best baseline's there."""
+    """Regime by regime, the learner's mean completion and penalised response beside the best baseline's there,
+    and, in a table with jobs, its jobs done and penalised makespan on the regimes of jobs."""
+    jobs = {ep[0] for ep in table.with_jobs()}
+    pairs = (*TASK_PAIRS, *JOB_PAIRS) if jobs else TASK_PAIRS
+    header = [h for metric, *_ in pairs for h in (REGIME_COLUMNS[metric][0], "best baseline",
+                                                  f"Δ {REGIME_COLUMNS[metric][1]}")]
     lines = [f"### `{learner}` regime by regime", "",
              "Per regime: the learner's mean over its runs and episodes, and the baseline best there on that "
              "metric (its mean over the episodes); Δ is the learner's difference, ✗ where it is worse."
-             + (" Load: the regime's class and load ratio (its manifest)." if loads else ""), "",
-             "| regime | load | completion % | best baseline | Δ [points] | penalised response [s] | best baseline | "
-             "Δ [s] |", "| --- | --- | --- | --- | --- | --- | --- | --- |"]
-    worse = {"completion": [], "response": []}
+             + (" Load: the regime's class and load ratio (its manifest)." if loads else "")
+             + (" Jobs: on the regimes of jobs alone (— elsewhere)." if jobs else ""), "",
+             "| " + " | ".join(["regime", "load", *header]) + " |", "|" + " --- |" * (2 + len(header))]
+    worse: dict[str, list[str]] = {metric: [] for metric, *_ in pairs}
     for regime in table.regimes:
-        c = {b: table.regime_mean(b, "completion_ratio", regime) for b in baselines}
-        r = {b: table.regime_mean(b, "penalised_response_time", regime) for b in baselines}
-        cb, rb = max(c, key=c.get), min(r, key=r.get)
-        mc, mr = (table.regime_mean(learner, m, regime) for m in ("completion_ratio", "penalised_response_time"))
-        dc, dr = 100 * (mc - c[cb]), mr - r[rb]
-        if dc < 0:
-            worse["completion"].append(regime)
-        if dr > 0:
-            worse["response"].append(regime)
-        lines.append(f"| {regime} | {loads.get(regime, '—')} | {100 * mc:.1f} | `{cb}` {100 * c[cb]:.1f} | "
-                     f"{dc:+.1f}{' ✗' if dc < 0 else ''} | "
-                     f"{mr:.1f} | `{rb}` {r[rb]:.1f} | {dr:+.1f}{' ✗' if dr > 0 else ''} |")
-    lines += ["", f"`{learner}` completes fewer tasks than the best baseline there on {len(worse['completion'])} of "
-              f"{len(table.regimes)} regimes ({', '.join(worse['completion']) or 'none'}) and has a worse penalised "
-              f"response on {len(worse['response'])} ({', '.join(worse['response']) or 'none'}).", ""]
+        cells = [regime, loads.get(regime, "—")]
+        for metric, scale, higher, _ in pairs:
+            if metric in raw.JOBS and regime not in jobs:
+                cells += ["—"] * 3
+                continue
+            values = {b: table.regime_mean(b, metric, regime) for b in baselines}
+            best = (max if higher else min)(values, key=values.get)
+            delta = scale * (table.regime_mean(learner, metric, regime) - values[best])
+            bad = delta < 0 if higher else delta > 0
+            if bad:
+                worse[metric].append(regime)
+            mine = scale * table.regime_mean(learner, metric, regime)
+            cells += [f"{mine:.1f}", f"`{best}` {scale * values[best]:.1f}", f"{delta:+.1f}{' ✗' if bad else ''}"]
+        lines.append("| " + " | ".join(cells) + " |")
+
+    def listed(metric: str) -> str:
+        return f"{len(worse[metric])} ({', '.join(worse[metric]) or 'none'})"
+
+    fewer = worse["completion_ratio"]
+    lines += ["", f"`{learner}` completes fewer tasks than the best baseline there on {len(fewer)} of "
+              f"{len(table.regimes)} regimes ({', '.join(fewer) or 'none'}) and has a worse "
+              f"penalised response on {listed('penalised_response_time')}."
+              + (f" On the {len(jobs)} regimes of jobs it finishes fewer jobs on {listed('job_completion_ratio')} and "
+                 f"has a worse penalised makespan on {listed('penalised_makespan')}." if jobs else ""), ""]
     return lines
 
 

@@ -307,3 +307,17 @@ def test_rows_with_jobs_add_the_job_columns_over_their_regimes_alone(tmp_path):
     greedy = [c.strip() for c in next(line for line in against.splitlines()
                                       if line.startswith("| `greedy` |")).strip("|").split("|")]
     assert greedy[7:11] == ["0.0 [0.0, 0.0]", f"0/{jobs}/0", "0.0 [0.0, 0.0]", f"0/{jobs}/0"]
+    # regime by regime: the job columns on the regimes of jobs (the best baseline's mean there), — elsewhere
+    by_regime = text.split("### `learner` regime by regime")[1].split("###")[0]
+    assert "| jobs done % | best baseline | Δ [points] | penalised makespan [s] | best baseline | Δ [s] |" in by_regime
+    for regime in sorted({r["regime"] for r in compute + dag}):
+        cells = [c.strip() for c in next(line for line in by_regime.splitlines()
+                                         if line.startswith(f"| {regime} |")).strip("|").split("|")]
+        if regime not in {r["regime"] for r in dag}:
+            assert cells[8:] == ["—"] * 6, regime
+            continue
+        best = max(np.mean([float(r["job_completion_ratio"]) for r in dag if r["regime"] == regime
+                            and r["policy"] == q]) for q in policies)
+        assert float(cells[9].split()[-1]) == pytest.approx(100 * best, abs=0.05), regime
+        assert float(cells[8]) <= float(cells[9].split()[-1]) + 0.05  # a copy of greedy: never above the best
+    assert f"On the {len({r['regime'] for r in dag})} regimes of jobs it finishes fewer jobs on" in by_regime
