@@ -392,7 +392,10 @@ def evaluate(args: argparse.Namespace, p: Parser) -> None:
         bar = progress.add_task("evaluate", total=runs, info="") if progress else None
         for entry in todo:
             if args.batched and entry.checkpoint is not None:
-                rows += batched(entry, regimes, seeds, args)
+                try:
+                    rows += batched(entry, regimes, seeds, args)
+                except (ValueError, ScenarioError) as e:
+                    p.error(f"{entry.checkpoint}: {str(e).splitlines()[0]}")
                 if progress is not None:
                     progress.update(bar, advance=len(args.modes) * len(regimes) * len(seeds), info=entry.label)
                 continue
