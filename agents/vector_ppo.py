@@ -151,6 +151,14 @@ class Regime:
         self.env.close()
 
 
+def _length(regimes: Sequence[Regime]) -> int:
+    """The episode length of regimes stepped together, which must share it and their action space."""
+    lengths = {r.env.max_steps for r in regimes}
+    if len(lengths) > 1 or len({r.steps.n_actions for r in regimes}) > 1:
+        raise ValueError("regimes stepped together need one episode length and one action space")
+    return lengths.pop()
+
+
 class VectorPPO:
     """Trains a shared-network ``PPO`` on the copies of one or more regimes stepped together (module docstring).
     ``rollout_steps``: steps of every copy between updates (default: as many copy-steps per update as the
@@ -187,9 +195,7 @@ class VectorPPO:
         counts and ratios of the episode, the wall time and the learner's diagnostics after it."""
         start = time.perf_counter()
         learner, table = self.learner, self.table
-        lengths = {r.env.max_steps for r in regimes}
-        if len(lengths) > 1 or len({r.steps.n_actions for r in regimes}) > 1:
-            raise ValueError("regimes stepped together need one episode length and one action space")
+        length = _length(regimes)
         copies = sum(r.k for r in regimes)
         rollout = self.rollout_steps or max(1, learner.config.rollout_steps // copies)
         learner.rng = np.random.default_rng(seeds[0][0])  # as Learner.reset reseeds its sampling per episode
@@ -207,7 +213,7 @@ class VectorPPO:
                 r.credit.reset(r.k, r.steps.sim.m)
         decisions = 0
         x, deciders = self._deciders(regimes, observations, base)
-        for step in range(lengths.pop()):
+        for step in range(length):
             # act for every agent with a task, and open its decision
             act, logp, value = self._act(x, np.concatenate([m[dc, da] for m, (dc, da, _) in zip(masks, deciders,
                                                                                                  strict=True)]))
@@ -259,15 +265,13 @@ class VectorPPO:
         streams aside."""
         start = time.perf_counter()
         learner = self.learner
-        lengths = {r.env.max_steps for r in regimes}
-        if len(lengths) > 1 or len({r.steps.n_actions for r in regimes}) > 1:
-            raise ValueError("regimes stepped together need one episode length and one action space")
+        length = _length(regimes)
         learner.generator.manual_seed(int(seeds[0][0]))
         base = np.cumsum([0] + [r.k * r.n for r in regimes])
         returns, decided = [np.zeros(r.k) for r in regimes], [np.zeros(r.k) for r in regimes]
         observations, masks = zip(*(r.steps.reset(s)[:2] for r, s in zip(regimes, seeds, strict=True)), strict=True)
         observations, masks = list(observations), list(masks)
-        for _ in range(lengths.pop()):
+        for _ in range(length):
             x, deciders = self._deciders(regimes, observations, base)
             mask = np.concatenate([m[dc, da] for m, (dc, da, _) in zip(masks, deciders, strict=True)])
             with torch.no_grad():

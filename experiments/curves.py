@@ -197,10 +197,11 @@ def settings_section(candidates: dict[str, Sequence[Run]], default: str, last: i
     def mean_best(runs: Sequence[Run]) -> float:
         return float(np.mean([r.checks["completion_ratio"][r.best] for r in runs]))
 
-    for runs in candidates.values():
-        if any(_settings(r) != _settings(runs[0]) for r in runs):
+    settings = {name: _settings(runs[0]) for name, runs in candidates.items()}
+    for name, runs in candidates.items():
+        if any(_settings(r) != settings[name] for r in runs[1:]):
             raise RawError(f"{runs[0].folder.parent}: its runs differ in more than the training seed (config.json)")
-    base = _settings(candidates[default][0])
+    base = settings[default]
     chosen = max(candidates, key=lambda name: mean_best(candidates[name]))
     lines = ["## Settings chosen on validation", "",
              "Each candidate is a set of training runs of `python -m experiments.generalist train` (one per training "
@@ -211,7 +212,7 @@ def settings_section(candidates: dict[str, Sequence[Run]], default: str, last: i
              f"| candidate | changes | seeds | best.pt completion %, mean | per seed | last {last} checkpoints % | "
              "penalised response at best.pt [s] |", "| --- | --- | --- | --- | --- | --- | --- |"]
     for name, runs in sorted(candidates.items(), key=lambda kv: -mean_best(kv[1])):
-        mine = _settings(runs[0])
+        mine = settings[name]
         changes = "; ".join(f"`{k}` {mine.get(k)} ({base.get(k)})" for k in sorted({*mine, *base})
                             if mine.get(k) != base.get(k)) or "—"
         best = [100 * r.checks["completion_ratio"][r.best] for r in runs]

@@ -409,7 +409,7 @@ def evaluate(args: argparse.Namespace, p: Parser) -> None:
                     label = entry.label
                     if mode is not None:  # a learner: its sampled policy, or its most likely action
                         policy.config.sample_eval = mode == "sampled"
-                        label += "" if mode == "sampled" else "_greedy"
+                        label = labelled(label, mode)
                     trained = policy.config.seed if isinstance(policy, Learner) else None
                     start = time.perf_counter()
                     for k, seed in enumerate(seeds):
@@ -426,6 +426,11 @@ def evaluate(args: argparse.Namespace, p: Parser) -> None:
           f"{', '.join(args.modes)})")
 
 
+def labelled(policy: str, mode: str) -> str:
+    """A learner's policy label in a mode: ``_greedy`` appended to its most likely action's."""
+    return policy if mode == "sampled" else f"{policy}_greedy"
+
+
 def batched(entry: Entry, regimes: Sequence[SuiteRegime], seeds: Sequence[int], args: argparse.Namespace
             ) -> list[dict[str, Any]]:
     """``evaluate``'s rows of a generalist checkpoint with every episode of every regime played at once, copies on
@@ -438,7 +443,7 @@ def batched(entry: Entry, regimes: Sequence[SuiteRegime], seeds: Sequence[int], 
         groups.setdefault(played.env.max_steps, []).append((regime, played))
     out: dict[tuple[str, str], list[dict[str, Any]]] = {}
     for mode in args.modes:
-        label = entry.label + ("" if mode == "sampled" else "_greedy")
+        label = labelled(entry.label, mode)
         for group in groups.values():
             played = VectorPPO(policy).play([g for _, g in group], [seeds] * len(group), greedy=mode == "greedy")
             for (regime, _), episodes in zip(group, played, strict=True):

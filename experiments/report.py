@@ -357,11 +357,11 @@ def regime_by_regime(table: Table, learner: str, baselines: Sequence[str], loads
                 continue
             values = {b: table.regime_mean(b, metric, regime) for b in baselines}
             best = (max if higher else min)(values, key=values.get)
-            delta = scale * (table.regime_mean(learner, metric, regime) - values[best])
+            mine = scale * table.regime_mean(learner, metric, regime)
+            delta = mine - scale * values[best]
             bad = delta < 0 if higher else delta > 0
             if bad:
                 worse[metric].append(regime)
-            mine = scale * table.regime_mean(learner, metric, regime)
             cells += [f"{mine:.1f}", f"`{best}` {scale * values[best]:.1f}", f"{delta:+.1f}{' ✗' if bad else ''}"]
         lines.append("| " + " | ".join(cells) + " |")
 

@@ -872,7 +872,7 @@ class ArraySim:
         if self.recording:  # a worker tells its controller of a link's change while it has tasks to place
             self.bumped[c, src] |= self.undecided[c, src] > 0
         link = src * self.n + dst
-        number = np.searchsorted(self.link_key, link)  # its number (a transmission's link exists)
+        number = self._link(link)  # (a transmission's link exists)
         start = np.maximum(float(t), self.busy[c, number])
         late = start > self.latest[c, i]  # it could only start after its deadline: never sent
         self._drop(c[late], i[late], roles[late], "expired")
@@ -906,6 +906,11 @@ class ArraySim:
             c, i, dst, finish, roles, src = (a[~lost] for a in (c, i, dst, finish, roles, src))
         arrive = np.maximum(t + 1, np.ceil(finish).astype(np.int64))
         self._send(c, i, kind, dst, arrive, roles, self.worker_rank[src])
+
+    def _link(self, key: np.ndarray) -> np.ndarray:
+        """The number of each link src * n + dst (``link_key``); where there is no such link, the number of the next
+        one, which ``link_key`` tells apart."""
+        return np.searchsorted(self.link_key, key)
 
     def _charge(self, t: int, key: np.ndarray, i: np.ndarray, start: np.ndarray, finish: np.ndarray) -> None:
         """Offloads charged on links (``key``: copy * links + link): into ``air``, from which those off the air
@@ -1042,7 +1047,7 @@ class ArraySim:
         self._send(c[here], i[here], TO_CLIENT, origin[here], np.full(here.sum(), t + 1), self.worker[nd[here]],
                    self.worker_rank[nd[here]])
         key = nd * self.n + origin  # the origin in its radio: the result goes straight to it
-        near = ~here & (self.link_key[np.searchsorted(self.link_key, key)] == key)
+        near = ~here & (self.link_key[self._link(key)] == key)
         if near.any():
             self._transmit(t, c[near], i[near], nd[near], origin[near], self.out_bits[c[near], i[near]], TO_CLIENT)
         far = ~here & ~near
