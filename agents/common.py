@@ -82,8 +82,9 @@ def specs_of(env: Any) -> dict[str, AgentSpec]:
 
 
 # The columns of ``flatten``'s own and neighbour blocks, in order, and the sizes of its four blocks
-OWN_COLUMNS = ("queue", "occupancy", "buffer", "capacity", "undecided", "tier", "fill")
-NEIGHBOUR_COLUMNS = ("present", "tier", "queue", "occupancy", "buffer", "capacity", "rate", "age", "fill", "backlog")
+OWN_COLUMNS = ("queue", "occupancy", "buffer", "capacity", "undecided", "tier", "fill", "work")
+NEIGHBOUR_COLUMNS = ("present", "tier", "queue", "occupancy", "buffer", "capacity", "rate", "age", "fill", "backlog",
+                     "work")
 OWN_DIM, TASK_DIM, NEIGHBOUR_DIM, ESTIMATE_DIM = len(OWN_COLUMNS), 7, len(NEIGHBOUR_COLUMNS), 4
 
 
@@ -96,14 +97,16 @@ def flatten(own: np.ndarray, task: np.ndarray, neighbours: np.ndarray) -> np.nda
     """Observations of N agents with the same slot count -> (N, flat_dim) float32 features.
 
     Blocks, in order (each documented in docs/agents.md):
-      own (7): symlog of queue, occupancy, buffer, capacity [Mcycles/s], undecided; tier; fill = occupancy/buffer
+      own (8): symlog of queue, occupancy, buffer, capacity [Mcycles/s], undecided; tier; fill = occupancy/buffer;
+        symlog of its work left [s]
       task (7): present, cpi, symlog of instructions [M], input [MB], output [MB], time left [s], ticks waited
-      neighbours (10 per slot): present, tier, symlog of queue, occupancy, buffer, capacity [Mcycles/s],
-        rate [Mbit/s], age [ticks]; fill; symlog of the link's backlog [s]
-      estimates (4 per target: local, then each slot): symlog of the task's wait, execution and transfer
-        times [s] at that target (the quantities ``greedy`` adds up) and of its slack: time to deadline
+      neighbours (11 per slot): present, tier, symlog of queue, occupancy, buffer, capacity [Mcycles/s],
+        rate [Mbit/s], age [ticks]; fill; symlog of the link's backlog [s] and of the node's work left [s]
+      estimates (4 per target: local, then each slot): symlog of the task's wait (the target's work left, as
+        last heard), execution and transfer times [s] at that target and of its slack: time to deadline
         minus all of them and the link's backlog (> 0: it should finish in time there); 0 without a task
-        or a neighbour.
+        or a neighbour. ``greedy`` adds up the same times, but waits the target's queue length times this
+        task's execution: where task sizes are mixed the work left is the better guess.
     Magnitudes stay within about [-1, 10] on every bundled scenario, whatever its scale.
     """
     own = own.astype(np.float64)
@@ -114,7 +117,7 @@ def flatten(own: np.ndarray, task: np.ndarray, neighbours: np.ndarray) -> np.nda
     own_f = np.stack([
         symlog(own[:, o.QUEUE]), symlog(own[:, o.OCCUPANCY]), symlog(own[:, o.BUFFER]),
         symlog(own[:, o.CAPACITY_GCPS] * 1e3), symlog(own[:, o.UNDECIDED]), own[:, o.TIER],
-        own[:, o.OCCUPANCY] / own_buffer,
+        own[:, o.OCCUPANCY] / own_buffer, symlog(own[:, o.WORK_S]),
     ], axis=1)
     t = TaskField
     present = task[:, t.PRESENT]
@@ -128,20 +131,20 @@ def flatten(own: np.ndarray, task: np.ndarray, neighbours: np.ndarray) -> np.nda
         nb_present, nb[..., n.TIER], symlog(nb[..., n.QUEUE]), symlog(nb[..., n.OCCUPANCY]),
         symlog(nb[..., n.BUFFER]), symlog(nb[..., n.CAPACITY_GCPS] * 1e3), symlog(nb[..., n.RATE_MBPS]),
         symlog(nb[..., n.AGE_TICKS]), nb[..., n.OCCUPANCY] / np.maximum(nb[..., n.BUFFER], 1.0),
-        symlog(nb[..., n.BACKLOG_S]),
+        symlog(nb[..., n.BACKLOG_S]), symlog(nb[..., n.WORK_S]),
     ], axis=2)
     # Estimated times of the task at each target, in seconds (capacities in cycles/s, sizes in bits).
     cycles = task[:, t.INSTRUCTIONS_G] * task[:, t.CPI] * 1e9  # (N,)
     bits = (task[:, t.INPUT_MB] + task[:, t.OUTPUT_MB]) * 8e6
     capacity = np.concatenate([own[:, None, o.CAPACITY_GCPS], nb[..., n.CAPACITY_GCPS]], axis=1) * 1e9
-    queue = np.concatenate([own[:, None, o.QUEUE], nb[..., n.QUEUE]], axis=1)
+    work = np.concatenate([own[:, None, o.WORK_S], nb[..., n.WORK_S]], axis=1)
     rate = nb[..., n.RATE_MBPS] * 1e6
     valid = np.concatenate([np.ones_like(present)[:, None], nb_present], axis=1) * present[:, None]
     with np.errstate(divide="ignore", invalid="ignore"):
         execution = np.where(valid > 0, cycles[:, None] / capacity, 0.0)
         transfer = np.zeros_like(execution)
         transfer[:, 1:] = np.where(valid[:, 1:] > 0, bits[:, None] / rate, 0.0)
-    wait = queue * execution
+    wait = np.where(valid > 0, work, 0.0)
     backlog = np.concatenate([np.zeros_like(present)[:, None], nb[..., n.BACKLOG_S]], axis=1)
     slack = np.where(valid > 0, task[:, None, t.TIME_LEFT_S] - (wait + execution + transfer + backlog), 0.0)
     est = np.stack([symlog(wait), symlog(execution), symlog(transfer), symlog(slack)], axis=2)

@@ -251,13 +251,16 @@ class BatchedSteps:
         own = self.own0
         out[:, :, own + OwnField.QUEUE] = sim.seen_heard[:, nodes]
         out[:, :, own + OwnField.OCCUPANCY] = sim.seen_occupancy[:, nodes]
+        end = t + 1
+        work = np.where(sim.seen_drain > end, (sim.seen_drain - end) * dt, 0.0)  # ``NodeView.work_s``
+        out[:, :, own + OwnField.WORK_S] = work[:, nodes]
         out[:, :, own + OwnField.UNDECIDED] = sim.seen_undecided[:, nodes]
         a, j, col = self.real_a, self.real_j, self.real_col
         out[:, a, col + NeighbourField.QUEUE] = sim.seen_heard[:, j]
         out[:, a, col + NeighbourField.OCCUPANCY] = sim.seen_occupancy[:, j]
+        out[:, a, col + NeighbourField.WORK_S] = work[:, j]
         out[:, a, col + NeighbourField.AGE_TICKS] = self._ages(t)
         busy = sim.seen_busy[:, nodes[a], self.real_s]
-        end = t + 1
         out[:, a, col + NeighbourField.BACKLOG_S] = np.where(busy > end, (busy - end) * dt, 0.0)
         slots = sim.slots[:, nodes, :self.per_epoch]  # (K, N, B) task indices, -1: none
         present = slots >= 0

@@ -179,7 +179,7 @@ class ZenohEdgeEnv(ParallelEnv):
         self.flat = builder == FLAT
         padded = self.observing.uniform_spaces or self.flat or fixed is not None
         jobs = sc.workload.jobs is not None  # a scenario of jobs: its tasks' DAG features too
-        self.layouts = {a: ObservationLayout(d, slots if padded else d, batch, jobs) for a, d in degrees.items()}
+        self.layouts = {a: ObservationLayout(d, slots if padded else d, batch, jobs, sc.dt) for a, d in degrees.items()}
         if self.flat:
             n = len(self.possible_agents)
             self.builders = {a: FlatObservation(lay, i, n) for i, (a, lay) in enumerate(self.layouts.items())}

@@ -3,12 +3,13 @@
 Every agent observes a ``Dict`` of float32 arrays in units that keep magnitudes near 1 (documented
 in docs/env.md):
 
-- ``own`` (6,): queue, occupancy, buffer, capacity [Gcycles/s], tier, undecided tasks;
+- ``own`` (7,): queue, occupancy, buffer, capacity [Gcycles/s], tier, undecided tasks, work [s];
 - ``task`` (7,) — or (B, 7) in batch mode: present (0/1), instructions [G], input [MB],
   output [MB], cycles per instruction, time to deadline [s], ticks waited undecided;
-- ``neighbours`` (D, 8): present (0/1), queue, occupancy, buffer, capacity [Gcycles/s], tier,
-  link rate [Mbit/s], age of the information [ticks] — in the canonical neighbour order, which is
-  also the order of actions 1..D;
+- ``neighbours`` (D, 10): present (0/1), queue, occupancy, buffer, capacity [Gcycles/s], tier,
+  link rate [Mbit/s], age of the information [ticks], backlog of the link [s], work [s] — in the canonical
+  neighbour order, which is also the order of actions 1..D; work is the seconds of CPU time the node's
+  admitted tasks still need, as last heard (``NodeView.work_s``: a queue of mixed task sizes is not its length);
 - ``job`` (3,) — or (B, 3) — only in a scenario of jobs (``workload.jobs``): in a job (0/1), the task's
   remaining critical path [Gcycles] (its own cycles plus the most on a path to its job's end), and its
   successors' data [MB] (the bytes its result carries on to them);
@@ -47,6 +48,7 @@ class OwnField(IntEnum):
     CAPACITY_GCPS = 3
     TIER = 4
     UNDECIDED = 5
+    WORK_S = 6  # seconds of CPU work left in the admitted tasks (``NodeView.work_s``)
 
 
 class TaskField(IntEnum):
@@ -82,6 +84,7 @@ class NeighbourField(IntEnum):
     RATE_MBPS = 6  # of the link from this node
     AGE_TICKS = 7  # of the information
     BACKLOG_S = 8  # seconds of transfer already queued on the link from this node (FIFO contention)
+    WORK_S = 9  # seconds of CPU work left in its admitted tasks, as last heard (``NodeView.work_s``)
 
 
 # Columns the encoder fills once (static) and at every step (dynamic), as index arrays.
@@ -90,7 +93,7 @@ _NEIGHBOUR_STATIC = np.array([NeighbourField.PRESENT, NeighbourField.BUFFER, Nei
                               NeighbourField.TIER])
 # the rate is dynamic: a moving neighbour's follows the distance (0 out of range)
 _NEIGHBOUR_DYNAMIC = np.array([NeighbourField.QUEUE, NeighbourField.OCCUPANCY, NeighbourField.RATE_MBPS,
-                               NeighbourField.AGE_TICKS, NeighbourField.BACKLOG_S])
+                               NeighbourField.AGE_TICKS, NeighbourField.BACKLOG_S, NeighbourField.WORK_S])
 
 
 @dataclass(frozen=True)
@@ -101,6 +104,7 @@ class ObservationLayout:
     slots: int  # neighbour slots (>= degree when padded)
     batch: int | None  # None in binary mode: one task, and no batch axis
     jobs: bool = False  # a scenario of jobs: a ``job`` block beside ``task``
+    dt: float = 1.0  # seconds a tick: the work columns are in seconds
 
     @property
     def n_actions(self) -> int:
@@ -207,9 +211,11 @@ class DictObservation(ObservationBuilder):
         own[OwnField.QUEUE] = obs.own.queue
         own[OwnField.OCCUPANCY] = obs.own.occupancy
         own[OwnField.UNDECIDED] = obs.undecided
+        t, dt = obs.tick, self.layout.dt
+        own[OwnField.WORK_S] = obs.own.work_s(t, dt)
         if obs.neighbours:
             out["neighbours"][:len(obs.neighbours), _NEIGHBOUR_DYNAMIC] = [
-                (n.queue, n.occupancy, n.rate_bps * 1e-6, n.age, n.backlog_s) for n in obs.neighbours]
+                (n.queue, n.occupancy, n.rate_bps * 1e-6, n.age, n.backlog_s, n.work_s(t, dt)) for n in obs.neighbours]
         if obs.tasks:
             tasks = out["task"] if self.layout.batch is not None else out["task"][None, :]
             for k, task in enumerate(obs.tasks):  # the columns of TaskField, in order

@@ -106,8 +106,8 @@ class Clock:
         # the latest state of each, and what each process has yet to read
         self.state_listeners = self._state_listeners(plan)
         self.state_roles = frozenset(plan.role_index[r] for r in plan.roles if plan.publications[r])
-        self.last_states: dict[int, tuple[int, int, int, int]] = {}  # worker role index -> (queue, occupancy,
-        # sent, seq)
+        self.last_states: dict[int, tuple[int, int, float, int, int]] = {}  # worker role index -> (queue,
+        # occupancy, drains_at, sent, seq)
         self.unread: list[set[int]] = [set() for _ in self.procs]  # process index -> workers in ``last_states``
         self.rejections = transport.rejections
         self.node_rejections: dict[int, dict[str, int]] = {}  # process index -> what it refused, by reason
@@ -403,10 +403,10 @@ class Clock:
         listeners, latest, unread = self.state_listeners, self.last_states, self.unread
         for i, d in zip(opened, dones, strict=True):
             self.wake[i] = d.wake
-            for w, (queue, occupancy, seq) in d.states.items():
+            for w, (queue, occupancy, drains_at, seq) in d.states.items():
                 readers = listeners.get(w)
                 if readers:  # its listeners read it when they next run (Tick.states)
-                    latest[w] = (queue, occupancy, d.tick, seq)
+                    latest[w] = (queue, occupancy, drains_at, d.tick, seq)
                     for p in readers:
                         unread[p].add(w)
             for p, count in d.sent.items():

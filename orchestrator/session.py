@@ -175,9 +175,9 @@ class Simulation:
         self.policy: str | None = None
         self.last: list[Done] = []
         self.seen: dict[str, Observation] = {}  # driven controller -> its latest observation, any tick
-        # node -> the (queue, occupancy) it last broadcast: before the current tick (heard by its end), in it
-        self.heard: dict[str, tuple[int, int]] = {}
-        self.fresh: dict[str, tuple[int, int]] = {}
+        # node -> the (queue, occupancy, drains_at) it last broadcast: before the current tick (heard by its end), in it
+        self.heard: dict[str, tuple[int, int, float]] = {}
+        self.fresh: dict[str, tuple[int, int, float]] = {}
         # driven controller -> the reports it reads later (arrival tick, tasks pending, busy-until), in order
         self.reports: dict[str, list[tuple[int, int, list[float] | None]]] = {}
         self.retimed: set[str] = set()  # driven controllers whose class observation_at can re-time
@@ -393,8 +393,8 @@ class Simulation:
         self.heard.update(self.fresh)  # broadcasts arrive one tick after they leave
         self.fresh = {}
         for d in self.last:
-            for i, (queue, occupancy, _) in d.states.items():
-                self.fresh[role_node(roles[i])] = (queue, occupancy)
+            for i, (*state, _) in d.states.items():
+                self.fresh[role_node(roles[i])] = tuple(state)
             for i, report in d.reports.items():
                 if roles[i] in self.retimed:  # only their observations are re-timed: nobody else reads these
                     self.reports.setdefault(roles[i], []).append(report)

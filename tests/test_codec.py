@@ -27,10 +27,21 @@ def test_batch_roundtrip():
         Envelope(Kind.DECISION, "controller:a", "worker:a", 3, 5, 6, [Decision(1, ""), Decision(2, "b")]),
         Envelope(Kind.REPORT, "worker:a", "controller:a", 4, 5, 6,
                  Report([Pending(1, "a", 2, TaskSize(1e6, 1.0, 2.0, 1.0, 9.0), 3)], [7.5, 0.0])),
-        Envelope(Kind.STATE, "worker:a", "state/a", 5, 5, 6, NodeState("a", 2, 3)),
+        Envelope(Kind.STATE, "worker:a", "state/a", 5, 5, 6, NodeState("a", 2, 3, 9.25)),
     ]
     msg = Batch(0, 5, "node-a", envs)
     assert codec.decode(codec.encode(msg)) == msg
+
+
+@pytest.mark.parametrize("state", [[2, 3, -1.0], [2, 3, float("nan")], [2, 3, float("inf")], [2, 3, "9"],
+                                   [4, 3, 9.0], [2.0, 3, 9.0], [-1, 3, 9.0], [2, 3]])
+def test_a_state_is_counts_and_a_finite_drain_tick(state):
+    """A state feeds every neighbour's observation: a forged count or drain tick must not reach them."""
+    wire = codec.to_wire(Batch(0, 5, "node-a", [Envelope(Kind.STATE, "worker:a", "state/a", 5, 5, 6,
+                                                         NodeState("a", 2, 3, 9.0))]))
+    wire["msgs"][0][6][1:] = state
+    with pytest.raises(codec.CodecError, match="drains_at >= 0"):
+        codec.decode(msgpack.packb({**wire, "v": SCHEMA_VERSION}))
 
 
 @pytest.mark.parametrize("imposed", [-1.0, float("nan"), float("inf"), "3"])
@@ -54,16 +65,16 @@ def test_a_task_type_is_an_index_or_nil(kind):
 
 def test_tick_and_done_roundtrip():
     tick = Tick(2, 17, "run", {0: 2}, {"controller:a": 1, "controller:b": [0, 2]}, 0, [], None,
-                {4: (2, 3, 16, 9), 7: (0, 1, 12, 3)})
+                {4: (2, 3, 19.5, 16, 9), 7: (0, 1, 0.0, 12, 3)})
     assert codec.decode(codec.encode(tick)) == tick
-    obs = Observation(5, "a", NodeView("a", 1, 2, 3, 4e6, 0, 0.0, 1, True), 2,
+    obs = Observation(5, "a", NodeView("a", 1, 2, 3, 4e6, 0, 0.0, 1, True, 0.0, 7.5), 2,
                       [TaskView(7, TaskSize(8e7, 1.0, 2.0, 1.0, 100.0), 95.0, 2, "a")],
                       [NodeView("b", 0, 0, 26, 4e6, 1, 3e7, 1, True, 2.5)])
     stats = [1, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 2.5, 0.0, 0.0, 0.0, 0.0, 1, 0, 0] + [0] * (N_STATS - 19)
     done = Done("node-a", 2, 17, {1: 1}, {0: stats}, {1: [7.0]}, {0: {19: 2, 21: 1}}, 18, {2: obs},
                 ledger={1: [(7, 0, 7.0), (9, 2, 0.25)], 0: [(12, 1, 0.0)]},
                 drift={0: [0.0] * 11 + [4e6] + [0.0] * (N_STATS - 12)},
-                held={3: (1, None), 4: (2, 21)}, states={0: (2, 3, 11)},
+                held={3: (1, None), 4: (2, 21)}, states={0: (2, 3, 18.5, 11)},
                 reports={2: (18, 1, [19.0, 0.0]), 5: (18, 0, None)})
     assert codec.decode(codec.encode(done)) == done
 
@@ -71,8 +82,10 @@ def test_tick_and_done_roundtrip():
 @pytest.mark.parametrize(("field", "value"), [("hd", {3: [0, None]}), ("hd", {3: [-1, None]}), ("hd", {3: [1.0, 5]}),
                                               ("hd", {"3": [1, None]}), ("hd", {3: 1}), ("hd", {3: [1, 2.5]}),
                                               ("hd", {3: [1, None, 2]}),
-                                              ("st", {0: [1, -1, 2]}), ("st", {0: [1]}), ("st", {0: [1, 2, 3, 4]}),
-                                              ("st", {0: [1.5, 2, 3]}), ("st", {"0": [1, 2, 3]}),
+                                              ("st", {0: [1, -1, 0.0, 2]}), ("st", {0: [1]}), ("st", {0: [1, 2, 3]}),
+                                              ("st", {0: [1.5, 2, 0.0, 3]}), ("st", {"0": [1, 2, 0.0, 3]}),
+                                              ("st", {0: [1, 2, -1.0, 3]}), ("st", {0: [1, 2, float("nan"), 3]}),
+                                              ("st", {0: [1, 2, 0.0, 3, 4]}), ("st", {0: [3, 2, 0.0, 3]}),
                                               ("rp", {2: [18, -1, None]}), ("rp", {2: [18.0, 1, None]}),
                                               ("rp", {2: [18, 1, [-1.0]]}), ("rp", {2: [18, 1, [float("nan")]]}),
                                               ("rp", {2: [18, 1, ["1"]]}), ("rp", {2: [18, 1]}),
@@ -80,17 +93,18 @@ def test_tick_and_done_roundtrip():
 def test_held_counts_states_and_reports_are_of_their_shape(field, value):
     """Held counts are added to a process's next tick, states and reports to the agents' observations: a
     forged negative, fractional, infinite or misshapen one must reach neither."""
-    wire = codec.to_wire(Done("node-a", 2, 17, {}, {}, held={3: (1, 19)}, states={0: (2, 3, 4)}))
+    wire = codec.to_wire(Done("node-a", 2, 17, {}, {}, held={3: (1, 19)}, states={0: (2, 3, 6.5, 4)}))
     wire[field] = value
     with pytest.raises(codec.CodecError, match=f"field '{field}'"):
         codec.decode(msgpack.packb({**wire, "v": SCHEMA_VERSION}))
 
 
-@pytest.mark.parametrize("value", [{4: [2, 3, 16]}, {4: [2, -3, 16, 9]}, {4: [2, 3, 16.5, 9]}, {"4": [2, 3, 16, 9]},
-                                   {4: [2, 3, 16, None]}, [[2, 3, 16, 9]]])
+@pytest.mark.parametrize("value", [{4: [2, 3, 0.0, 16]}, {4: [2, -3, 0.0, 16, 9]}, {4: [2, 3, 0.0, 16.5, 9]},
+                                   {"4": [2, 3, 0.0, 16, 9]}, {4: [2, 3, 0.0, 16, None]}, [[2, 3, 0.0, 16, 9]],
+                                   {4: [2, 3, float("inf"), 16, 9]}, {4: [2, 3, None, 16, 9]}])
 def test_states_with_a_tick_are_of_their_shape(value):
     """A tick hands a process the states it holds (``Tick.states``): a misshapen one never becomes its mail."""
-    wire = codec.to_wire(Tick(2, 17, states={4: (2, 3, 16, 9)}))
+    wire = codec.to_wire(Tick(2, 17, states={4: (2, 3, 17.5, 16, 9)}))
     wire["st"] = value
     with pytest.raises(codec.CodecError, match="field 'st'"):
         codec.decode(msgpack.packb({**wire, "v": SCHEMA_VERSION}))

@@ -38,7 +38,7 @@ GOOD = [
         Envelope(Kind.RESULT, "worker:b", "client:a", 2, 5, 6, Result(TASK, "b", 5, 1)),
         Envelope(Kind.DECISION, "controller:a", "worker:a", 3, 5, 6, [Decision(1, ""), Decision(2, "b")]),
         Envelope(Kind.REPORT, "worker:a", "controller:a", 4, 5, 6, Report([Pending.of(TASK, 3)], [7.5, 0.0])),
-        Envelope(Kind.STATE, "worker:a", "state/a", 5, 5, 6, NodeState("a", 2, 3)),
+        Envelope(Kind.STATE, "worker:a", "state/a", 5, 5, 6, NodeState("a", 2, 3, 4.5)),
     ]),
 ]
 PROTOCOL_FIELDS = sorted({k for m in GOOD for k in codec.to_wire(m)} - {"type"})

@@ -11,6 +11,7 @@ import pytest
 
 from agents import PPOConfig, load_learner
 from agents.common import flat_dim, flatten_one
+from env import NeighbourField
 from experiments import generalist, raw, suite
 from experiments.protocol import EPISODES
 from orchestrator.scenario import load_scenario
@@ -48,7 +49,7 @@ def test_shapes_are_fixed_across_regimes_of_every_family(tmp_path):
                 act_spaces.add(str(env.action_space(agent)))
                 features.add(flatten_one(obs[agent]).shape)
                 degree = len(sc.neighbours[env.node_of[agent]])
-                assert obs[agent]["neighbours"].shape == (generalist.SLOTS, 9)
+                assert obs[agent]["neighbours"].shape == (generalist.SLOTS, len(NeighbourField))
                 assert not obs[agent]["action_mask"][1 + degree:].any()  # absent neighbours: never a target
                 assert not obs[agent]["neighbours"][degree:].any()
         finally:

@@ -85,8 +85,8 @@ def test_every_refusal_in_process_leaves_the_results_alone(aot1):
         out.publish(keys.tick("worker-rpi3_0"), Tick(e + 3, t))
         out.publish(keys.tick("client-rpi3_0"), Tick(e, 0, "reset"))
         # states with a tick: one sent in the tick it comes with, one of a role that does not exist
-        out.publish(keys.tick(listener), Tick(e, t, states={own: (0, 0, t, 1)}))
-        out.publish(keys.tick(listener), Tick(e, t, states={len(plan.roles): (0, 0, t - 1, 1)}))
+        out.publish(keys.tick(listener), Tick(e, t, states={own: (0, 0, 0.0, t, 1)}))
+        out.publish(keys.tick(listener), Tick(e, t, states={len(plan.roles): (0, 0, 0.0, t - 1, 1)}))
         # mail: from nobody, to a role not there, from a role its sender does not host, arriving before
         # it was sent, of an episode far ahead, sent in a tick long gone
         inbox = keys.inbox("worker-nuc_0")
@@ -130,7 +130,7 @@ def test_every_refusal_in_process_leaves_the_results_alone(aot1):
             publish(key, Done(victim.proc, msg.episode, t, {}, {}, held={plan.proc_index["worker-rpi3_7"]: (1, None)}),
                     seal)
             publish(key, Done(victim.proc, msg.episode, t, {}, {}, held={receiver: (1, t + 1)}), seal)  # read next tick
-            publish(key, Done(victim.proc, msg.episode, t, {}, {}, states={hosted_elsewhere: (0, 1, 1)}), seal)
+            publish(key, Done(victim.proc, msg.episode, t, {}, {}, states={hosted_elsewhere: (0, 1, 0.0, 1)}), seal)
             publish(key, Done(victim.proc, msg.episode, t, {}, {}, reports={hosted_elsewhere: (t + 1, 0, None)}), seal)
             publish(key, Done(victim.proc, msg.episode, t, {}, {}, reports={own: (t, 0, None)}), seal)  # arrived
             publish(key, msg, seal)

@@ -158,3 +158,35 @@ def test_a_task_that_would_expire_in_the_link_queue_is_never_sent():
     assert radio.send(1, "b", 8e6, latest_start=5.0) == "expired"
     # ... so the next message starts right after the first one
     assert radio.send(2, "b", 8e6, latest_start=100.0) == (11, 1.0, [])
+
+
+def test_a_workers_drain_tick_and_the_work_its_neighbours_see_hand_computed():
+    """tx2_0 of aot1 (no controller: what arrives is queued) serves B = 4e6 cycles a tick. Tasks of 2.5 B and 1 B
+    arrive in tick 0: the CPU gives the first B, so 2.5 B are left, and the queue drains at (0 + 1) + 2.5 = 3.5.
+    Tick 1 only works through it: the same drain tick, nothing to broadcast. In tick 2 the first finishes and the
+    second gets half a tick: (2 + 1) + 0.5 = 3.5 again, now with one task. In tick 3 it finishes: empty, (3 + 1) + 0.
+    A neighbour that heard tick 0's state sees (3.5 - (t + 1)) s of work left at the end of tick t: 1.5 s at tick 1."""
+    from node_runtime.model.messages import Envelope, Kind, NodeState
+    from node_runtime.model.role import Outbox
+    from node_runtime.model.view import NodeView
+    from node_runtime.model.worker import Worker
+    from orchestrator.scenario import load_scenario
+
+    sc = load_scenario("aot1")
+    worker = Worker(sc.node["tx2_0"], sc)
+    budget = worker.budget
+    assert budget == 4e6
+    tasks = [Task(i, "tx2_0", 0, TaskSize(cycles, 0.0, 0.0, 1.0, 100.0)) for i, cycles in ((1, 2.5 * budget),
+                                                                                           (2, budget))]
+    states = []
+    for t in range(5):
+        out = Outbox(worker.id)
+        out.tick = t
+        inbox = [Envelope(Kind.TASK, "client:x", worker.id, i + 1, -1, 0, task) for i, task in enumerate(tasks)]
+        worker.tick(t, inbox if t == 0 else [], out)
+        states += [(t, e.body) for e in out.broadcasts if e.kind == Kind.STATE]
+    assert states == [(0, NodeState("tx2_0", 2, 2, 3.5)), (2, NodeState("tx2_0", 1, 1, 3.5)),
+                      (3, NodeState("tx2_0", 0, 0, 4.0))]
+    seen = NodeView("tx2_0", 2, 2, 20, 4e6, 1, 1e7, 1, True, 0.0, 3.5)
+    assert [seen.work_s(t, 1.0) for t in range(4)] == [2.5, 1.5, 0.5, 0.0]
+    assert seen.work_s(1, 0.5) == 0.75  # seconds: ticks of dt

@@ -434,11 +434,11 @@ def test_a_state_handed_over_twice_is_read_once(aot2):
     plan = ProcessLayout(aot2, "per-node")
     host = Host("node-server_0", plan)
     w = plan.role_index["worker:rpi3_0"]
-    host.take_states({w: (1, 2, 4, 7)})
-    host.take_states({w: (1, 2, 4, 7), plan.role_index["worker:server_0"]: (0, 0, 4, 3)})  # its own: read as mail
+    host.take_states({w: (1, 2, 12.5, 4, 7)})
+    host.take_states({w: (1, 2, 12.5, 4, 7), plan.role_index["worker:server_0"]: (0, 0, 5.0, 4, 3)})  # its own: mail
     (env,) = host.mail["controller:server_0"][5]
     assert (env.kind, env.src, env.dst, env.seq, env.sent, env.arrive) == (Kind.STATE, "worker:rpi3_0",
                                                                            "state/rpi3_0", 7, 4, 5)
-    assert (env.body.node, env.body.queue, env.body.occupancy) == ("rpi3_0", 1, 2)
-    host.take_states({w: (3, 3, 6, 9)})
+    assert (env.body.node, env.body.queue, env.body.occupancy, env.body.drains_at) == ("rpi3_0", 1, 2, 12.5)
+    host.take_states({w: (3, 3, 20.0, 6, 9)})
     assert [e.body.queue for e in host.mail["controller:server_0"][7]] == [3]

@@ -38,7 +38,7 @@ from itertools import pairwise
 import numpy as np
 
 from node_runtime.model.client import arrivals_of
-from node_runtime.model.controller import CONTROLLER, always_fresh, backlog, heard_at
+from node_runtime.model.controller import CONTROLLER, always_fresh, heard_at
 from node_runtime.model.energy import compute_energy, idle_energy
 from node_runtime.model.messages import Task, TaskSize
 from node_runtime.model.policies import DriftPlusPenalty, Threshold
@@ -46,7 +46,7 @@ from node_runtime.model.radio import dbm_to_watts
 from node_runtime.model.rng import stream
 from node_runtime.model.role import CHARGED, COMPLETED, LOST, STAT_FIELDS, role_id
 from node_runtime.model.spec import Scenario
-from node_runtime.model.view import NodeView, Observation, TaskView
+from node_runtime.model.view import NodeView, Observation, TaskView, backlog
 from node_runtime.model.worker import EPS_CYCLES, WORKER
 
 # the node-side policies it runs, vectorised: every built-in one of policies.py
@@ -342,7 +342,10 @@ class ArraySim:
         self.sending = np.zeros(k * len(self.link_key), dtype=np.int32)
         self.busy = np.zeros((k, len(self.link_key)))  # when each link frees up, in ticks
         self.heard = np.zeros((k, self.n), dtype=np.int64)  # queue lengths as last broadcast ...
-        self.heard_occupancy = np.zeros((k, self.n), dtype=np.int64)  # ... and occupancies
+        self.heard_occupancy = np.zeros((k, self.n), dtype=np.int64)  # ... occupancies ...
+        self.heard_drain = np.zeros((k, self.n))  # ... and drain ticks (``Worker.drains_at``)
+        # each worker's drain tick, and the queue (length, head, tail) it was computed for: at first, empty
+        self.drain, self.drain_key = np.zeros((k, self.n)), np.tile(np.array([0, -1, -1]), (k, self.n, 1))
         self.rr = np.zeros((k, self.n), dtype=np.int64)  # round robin's next
         self.joined = [(NONE, NONE)]  # the tasks queued since the CPU last ran (its queue then first), in order
         self.kept = np.zeros(shape, dtype=bool)  # queue_first: kept by a decision (not offered again)
@@ -440,6 +443,7 @@ class ArraySim:
         self.seen = t
         self._known = None
         self.seen_heard, self.seen_occupancy = self.heard.copy(), self.heard_occupancy.copy()
+        self.seen_drain = self.heard_drain.copy()
         self.seen_undecided, self.seen_busy = self.undecided.copy(), self.told_busy.copy()
         self.slots[:] = -1
 
@@ -448,15 +452,16 @@ class ArraySim:
         ``copy``: the ``Observation`` that ``Controller.observe`` builds, from the same facts."""
         sc, t, dt = self.sc, self.seen, self.dt
         if self._known is None:  # once per epoch: what every copy knew, as Python numbers
-            self._known = (self.seen_heard.tolist(), self.seen_occupancy.tolist(), self.seen_undecided.tolist(),
+            self._known = (self.seen_heard.tolist(), self.seen_occupancy.tolist(), self.seen_drain.tolist(),
+                           self.seen_undecided.tolist(),
                            [[1 if fresh else t - heard_at(sc, sc.nodes[j].id, t) for j in range(self.n)]
                             for fresh in (False, True)])
-        heard, occupancy, undecided, ages = self._known
-        queue, occupied, age = heard[copy], occupancy[copy], ages[self._fresh[node]]
+        heard, occupancy, drains, undecided, ages = self._known
+        queue, occupied, drain, age = heard[copy], occupancy[copy], drains[copy], ages[self._fresh[node]]
 
         def view(j: int, rate: float, queued: float) -> NodeView:
             nid, buffer, capacity, tier, worker = self._static[j]
-            return NodeView(nid, queue[j], occupied[j], buffer, capacity, tier, rate, age[j], worker, queued)
+            return NodeView(nid, queue[j], occupied[j], buffer, capacity, tier, rate, age[j], worker, queued, drain[j])
 
         to, rates = self._links[node]
         busy = self.seen_busy[copy, node, :len(to)].tolist()
@@ -1073,8 +1078,32 @@ class ArraySim:
 
     # ----- end of the tick -----
 
+    def _drains(self, t: int) -> None:
+        """``Worker.drains_at`` of every worker up in tick t: (t + 1) + its queue's cycles left / its budget, recomputed
+        where the queue's (length, head, tail) changed, with the cycles added in queue order (bincount adds in input
+        order, as ``sum`` does)."""
+        qc, qi = (np.concatenate(a) for a in zip(*self.joined, strict=True))
+        queued = self.state[qc, qi] == QUEUED
+        qc, qi = qc[queued], qi[queued]
+        group = qc * self.n + self.node[qc, qi]
+        by = np.argsort((group << 32) + self.order[qc, qi], kind="stable")  # by copy, node, order
+        qc, qi, group = qc[by], qi[by], group[by]
+        key = np.tile(np.array([0, -1, -1]), (self.k * self.n, 1))
+        key[:, 0] = np.bincount(group, minlength=self.k * self.n)
+        if len(group):
+            edge = group[1:] != group[:-1]
+            first, last = np.r_[True, edge], np.r_[edge, True]
+            key[group[first], 1], key[group[last], 2] = qi[first], qi[last]
+        work = np.bincount(group, self.rem[qc, qi], minlength=self.k * self.n)
+        key = key.reshape(self.k, self.n, 3)
+        changed = (key != self.drain_key).any(axis=2) & self.has_worker & ~self.down[t]
+        c, nd = np.nonzero(changed)
+        self.drain_key[c, nd] = key[c, nd]
+        self.drain[c, nd] = (t + 1) + work.reshape(self.k, self.n)[c, nd] / self.budget[nd]
+
     def _levels(self, t: int) -> None:
         w = self.has_worker
+        self._drains(t)
         cnt = self.counters
         cnt[:, :, F["queue"]][:, self.worker[w]] = self.queued[:, w]
         cnt[:, :, F["undecided"]][:, self.worker[w]] = self.undecided[:, w]
@@ -1089,6 +1118,8 @@ class ArraySim:
             up = ~self.down[t]
             self.heard[:, up] = self.queued[:, up]
             self.heard_occupancy[:, up] = (self.queued + self.undecided)[:, up]
+            self.heard_drain[:, up] = self.drain[:, up]
         elif t % self.sc.state_interval == 0:
             self.heard[:] = self.queued
             self.heard_occupancy[:] = self.queued + self.undecided
+            self.heard_drain[:] = self.drain

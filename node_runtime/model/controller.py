@@ -31,7 +31,7 @@ from node_runtime.model.registry import RoleKind, register
 from node_runtime.model.rng import stream
 from node_runtime.model.role import Outbox, Role, role_id, state_topic
 from node_runtime.model.spec import NodeSpec, Scenario
-from node_runtime.model.view import NodeView, Observation, TaskView
+from node_runtime.model.view import NodeView, Observation, TaskView, backlog
 
 if TYPE_CHECKING:
     from node_runtime.model.worker import Worker
@@ -85,7 +85,7 @@ class Controller(Role):
         self.policy.reset(stream(seed, self.index, CONTROLLER.stream))
         sc = self.scenario
         self.states: dict[str, NodeState] = {
-            n: NodeState(n, 0, 0) for n in (self.node.id, *self.neighbours)
+            n: NodeState(n, 0, 0, 0.0) for n in (self.node.id, *self.neighbours)
         }
         self.undecided: list[Pending] = []
         self.busy_until = [0.0] * len(self.neighbours)  # of the node's links, as last reported
@@ -226,13 +226,15 @@ class Controller(Role):
         if node in self._moving:
             rate = self.positions.rate(self.node.id, node, t)
         age = 1 if self._always_fresh else t - self.heard_at(node, t)
-        return NodeView(node, state.queue, state.occupancy, buffer, capacity, tier, rate, age, worker, backlog)
+        return NodeView(node, state.queue, state.occupancy, buffer, capacity, tier, rate, age, worker, backlog,
+                        state.drains_at)
 
     def own_view(self, t: int) -> NodeView:
         """Co-located: its own worker as it is at the end of tick t."""
         own = self.own_worker
         buffer, capacity, tier, rate, worker = self._static[self.node.id]
-        return NodeView(self.node.id, own.stats.queue, own.occupancy, buffer, capacity, tier, rate, 0, worker)
+        return NodeView(self.node.id, own.stats.queue, own.occupancy, buffer, capacity, tier, rate, 0, worker, 0.0,
+                        own.drains_at(t))
 
     def observe(self, t: int) -> Observation:
         dt = self.scenario.dt
@@ -280,18 +282,12 @@ def always_fresh(scenario: Scenario, nodes: Iterable[str]) -> bool:
     return scenario.state_interval == 1 and scenario.radio is None and (not windows or windows.keys().isdisjoint(nodes))
 
 
-def backlog(busy: float, t: int, dt: float) -> float:
-    """Seconds still queued at the end of tick ``t`` on a link busy until tick ``busy``."""
-    end = t + 1
-    return (busy - end) * dt if busy > end else 0.0
-
-
 def observation_at(obs: Observation, t: int, scenario: Scenario,
-                   states: Mapping[str, tuple[int, int]] = MappingProxyType({}),
+                   states: Mapping[str, tuple[int, int, float]] = MappingProxyType({}),
                    report: tuple[int, list[float] | None] | None = None) -> Observation:
     """What the driven controller that made ``obs`` observes at tick ``t`` if it has neither run since
     nor anything to place: the same, re-timed (its states' ages, its links' backlogs), with what it heard
-    meanwhile and holds unread (``reads_later``): ``states``, node -> the (queue, occupancy) it last
+    meanwhile and holds unread (``reads_later``): ``states``, node -> the (queue, occupancy, drains_at) it last
     broadcast before tick ``t``; ``report``, the tasks pending and the links' busy-until ticks (None:
     unchanged) its worker's reports since told it. The environment calls this for a controller that
     slept through the epoch, rather than wake its process for it."""
@@ -302,11 +298,11 @@ def observation_at(obs: Observation, t: int, scenario: Scenario,
 
     def at(view: NodeView, queued: float) -> NodeView:  # the same view when nothing changed: most of them
         age = 1 if fresh else t - heard_at(scenario, view.node, t)
-        queue, occupancy = states.get(view.node, (view.queue, view.occupancy))
-        if age == view.age and queued == view.backlog_s and queue == view.queue and occupancy == view.occupancy:
+        state = states.get(view.node, (view.queue, view.occupancy, view.drains_at))
+        if age == view.age and queued == view.backlog_s and state == (view.queue, view.occupancy, view.drains_at):
             return view
-        return NodeView(view.node, queue, occupancy, view.buffer, view.capacity, view.tier, view.rate_bps, age,
-                        view.worker, queued)
+        return NodeView(view.node, *state[:2], view.buffer, view.capacity, view.tier, view.rate_bps, age, view.worker,
+                        queued, state[2])
 
     undecided, busy_until = obs.undecided, obs.busy_until
     if report is not None:

@@ -129,6 +129,7 @@ class NodeState:
     node: str
     queue: int  # tasks admitted for local processing (including the one in service)
     occupancy: int  # queue + undecided: what counts against Q_max
+    drains_at: float = 0.0  # the tick its CPU would finish those tasks at its capacity (``Worker.drains_at``)
 
 
 class Kind(IntEnum):

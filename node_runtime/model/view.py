@@ -37,6 +37,18 @@ class NodeView:
     age: int  # ticks since the state it reports was current
     worker: bool  # can take tasks
     backlog_s: float = 0.0  # seconds of transfer already queued on the link from the observing node to it
+    drains_at: float = 0.0  # the tick its CPU would finish its admitted tasks (``Worker.drains_at``), as last heard
+
+    def work_s(self, t: int, dt: float) -> float:
+        """Seconds of CPU work left in its admitted tasks at the end of tick ``t``, as last heard."""
+        return backlog(self.drains_at, t, dt)
+
+
+def backlog(busy: float, t: int, dt: float) -> float:
+    """Seconds of work still queued at the end of tick ``t`` on a link busy until tick ``busy``, or on a CPU that
+    drains its queue at tick ``busy``."""
+    end = t + 1
+    return (busy - end) * dt if busy > end else 0.0
 
 
 @dataclass(slots=True)

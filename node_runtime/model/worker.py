@@ -77,7 +77,9 @@ class Worker(Role):
         self.next_expiry = math.inf  # no held task expires before this tick (it may be early, never late)
         self.failed = False
         self.radio.reset(stream(seed, self.index, WORKER.stream))
-        self._last_state: tuple[int, int] | None = None
+        self._last_state: tuple[int, int, float] | None = None
+        self._drain_key: tuple[int, int, int] | None = None  # the queue ``drains_at`` was computed for ...
+        self._drain = 0.0  # ... and what it gave
         # bumped whenever what the controller is told changes: the undecided set (queue_first: the divertible
         # tasks), or the links while tasks wait for a decision
         self.tasks_version = 0
@@ -225,7 +227,7 @@ class Worker(Role):
         if self.outages or self.stats.overloaded != full:
             return t + 1
         wake = self.next_expiry if self.queue or self.undecided else math.inf
-        if (self.stats.queue, self.occupancy) != self._last_state or self.moving:
+        if self.state(t) != self._last_state or self.moving:
             interval = self.scenario.state_interval
             wake = min(wake, t + interval - t % interval)
         if self.queue:
@@ -392,11 +394,11 @@ class Worker(Role):
         st.undecided = len(self.undecided)
         if self.failed:
             return
-        state = (st.queue, self.occupancy)
+        state = self.state(t)
         interval = self.scenario.state_interval
         if t % interval == 0 and (state != self._last_state or (self.moving and self.arrived(t, interval))):
             self._last_state = state
-            out.broadcast(Kind.STATE, self.topic, NodeState(self.node.id, st.queue, self.occupancy))
+            out.broadcast(Kind.STATE, self.topic, NodeState(self.node.id, *state))
         if self.tracks_divertible:
             divertible = self.divertible()
             if [e[0].id for e in divertible] != [e[0].id for e in self._divertible]:
@@ -407,6 +409,23 @@ class Worker(Role):
             busy = self.radio.busy_until() if self._links_changed else None
             self._links_changed = False
             out.send(Kind.REPORT, self.controller, Report(self.pending(), busy))
+
+    def state(self, t: int) -> tuple[int, int, float]:
+        """What the broadcast says at the end of tick ``t``: queue, occupancy and ``drains_at``."""
+        return len(self.queue), self.occupancy, self.drains_at(t)
+
+    def drains_at(self, t: int) -> float:
+        """The tick in which the CPU would finish the admitted tasks (the queue's cycles left, head first) at its
+        capacity: (t + 1) + cycles / budget, computed when the queue last changed (its length, head or tail), so that it
+        stays the same while the CPU only works through it. A neighbour's seconds of work left at the end of tick s
+        are max(0, drains_at - (s + 1)) x dt, as for a link's backlog; an estimate (a payload's real work, or a
+        class that serves otherwise, can make it early or late)."""
+        q = self.queue
+        key = (len(q), q[0][0].id, q[-1][0].id) if q else (0, -1, -1)
+        if key != self._drain_key:
+            self._drain_key = key
+            self._drain = t + 1 + sum(e[1] for e in q) / self.budget
+        return self._drain
 
     def arrived(self, t: int, interval: int) -> bool:
         """Whether a moving neighbour is in range at this broadcast instant and was not at the last one: it

@@ -62,9 +62,9 @@ TASK = (int, str, int, NUM, NUM, NUM, NUM, NUM, int, list, object, object)
 RESULT = (list, str, int, int, NUM)
 DECISION = (int, str)
 PENDING = (int, str, int, NUM, NUM, NUM, NUM, NUM, int, object)
-STATE = (str, NUM, NUM)
+STATE = (str, int, int, NUM)
 ENVELOPE = (int, str, str, int, int, int, object)
-NODE_VIEW = (str, NUM, NUM, NUM, NUM, NUM, NUM, NUM, bool, NUM)
+NODE_VIEW = (str, NUM, NUM, NUM, NUM, NUM, NUM, NUM, bool, NUM, NUM)
 TASK_VIEW = (int, NUM, NUM, NUM, NUM, NUM, NUM, NUM, str, object)
 JOB_REF = (int, int, NUM, NUM)
 OBSERVATION = (int, str, list, int, list, list, list)
@@ -115,16 +115,23 @@ def _held(m: Any) -> bool:
         for v in m.values())))
 
 
-def _counts_of(n: int) -> Callable[[Any], bool]:
-    """Role index -> [n non-negative ints]."""
+def _is_state(queue: Any, occupancy: Any, drains_at: Any) -> bool:
+    """A worker's state as broadcast: counts, and a drain tick that observations turn into seconds of work."""
+    return (_is_int(queue) and _is_int(occupancy) and 0 <= queue <= occupancy and isinstance(drains_at, NUM)
+            and 0.0 <= drains_at < math.inf)
+
+
+def _states_of(n: int) -> Callable[[Any], bool]:
+    """Role index -> [queue, occupancy, drains_at (``_is_state``), then n non-negative ints]."""
     def ok(m: Any) -> bool:
         return type(m) is dict and (not m or (all(map(_is_int, m)) and all(
-            type(v) is list and len(v) == n and all(map(_is_int, v)) and min(v) >= 0 for v in m.values())))
+            type(v) is list and len(v) == 3 + n and _is_state(*v[:3]) and all(map(_is_int, v[3:])) and min(v[3:]) >= 0
+            for v in m.values())))
     return ok
 
 
-_states = _counts_of(3)  # Done: worker role index -> [queue, occupancy, seq]
-_tick_states = _counts_of(4)  # Tick: worker role index -> [queue, occupancy, tick sent, seq]
+_states = _states_of(1)  # Done: worker role index -> [queue, occupancy, drains_at, seq]
+_tick_states = _states_of(2)  # Tick: worker role index -> [queue, occupancy, drains_at, tick sent, seq]
 
 
 def _report(v: Any) -> bool:
@@ -244,7 +251,7 @@ def _body(kind: Kind, body: Any) -> Any:
     if kind == Kind.REPORT:
         return [[[p.id, p.origin, p.created, *p.size, p.arrived, _job(p.job)] for p in body.pending], body.busy_until]
     if kind == Kind.STATE:
-        return [body.node, body.queue, body.occupancy]
+        return [body.node, body.queue, body.occupancy, body.drains_at]
     raise CodecError(f"no encoding for message kind {kind!r}")
 
 
@@ -265,9 +272,9 @@ def _unbody(kind: Kind, a: Any) -> Any:
                 and (a[1] is None or (type(a[1]) is list and all(isinstance(x, NUM) for x in a[1])))):
             _malformed("a report that is not [[pending task, ...], link busy-until ticks or nil]")
         return Report([Pending(p[0], p[1], p[2], TaskSize(*p[3:8]), p[8], _unjob(p[9])) for p in a[0]], a[1])
-    if not _fits(a, STATE):  # Kind.STATE: the kinds are exhausted
-        _malformed("a state that is not [node, queue, occupancy]")
-    return NodeState(a[0], a[1], a[2])
+    if not (_fits(a, STATE) and _is_state(*a[1:])):  # Kind.STATE: the kinds are exhausted
+        _malformed("a state that is not [node, queue <= occupancy, drains_at >= 0]")
+    return NodeState(a[0], a[1], a[2], a[3])
 
 
 def _envelope(e: Envelope) -> list:

@@ -109,7 +109,7 @@ class HostDriver:
                 return None
             return f"a reset to episode {cmd.episode}; this process is in episode {self.episode}"
         t, wake, host = cmd.tick, self.wake, self.host
-        for w, (_, _, sent, _) in cmd.states.items():  # workers heard here whose states come as mail are not in it
+        for w, (*_, sent, _) in cmd.states.items():  # workers heard here whose states come as mail are not in it
             if w >= self.n_roles or sent >= t or (w in host.states_heard and w not in host.states_from_clock):
                 return f"tick {t} with a state of role {w} sent in tick {sent}, which cannot come with this tick"
         if cmd.episode != self.episode or t <= self.tick:

@@ -140,12 +140,12 @@ class Host:
             if env.arrive < self.earliest:
                 self.earliest = env.arrive
 
-    def take_states(self, states: dict[int, tuple[int, int, int, int]]) -> None:
+    def take_states(self, states: dict[int, tuple[int, int, float, int, int]]) -> None:
         """States broadcast to the roles here that the clock kept for them (``Tick.states``: worker role index ->
-        queue, occupancy, tick sent, seq): delivered as the broadcasts they stand for, at the tick after they were
-        sent. Only the latest of each worker's comes, which is all a role that holds broadcasts reads."""
+        queue, occupancy, drains_at, tick sent, seq): delivered as the broadcasts they stand for, at the tick after
+        they were sent. Only the latest of each worker's comes, which is all a role that holds broadcasts reads."""
         roles, taken, mail = self.plan.roles, self.states_taken, self.mail
-        for w, (queue, occupancy, sent, seq) in states.items():
+        for w, (queue, occupancy, drains_at, sent, seq) in states.items():
             # a tick for every process carries the states any of them has yet to read: those not heard here, and
             # those already taken, are skipped
             if w not in self.states_from_clock or taken.get(w, (-1, -1)) >= (sent, seq):
@@ -154,7 +154,8 @@ class Host:
             worker = roles[w]
             node = role_node(worker)
             topic = state_topic(node)
-            env = Envelope(Kind.STATE, worker, topic, seq, sent, sent + 1, NodeState(node, queue, occupancy))
+            state = NodeState(node, queue, occupancy, drains_at)
+            env = Envelope(Kind.STATE, worker, topic, seq, sent, sent + 1, state)
             for r in self.local_subs[topic]:
                 mail[r][sent + 1].append(env)
             self.earliest = min(self.earliest, sent + 1)
@@ -257,7 +258,7 @@ class Host:
         broadcasts: list[Envelope] = []
         sent: dict[int, int] = {}
         held: dict[int, tuple[int, int | None]] = {}
-        states: dict[int, tuple[int, int, int]] = {}
+        states: dict[int, tuple[int, int, float, int]] = {}
         reports: dict[int, tuple[int, int, list[float] | None]] = {}
         flights: dict[int, dict[int, int]] = {}
         for role in ran:
@@ -289,7 +290,8 @@ class Host:
                 if elsewhere and not by_clock:
                     broadcasts.append(env)
                 if state and ((by_clock and elsewhere) or self.driven):  # for the clock; for re-timed observations
-                    states[role_index[role.id]] = (env.body.queue, env.body.occupancy, env.seq)
+                    body = env.body
+                    states[role_index[role.id]] = (body.queue, body.occupancy, body.drains_at, env.seq)
             out.envelopes.clear()
             out.broadcasts.clear()
         index = self.plan.proc_index
@@ -310,7 +312,7 @@ class Host:
         return Outgoing(batches, broadcasts, self.report(t, ran, sent, flights, held, states, reports), events)
 
     def report(self, t: int, ran: list[Role], sent: dict[int, int], flights: dict[int, dict[int, int]],
-               held: dict[int, tuple[int, int | None]], states: dict[int, tuple[int, int, int]],
+               held: dict[int, tuple[int, int | None]], states: dict[int, tuple[int, int, float, int]],
                reports: dict[int, tuple[int, int, list[float] | None]]) -> Done:
         """The Done of tick t. Its stats hold only the roles whose counters changed since the last
         report (all of them after a reset): the orchestrator keeps the others' last values, moved on

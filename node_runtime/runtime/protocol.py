@@ -28,7 +28,7 @@ from typing import Any, Literal
 from node_runtime.model.messages import Envelope
 from node_runtime.model.view import Observation
 
-SCHEMA_VERSION = 14
+SCHEMA_VERSION = 15
 Command = Literal["run", "reset", "stop", "fence"]  # fence: only says a new epoch began (docs/protocol.md)
 
 
@@ -43,9 +43,10 @@ class Tick:
     seed: int = 0  # reset only
     external: list[str] = field(default_factory=list)  # reset only: controllers an agent drives
     policy: str | None = None  # reset only: node-side policy override for every controller
-    states: dict[int, tuple[int, int, int, int]] = field(default_factory=dict)  # worker role index -> (queue,
-    # occupancy, tick sent, seq): the latest state it broadcast that roles of this process (of any, in a tick
-    # for all) have yet to read, when its states go through the clock (``host.states_by_clock``)
+    # worker role index -> (queue, occupancy, drains_at, tick sent, seq): the latest state it broadcast that roles
+    # of this process (of any, in a tick for all) have yet to read, when its states go through the clock
+    # (``host.states_by_clock``)
+    states: dict[int, tuple[int, int, float, int, int]] = field(default_factory=dict)
     epoch: int = 0  # of the clock: a node takes ticks of the newest epoch it has seen only
     mac: bytes | None = field(default=None, compare=False, repr=False)
     signed: bytes = field(default=b"", compare=False, repr=False)
@@ -82,9 +83,9 @@ class Done:
     held: dict[int, tuple[int, int | None]] = field(default_factory=dict)  # destination process index ->
     # (publications that need not wake it next tick, the tick it must run by to read them in time, or None: at
     # its next run): mail that arrives later, broadcasts to roles that hold them (docs/protocol.md)
-    states: dict[int, tuple[int, int, int]] = field(default_factory=dict)  # worker role index -> the (queue,
-    # occupancy, seq) it broadcast this tick: when its states go through the clock (``Tick.states``), and while
-    # an agent drives the episode (the environment's re-timed observations)
+    # worker role index -> the (queue, occupancy, drains_at, seq) it broadcast this tick: when its states go through
+    # the clock (``Tick.states``), and while an agent drives the episode (the environment's re-timed observations)
+    states: dict[int, tuple[int, int, float, int]] = field(default_factory=dict)
     reports: dict[int, tuple[int, int, list[float] | None]] = field(default_factory=dict)  # controller role index
     # -> (arrival tick, tasks pending, links' busy-until ticks or None) of a report its worker sent it this tick
     # that it reads later (``Role.reads_later``); only while an agent drives the episode, as ``states``
