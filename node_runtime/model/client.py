@@ -91,8 +91,8 @@ class Client(Role):
                 for job, index in book.start(self.task_id(), spec, t, st):
                     self.send(t, book.task(job, index, self.task_id(), me, t), out)
             return
-        for size, kind in self.source.typed(t):
-            self.send(t, Task(self.task_id(), me, t, TaskSize(*size), type=kind), out)
+        for size, kind in self.source.tasks_at(t):
+            self.send(t, Task(self.task_id(), me, t, size, type=kind), out)
 
     def send(self, t: int, task: Task, out: Outbox) -> None:
         """A new task: to the own worker, or over the radio to a target worker in range."""
@@ -149,8 +149,7 @@ def arrivals_of(sc: Scenario, seeds: Sequence[int], ticks: int) -> list[list[tup
             t = 0
             while t < ticks:  # only the ticks it wakes at: the others draw nothing, so skipping them changes no draw
                 if not client.down(t):
-                    out.extend((t, client.index, size if type(size) is TaskSize else TaskSize(*size))
-                               for size in client.source.draws(t))
+                    out.extend((t, client.index, size) for size, _ in client.source.tasks_at(t))
                 t = int(client.wake(t))
         out.sort(key=lambda task: (task[0], task[1]))  # stable: each client's tasks of a tick in the order drawn
         runs.append(out)
