@@ -16,6 +16,7 @@ import pytest
 import yaml
 
 from node_runtime.model.calibrate import main
+from node_runtime.model.client import arrivals
 from node_runtime.model.payload import PayloadError, read_record, run_log
 from orchestrator.clock import ProcessFailed
 from orchestrator.scenario import ScenarioError, costs, load_scenario
@@ -190,6 +191,25 @@ def test_a_user_sources_typed_tasks_run_their_payload_over_zenoh(tmp_path):
     check_typed_record(recorded, record)
     for transport, layout in (("inproc", "single"), ("zenoh", "per-role")):
         assert fingerprint(replaying(path, record), transport, layout, 40) == recorded, (transport, layout)
+
+
+def test_the_motion_camera_example_classifies_only_frames_with_motion(tmp_path):
+    """Its source makes a frame of the first 5 s of every 20 a classify, any other a check: over 7 s, every
+    recorded payload is of a classify frame (its size says which; a task's id is its client's index and
+    sequence number)."""
+    scenario = load_scenario(ROOT / "topologies" / "examples" / "motion_camera.yaml")
+    created: dict[int, list[tuple[int, float]]] = {}  # client index -> (tick, instructions) of its tasks, in order
+    for t, client, size in arrivals(scenario, 0, 70):
+        created.setdefault(client, []).append((t, size.instructions))
+    kinds = {(c << 32) | seq: ("classify" if t < 50 else "check", instructions)
+             for c, tasks in created.items() for seq, (t, instructions) in enumerate(tasks, start=1)}
+    assert {kind: {i for k, i in kinds.values() if k == kind} for kind in ("classify", "check")} == \
+        {"classify": {3.0e7}, "check": {2.0e6}}  # each frame has its type's size, and there are both
+    record = tmp_path / "times.jsonl"
+    summary = run_summary(scenario.replace(payload_log=run_log(record=str(record))), ticks=70)
+    rows = [json.loads(line) for line in record.read_text().splitlines()]
+    assert summary["totals"]["generated"] == len(kinds) and len(rows) > 10
+    assert all(r["type"] == "classify" and kinds[r["task"]][0] == "classify" for r in rows)
 
 
 def test_measured_times_become_cycles_by_the_rule(tmp_path):
