@@ -131,8 +131,10 @@ def arrivals(sc: Scenario, seed: int, ticks: int) -> list[tuple[int, int, TaskSi
     """(tick, client node index, size) of every task the clients of ``sc`` create in ticks 0 .. ``ticks`` - 1
     of the episode with ``seed``, in the order they are created. It is the clients' own code and random
     streams, which no decision moves, so it is every run's workload task for task: the array backend's, and
-    the arrival trace the clairvoyant bound sees. Jobs have no such trace: which of their tasks arrive, and
-    when, depends on where the earlier ones ran."""
+    the arrival trace the clairvoyant bound sees. It reads the tasks as the client does (``TaskSource.tasks_at``)
+    and leaves out their types, which only a payload reads: the array backend refuses payloads, and the bound
+    serves every task its nominal cycles. Jobs have no such trace: which of their tasks arrive, and when,
+    depends on where the earlier ones ran."""
     return arrivals_of(sc, (seed,), ticks)[0]
 
 
