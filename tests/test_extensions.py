@@ -12,7 +12,10 @@ import pytest
 from gymnasium import spaces
 
 from env import ZenohEdgeEnv
+from node_runtime.model.client import arrivals
+from node_runtime.model.workload import TaskSource
 from orchestrator.cli import main
+from orchestrator.clock import ProcessFailed
 from orchestrator.scenario import load_scenario
 from tests.conftest import ROOT, model_part, run_summary, write_scenario
 
@@ -112,6 +115,87 @@ def test_a_task_source_may_give_sizes_as_plain_tuples(tmp_path, monkeypatch):
     assert runs[0]["totals"]["generated"] == 50 * len(load_scenario(write_scenario(tmp_path, small(tmp_path))).clients)
     same = [{k: v for k, v in model_part(run).items() if k != "scenario_hash"} for run in runs]  # the source differs
     assert same[0] == same[1]
+
+
+def two_types(tmp_path, source: str | None = None) -> dict:
+    """``small`` with two task types, small and large, and ``source`` (an import path) as its task source."""
+    data = small(tmp_path)
+    data["workload"]["tasks"] = [{"name": "small", "instructions": 1e6, "input_bytes": 1e5, "output_bytes": 1e4,
+                                  "deadline": 60},
+                                 {"name": "large", "instructions": 4e6, "input_bytes": 1e5, "output_bytes": 1e4,
+                                  "deadline": 60}]
+    if source:
+        data["workload"]["source"] = source
+    return data
+
+
+class Alternate(TaskSource):
+    """The built-in draw, its types kept on even ticks only."""
+
+    def typed(self, tick):
+        return [(size, None if tick % 2 else kind) for size, kind in super().typed(tick)]
+
+
+class SizesOf(Alternate):
+    """Redefines ``draws`` alone, below a ``typed``: its tasks carry no type."""
+
+    def draws(self, tick):
+        return super().draws(tick)
+
+
+def test_typed_gives_a_sources_tasks_their_types_and_draws_alone_gives_none(tmp_path):
+    sc = load_scenario(write_scenario(tmp_path, two_types(tmp_path)))
+
+    def created(cls: type[TaskSource]) -> list:
+        source = cls(sc, "a", np.random.default_rng(3), np.random.default_rng(4))
+        return [(t, *task) for t in range(300) for task in source.tasks_at(t)]
+
+    built_in = created(TaskSource)
+    assert len(built_in) > 50 and {kind for *_, kind in built_in} == {0, 1}
+    assert created(Alternate) == [(t, size, None if t % 2 else kind) for t, size, kind in built_in]
+    assert created(SizesOf) == [(t, size, None) for t, size, _ in built_in]
+    assert Alternate.next_arrival(None, 7) == SizesOf.next_arrival(None, 7) == 8  # asked every tick
+    alternate = Alternate(sc, "a", np.random.default_rng(3), np.random.default_rng(4))
+    assert [size for t in range(300) for size in alternate.draws(t)] == [size for _, size, _ in built_in]
+
+
+TYPES = "expected the index of a task type of workload.tasks (0 'small', 1 'large') or None"
+SIZE = "expected 5 numbers (instructions, input_bytes, output_bytes, cpi, deadline)"
+BAD_TASKS = [
+    ("typed", "[(SIZE, 2)]", f"a task of type 2; {TYPES}"),
+    ("typed", "[(SIZE, 'large')]", f"a task of type 'large'; {TYPES}"),
+    ("typed", "[(SIZE, True)]", f"a task of type True; {TYPES}"),
+    ("typed", "[(SIZE, -1)]", f"a task of type -1; {TYPES}"),
+    ("typed", "[SIZE]", "gave (1000000.0, 100000.0, 10000.0, 1.0, 30.0); expected a (size, type) pair per task"),
+    ("typed", "[(SIZE[:4], 0)]", f"a size of (1000000.0, 100000.0, 10000.0, 1.0); {SIZE}"),
+    ("draws", "[(*SIZE[:4], '30')]", f"a size of (1000000.0, 100000.0, 10000.0, 1.0, '30'); {SIZE}"),
+]
+
+
+@pytest.mark.parametrize(("case", "method", "given", "message"), [(i, *bad) for i, bad in enumerate(BAD_TASKS)],
+                         ids=[f"{m}-{g}" for m, g, _ in BAD_TASKS])
+def test_a_bad_task_of_a_user_source_fails_naming_its_class_and_tick(tmp_path, monkeypatch, case, method, given,
+                                                                    message):
+    """Where the client creates the task, in a run and in the arrival trace alike: not in a worker."""
+    module = f"mylab_bad{case}"  # a module of its own per case: an imported one is not read again
+    (tmp_path / f"{module}.py").write_text(textwrap.dedent(f'''
+        from node_runtime.model.workload import TaskSource
+
+        SIZE = (1e6, 1e5, 1e4, 1.0, 30.0)
+
+        class Bad(TaskSource):
+            def {method}(self, tick):
+                return {given} if tick == 3 else []
+    '''))
+    monkeypatch.syspath_prepend(str(tmp_path))
+    sc = load_scenario(write_scenario(tmp_path, two_types(tmp_path, f"{module}:Bad")))
+    expected = f"task source {module}:Bad.{method}(3): {message}"
+    with pytest.raises(ProcessFailed) as failed:
+        run_summary(sc, ticks=10)
+    assert f"failed in tick 3: ValueError: {expected}" in str(failed.value)
+    with pytest.raises(ValueError) as refused:
+        arrivals(sc, 0, 10)
+    assert str(refused.value) == expected
 
 
 BAD = [

@@ -16,6 +16,7 @@ import pytest
 import yaml
 
 from node_runtime.model.calibrate import main
+from node_runtime.model.client import arrivals
 from node_runtime.model.payload import PayloadError, read_record, run_log
 from orchestrator.clock import ProcessFailed
 from orchestrator.scenario import ScenarioError, costs, load_scenario
@@ -137,6 +138,78 @@ def test_a_recorded_run_replays_bit_for_bit_in_every_layout(tmp_path):
     scenario = replaying(path, record)
     for transport, layout in (("inproc", "single"), ("zenoh", "per-role"), ("zenoh", "single")):
         assert fingerprint(scenario, transport, layout, 40) == recorded, (transport, layout)
+
+
+SOURCES = """
+import numpy as np
+
+from node_runtime.model.workload import TaskSource
+
+KINDS = (np.int64(0), 1, None)  # infer (a numpy integer will do), plain, none
+
+
+class Typed(TaskSource):
+    \"\"\"A task every other tick until tick 24, of type infer, plain and none in turn: tasks 1, 4, 7, 10 of
+    the 12 are of type infer, and only they run its payload.\"\"\"
+
+    def typed(self, tick):
+        if tick % 2 or tick >= 24:
+            return []
+        return [((1.0e6, 1.0e6, 1.0e6, 1.0, 100.0), KINDS[tick // 2 % 3])]
+"""
+
+
+def typed_source(tmp_path: Path) -> Path:
+    """``pair`` fed by ``lab_sources:Typed``, round robin over a and b: its tasks alternate between them."""
+    (tmp_path / "lab_sources.py").write_text(SOURCES)
+    return pair(tmp_path, {"source": "lab_sources:Typed"}, steps=40)
+
+
+def check_typed_record(summary: dict, record: Path) -> None:
+    """Every task completed, and the record holds exactly the four of type infer, served on both nodes."""
+    assert summary["totals"]["generated"] == summary["totals"]["completed"] == 12
+    rows = [json.loads(line) for line in record.read_text().splitlines()]
+    assert sorted(r["task"] & 0xFFFFFFFF for r in rows) == [1, 4, 7, 10]
+    assert all(r["type"] == "infer" for r in rows) and {r["node"] for r in rows} == {"a", "b"}
+
+
+def test_a_user_sources_typed_tasks_run_their_payload_the_same_in_every_layout(tmp_path):
+    path, record = typed_source(tmp_path), tmp_path / "times.jsonl"
+    recorded = fingerprint(load_scenario(path).replace(payload_log=run_log(record=str(record))), "inproc", "single",
+                           40)
+    check_typed_record(recorded, record)
+    for layout in ("per-node", "groups:2"):
+        assert fingerprint(replaying(path, record), "inproc", layout, 40) == recorded, layout
+
+
+@pytest.mark.zenoh
+def test_a_user_sources_typed_tasks_run_their_payload_over_zenoh(tmp_path):
+    """The types cross the bus with the tasks: b's process runs the payload of the two it serves."""
+    path, record = typed_source(tmp_path), tmp_path / "times.jsonl"
+    recorded = fingerprint(load_scenario(path).replace(payload_log=run_log(record=str(record))), "zenoh", "per-node",
+                           40)
+    check_typed_record(recorded, record)
+    for transport, layout in (("inproc", "single"), ("zenoh", "per-role")):
+        assert fingerprint(replaying(path, record), transport, layout, 40) == recorded, (transport, layout)
+
+
+def test_the_motion_camera_example_classifies_only_frames_with_motion(tmp_path):
+    """Its source makes a frame of the first 5 s of every 20 a classify, any other a check: over 7 s, every
+    recorded payload is of a classify frame (its size says which; a task's id is its client's index and
+    sequence number)."""
+    scenario = load_scenario(ROOT / "topologies" / "examples" / "motion_camera.yaml")
+    created: dict[int, list[tuple[int, float]]] = {}  # client index -> (tick, instructions) of its tasks, in order
+    for t, client, size in arrivals(scenario, 0, 70):
+        created.setdefault(client, []).append((t, size.instructions))
+    kinds = {(c << 32) | seq: ("classify" if t < 50 else "check", instructions)
+             for c, tasks in created.items() for seq, (t, instructions) in enumerate(tasks, start=1)}
+    assert {kind: {i for k, i in kinds.values() if k == kind} for kind in ("classify", "check")} == \
+        {"classify": {3.0e7}, "check": {2.0e6}}  # each frame has its type's size, and there are both
+    record = tmp_path / "times.jsonl"
+    summary = run_summary(scenario.replace(payload_log=run_log(record=str(record))), ticks=70)
+    rows = [json.loads(line) for line in record.read_text().splitlines()]
+    assert summary["totals"]["generated"] == len(kinds) and len(rows) > 10
+    assert all(r["type"] == "classify" and kinds[r["task"]][0] == "classify" for r in rows)
 
 
 def test_measured_times_become_cycles_by_the_rule(tmp_path):

@@ -91,8 +91,8 @@ class Client(Role):
                 for job, index in book.start(self.task_id(), spec, t, st):
                     self.send(t, book.task(job, index, self.task_id(), me, t), out)
             return
-        for size, kind in self.source.typed(t):
-            self.send(t, Task(self.task_id(), me, t, TaskSize(*size), type=kind), out)
+        for size, kind in self.source.tasks_at(t):
+            self.send(t, Task(self.task_id(), me, t, size, type=kind), out)
 
     def send(self, t: int, task: Task, out: Outbox) -> None:
         """A new task: to the own worker, or over the radio to a target worker in range."""
@@ -131,8 +131,10 @@ def arrivals(sc: Scenario, seed: int, ticks: int) -> list[tuple[int, int, TaskSi
     """(tick, client node index, size) of every task the clients of ``sc`` create in ticks 0 .. ``ticks`` - 1
     of the episode with ``seed``, in the order they are created. It is the clients' own code and random
     streams, which no decision moves, so it is every run's workload task for task: the array backend's, and
-    the arrival trace the clairvoyant bound sees. Jobs have no such trace: which of their tasks arrive, and
-    when, depends on where the earlier ones ran."""
+    the arrival trace the clairvoyant bound sees. It reads the tasks as the client does (``TaskSource.tasks_at``)
+    and leaves out their types, which only a payload reads: the array backend refuses payloads, and the bound
+    serves every task its nominal cycles. Jobs have no such trace: which of their tasks arrive, and when,
+    depends on where the earlier ones ran."""
     return arrivals_of(sc, (seed,), ticks)[0]
 
 
@@ -149,8 +151,7 @@ def arrivals_of(sc: Scenario, seeds: Sequence[int], ticks: int) -> list[list[tup
             t = 0
             while t < ticks:  # only the ticks it wakes at: the others draw nothing, so skipping them changes no draw
                 if not client.down(t):
-                    out.extend((t, client.index, size if type(size) is TaskSize else TaskSize(*size))
-                               for size in client.source.draws(t))
+                    out.extend((t, client.index, size) for size, _ in client.source.tasks_at(t))
                 t = int(client.wake(t))
         out.sort(key=lambda task: (task[0], task[1]))  # stable: each client's tasks of a tick in the order drawn
         runs.append(out)

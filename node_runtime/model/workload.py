@@ -11,6 +11,7 @@ import bisect
 import math
 from collections import defaultdict
 from functools import lru_cache
+from numbers import Integral, Real
 
 import numpy as np
 
@@ -21,6 +22,7 @@ from node_runtime.model.spec import Scenario, TaskType, TraceRow
 
 BLOCK = 256  # ticks of arrival counts drawn at once (a constant: part of the stream's definition)
 LOOKAHEAD = BLOCK  # ticks ``next_arrival`` searches ahead before giving up
+_GIVERS = frozenset({"typed", "draws"})  # the methods a source of one's own may redefine to give its tasks
 
 
 def nominal_arrivals(sc: Scenario) -> dict[str, float]:
@@ -73,6 +75,8 @@ class TaskSource:
     with no cap on the count, or exponential gaps (``Arrival.process``).
     """
 
+    _gives: str | None = None  # which of a subclass's methods gives its tasks, "typed" or "draws"; None: built in
+
     def __init__(self, scenario: Scenario, node: str, counts_rng: np.random.Generator,
                  types_rng: np.random.Generator) -> None:
         self.dt = scenario.dt
@@ -106,10 +110,14 @@ class TaskSource:
             self.trace_ticks = sorted(self.trace)
 
     def __init_subclass__(cls, **kwargs: object) -> None:
-        """A source that redefines ``draws`` but not ``next_arrival`` is asked every tick."""
+        """A source that redefines ``typed`` or ``draws`` but not ``next_arrival`` is asked every tick. Its
+        tasks are what the lowest of the two in its class hierarchy gives (``tasks_at``): ``draws`` alone
+        gives tasks without a type."""
         super().__init_subclass__(**kwargs)
-        if "draws" in cls.__dict__ and "next_arrival" not in cls.__dict__:
+        if _GIVERS & cls.__dict__.keys() and "next_arrival" not in cls.__dict__:
             cls.next_arrival = _every_tick
+        owner = next(k for k in cls.__mro__ if _GIVERS & k.__dict__.keys())
+        cls._gives = None if owner is TaskSource else "typed" if "typed" in owner.__dict__ else "draws"
 
     def rate(self, tick: int) -> float:
         if self.fixed_rate is not None:
@@ -150,18 +158,11 @@ class TaskSource:
         self._next = nxt
         return counts
 
-    def draws(self, tick: int) -> list[TaskSize]:
-        """The size of every task created at ``tick`` (a plain tuple of its five fields will do)."""
-        return [size for size, _ in self._typed(tick)]
-
     def typed(self, tick: int) -> list[tuple[TaskSize, int | None]]:
-        """Every task created at ``tick``: its size and the index of its task type in ``workload.tasks``
-        (None for a trace row without one). A source that redefines ``draws`` gives tasks without a type."""
-        if type(self).draws is not TaskSource.draws:
-            return [(size, None) for size in self.draws(tick)]
-        return self._typed(tick)
-
-    def _typed(self, tick: int) -> list[tuple[TaskSize, int | None]]:
+        """Every task created at ``tick``: its size (a ``TaskSize`` or a plain tuple of its five fields) and the
+        index of its task type in ``workload.tasks``, whose payload it runs (None: no type, as a trace row
+        without one). A source of your own redefines this to give its tasks types (``super().typed`` is the
+        built-in draw), or ``draws`` for sizes alone."""
         if self.trace is not None:
             return [(r.size, r.type) for r in self.trace.get(tick, ())]
         n = self.count(tick)
@@ -170,6 +171,46 @@ class TaskSource:
         picks = [0] * n if len(self.types) == 1 else \
             self.types_rng.choice(len(self.types), size=n, p=self.probs).tolist()
         return [(self.types[i].size(self.types[i].draw_deadline(self.deadlines_rng)), i) for i in picks]
+
+    def draws(self, tick: int) -> list[TaskSize]:
+        """The size of every task created at ``tick``: those of ``typed``. A source that redefines this alone
+        gives tasks without a type."""
+        return [size for size, _ in self.typed(tick)]
+
+    def tasks_at(self, tick: int) -> list[tuple[TaskSize, int | None]]:
+        """What the client creates at ``tick``, (size, type) per task, from the method that gives this class's
+        tasks (``__init_subclass__``); a user's are checked here, so that a bad one fails naming its class and
+        tick, not deep inside a worker."""
+        if self._gives is None:
+            return self.typed(tick)
+        given = self.typed(tick) if self._gives == "typed" else self.draws(tick)
+        return [self._checked(task, tick) for task in given]
+
+    def _checked(self, task: object, tick: int) -> tuple[TaskSize, int | None]:
+        """``task``, a (size, type) of a user's ``typed`` or a size of a user's ``draws``, as a (TaskSize, type
+        index or None), or a ValueError."""
+        cls = type(self)
+        where = f"task source {cls.__module__}:{cls.__qualname__}.{self._gives}({tick})"
+        given, kind = task, None
+        if self._gives == "typed":
+            try:
+                given, kind = task
+            except (TypeError, ValueError):
+                raise ValueError(f"{where}: gave {task!r}; expected a (size, type) pair per task") from None
+        try:
+            size = given if type(given) is TaskSize else TaskSize(*given)
+        except TypeError:
+            size = None
+        if size is None or not all(isinstance(x, Real) for x in size):
+            raise ValueError(f"{where}: a size of {given!r}; expected {len(TaskSize._fields)} numbers "
+                             f"({', '.join(TaskSize._fields)})")
+        if kind is not None:
+            if not isinstance(kind, Integral) or isinstance(kind, bool) or not 0 <= kind < len(self.types):
+                names = ", ".join(f"{i} {t.name!r}" for i, t in enumerate(self.types))
+                raise ValueError(f"{where}: a task of type {kind!r}; expected the index of a task type of "
+                                 f"workload.tasks ({names}) or None")
+            kind = int(kind)  # a numpy integer goes on the wire as a plain one
+        return size, kind
 
     def draw_jobs(self, tick: int) -> list[JobSpec]:
         """The DAG of every job created at ``tick`` (``workload.jobs``): as many as ``count`` says, each drawn
