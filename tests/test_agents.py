@@ -13,7 +13,18 @@ from hypothesis import strategies as st
 
 from agents import BASELINES, DDQN, PPO, A2CConfig, DDQNConfig, PPOConfig, evaluate, load_learner, make_policy, train
 from agents.a2c import A2C
-from agents.common import AgentSpec, MaskedCategorical, TargetScorer, flat_dim, flatten_one, masked_argmax
+from agents.common import (
+    NEIGHBOUR_DIM,
+    OWN_DIM,
+    TASK_DIM,
+    TIE,
+    AgentSpec,
+    MaskedCategorical,
+    TargetScorer,
+    flat_dim,
+    flatten_one,
+    masked_argmax,
+)
 from agents.ddqn import td_target
 from agents.learner import ReturnScale
 from agents.onpolicy import Record
@@ -205,16 +216,17 @@ def test_flatten_has_the_documented_size_and_finite_values():
 
 
 def test_estimates_and_slack_match_a_hand_computed_example():
-    # own: queue 2, capacity 0.004 Gcycles/s; task: 0.08 G instructions, 1 MB in, 1 MB out, 50 s left
-    obs = {"own": np.array([2, 3, 10, 0.004, 1, 0], np.float32),
+    # own: queue 2 holding 25 s of work, capacity 0.004 Gcycles/s; task: 0.08 G instructions, 1 MB in, 1 MB out,
+    # 50 s left
+    obs = {"own": np.array([2, 3, 10, 0.004, 1, 0, 25.0], np.float32),
            "task": np.array([1, 0.08, 1.0, 1.0, 1, 50, 0], np.float32),
-           # present, queue, occupancy, buffer, capacity, tier, rate, age, backlog
-           "neighbours": np.array([[1, 1, 1, 10, 0.1, 1, 8.0, 1, 0.5], [0] * 9], np.float32),
+           # present, queue, occupancy, buffer, capacity, tier, rate, age, backlog, work
+           "neighbours": np.array([[1, 1, 1, 10, 0.1, 1, 8.0, 1, 0.5, 0.3], [0] * 10], np.float32),
            "action_mask": np.array([1, 1, 0], np.int8)}
-    est = flatten_one(obs)[7 + 7 + 10 * 2:].reshape(3, 4)
-    # local: wait 2 * 20 s, execution 20 s, no transfer, slack 50 - 60 = -10 s
-    # neighbour: wait 1 * 0.8 s, execution 0.8 s, transfer 16 Mbit / 8 Mbit/s = 2 s, slack 50 - 3.6 - 0.5 s
-    expected = np.array([[40, 20, 0, -10], [0.8, 0.8, 2, 45.9], [0, 0, 0, 0]])
+    est = flatten_one(obs)[8 + 7 + 11 * 2:].reshape(3, 4)
+    # local: wait 25 s (its work left, not 2 x 20 s), execution 20 s, no transfer, slack 50 - 45 = 5 s
+    # neighbour: wait 0.3 s, execution 0.8 s, transfer 16 Mbit / 8 Mbit/s = 2 s, slack 50 - 3.1 - 0.5 s of backlog
+    expected = np.array([[25, 20, 0, 5], [0.3, 0.8, 2, 46.4], [0, 0, 0, 0]])
     np.testing.assert_allclose(est, np.sign(expected) * np.log1p(np.abs(expected)), rtol=1e-5)
 
 
@@ -225,14 +237,14 @@ def test_target_scorer_follows_its_targets_not_their_slots():
     x = torch.randn(3, flat_dim(slots) + 5)  # 5 trailing columns (an agent id) that it ignores
     logits = scorer(x)
     assert logits.shape == (3, 1 + slots)
-    start = 14
-    nb = x[:, start:start + 10 * slots].reshape(3, slots, 10)
-    est = x[:, start + 10 * slots:start + 10 * slots + 4 * (1 + slots)].reshape(3, 1 + slots, 4)
+    start, width = OWN_DIM + TASK_DIM, NEIGHBOUR_DIM * slots
+    nb = x[:, start:start + width].reshape(3, slots, NEIGHBOUR_DIM)
+    est = x[:, start + width:start + width + 4 * (1 + slots)].reshape(3, 1 + slots, 4)
     order = torch.tensor([2, 0, 3, 1])  # permute the neighbour slots, with their estimates
     y = x.clone()
-    y[:, start:start + 10 * slots] = nb[:, order].reshape(3, -1)
-    y[:, start + 10 * slots:start + 10 * slots + 4 * (1 + slots)] = est[:, torch.cat([torch.tensor([0]), order + 1])
-                                                                        ].reshape(3, -1)
+    y[:, start:start + width] = nb[:, order].reshape(3, -1)
+    targets = torch.cat([torch.tensor([0]), order + 1])
+    y[:, start + width:start + width + 4 * (1 + slots)] = est[:, targets].reshape(3, -1)
     y[:, flat_dim(slots):] = torch.randn(3, 5)
     permuted = scorer(y)
     torch.testing.assert_close(permuted[:, 0], logits[:, 0])
@@ -282,9 +294,9 @@ def test_ddqn_target_is_double_dqn():
 
 
 def obs_of(task: bool, queue: float = 0.0) -> dict:
-    return {"own": np.array([queue, queue, 5, 0.01, 0, 0], np.float32),
+    return {"own": np.array([queue, queue, 5, 0.01, 0, 0, queue], np.float32),
             "task": np.array([1, 0.01, 0.1, 0.1, 1, 30, 0] if task else [0] * 7, np.float32),
-            "neighbours": np.array([[1, 0, 0, 5, 0.02, 1, 100, 1, 0]], np.float32),
+            "neighbours": np.array([[1, 0, 0, 5, 0.02, 1, 100, 1, 0, 0]], np.float32),
             "action_mask": np.array([1, 1] if task else [1, 0], np.int8)}
 
 
@@ -413,18 +425,27 @@ def test_evaluation_temperature_goes_from_sampling_to_the_most_likely_action():
     env = ZenohEdgeEnv("aot1", transport="inproc", max_steps=30, overrides=ScenarioOverrides(arrival_rate=0.5),
                        uniform_spaces=True)
     policies = {name: make_policy("ppo", env, PPOConfig(hidden=(16,), seed=3, **changes)) for name, changes in {
-        "sampled": {}, "T=1": {"eval_temperature": 1.0}, "cold": {"eval_temperature": 1e-3},
+        "sampled": {}, "T=1": {"eval_temperature": 1.0}, "cold": {"eval_temperature": 1e-6},
         "mode": {"sample_eval": False}}.items()}
     obs, _ = env.reset(seed=5)
     chosen: dict[str, list] = {name: [] for name in policies}
+    mode = policies["mode"]
+    parted = 0
     while env.agents:
         for name, policy in policies.items():
             policy.reset(9)  # the same random stream for every policy
             chosen[name].append(policy.act(obs))
+        for agent, action in chosen["cold"][-1].items():  # cold samples the mode, or one of targets that tie with it
+            if action != chosen["mode"][-1][agent]:
+                parted += 1
+                with torch.no_grad():
+                    logits = mode.nets[mode.group(agent)].actor(torch.as_tensor(mode.features(agent, obs[agent])))
+                assert logits[action] == pytest.approx(logits[chosen["mode"][-1][agent]], abs=TIE)
         obs, *_ = env.step(chosen["sampled"][-1])
     env.close()
     assert chosen["T=1"] == chosen["sampled"]
-    assert chosen["cold"] == chosen["mode"] != chosen["sampled"]
+    assert chosen["mode"] != chosen["sampled"]
+    assert parted < sum(len(step) for step in chosen["mode"]) / 20  # identical neighbours only
     with pytest.raises(ValueError, match="eval_temperature must be > 0"):
         PPOConfig(eval_temperature=0.0)
 

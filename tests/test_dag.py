@@ -356,8 +356,8 @@ def test_agents_observe_each_tasks_critical_path_and_successor_data(tmp_path):
         job = obs[agent]["job"]
         assert job[JobField.IN_JOB] == 1.0
         assert (job[JobField.CRITICAL_GCYCLES], job[JobField.SUCCESSOR_MB]) == pytest.approx((7e-3, 0.4))
-        assert flat_obs[agent]["observation"].shape == (6 + 7 + 3 + 2 * 9 + 1,)
-        assert flat_obs[agent]["observation"][13:16] == pytest.approx(job)
+        assert flat_obs[agent]["observation"].shape == (7 + 7 + 3 + 2 * 10 + 1,)
+        assert flat_obs[agent]["observation"][14:17] == pytest.approx(job)
     finally:
         env.close()
         flat.close()

@@ -144,7 +144,7 @@ def test_the_docs_snippet_runs():
     text = (ROOT / "docs" / "env.md").read_text()
     section = text[text.index("### K simulations stepped together"):]
     snippet = re.findall(r"```python\n(.*?)```", section, re.S)[0]
-    assert "(4, 1000, 15, 190)" in snippet
+    assert "(4, 1000, 15, 209)" in snippet
     namespace: dict = {}
     exec(snippet.replace("rollout(1000", "rollout(20").replace("max_steps=300", "max_steps=8"), namespace)
-    assert namespace["td"]["agents", "observation", "observation"].shape == (4, 20, 15, 190)
+    assert namespace["td"]["agents", "observation", "observation"].shape == (4, 20, 15, 209)
