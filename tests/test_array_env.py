@@ -23,7 +23,7 @@ from pettingzoo.test import parallel_api_test
 from env import ZenohEdgeEnv
 from env.overrides import ScenarioOverrides
 from node_runtime.model import array
-from node_runtime.model.array import ArraySim, Unsupported, refusal
+from node_runtime.model.array import NONE, ArraySim, Unsupported, refusal
 from node_runtime.model.spec import Scenario
 from orchestrator.scenario import load_scenario
 from tests.conftest import same
@@ -72,11 +72,13 @@ def lossy(name: str, loss: float, **changes: Any) -> Scenario:
     return sc.replace(links=[dataclasses.replace(lk, loss=loss) for lk in sc.links], **changes)
 
 
-# (scenario, seed, steps, environment arguments): aot1-aot4 and aot4 with lossy links and results relayed
-# along paths of up to 3 hops, then settings beyond the bundled ones, agents driving some controllers only
-# (the others with a node-side policy), link loss and max_hops 2; CI runs the first five
+# (scenario, seed, steps, environment arguments): aot1-aot4, aot4 with lossy links and results relayed
+# along paths of up to 3 hops, aot2_reference (queue_first, control_latency 0), then settings beyond the bundled
+# ones, agents driving some controllers only (the others with a node-side policy), link loss, max_hops 2,
+# queue_first and control_latency 0 each alone and with the others; CI runs the first six
 SMALL = [("aot1", 3, 120, {}), ("aot2", 7, 100, {}), ("aot3", 2, 80, {}), ("aot4", 5, 60, {}),
          (lossy("aot4", 0.1, max_hops=3), 3, 80, {"reward": "marginal"}),
+         ("aot2_reference", 3, 120, {"reward": "marginal"}),
          ("aot1_urgent", 4, 100, {"reward": "marginal"}),
          ("aot2", 1, 60, {"overrides": ScenarioOverrides(mode="batch", batch_size=3), "observation": "flat"}),
          ("aot2", 2, 60, {"overrides": ScenarioOverrides(decision_interval=3), "reward": "team"}),
@@ -88,14 +90,34 @@ SMALL = [("aot1", 3, 120, {}), ("aot2", 7, 100, {}), ("aot3", 2, 80, {}), ("aot4
          (load_scenario("aot2").replace(max_hops=2), 2, 100, {"reward": "marginal"}),
          (load_scenario("aot2").replace(max_hops=2, mode="batch", batch_size=3), 4, 80,
           {"reward": "marginal", "agents": ["rpi3_0", "rpi3_2", "rpi3_4"], "policy": "random"}),
-         ("aot3", 5, 80, {"agents": ["rpi3_1", "rpi3_3"], "policy": "drift_plus_penalty", "reward": "marginal"})]
-CI = 5
+         ("aot3", 5, 80, {"agents": ["rpi3_1", "rpi3_3"], "policy": "drift_plus_penalty", "reward": "marginal"}),
+         ("aot4_reference", 2, 300, {"reward": "marginal"}),
+         (load_scenario("aot2").replace(admission="queue_first"), 2, 200, {"reward": "marginal"}),
+         (lossy("aot4", 0.1, max_hops=3, admission="queue_first"), 5, 300, {"reward": "marginal"}),
+         (load_scenario("aot3").replace(admission="queue_first", decision_interval=2, state_interval=3), 3, 150,
+          {"reward": "paper"}),
+         (load_scenario("aot2").replace(admission="queue_first", mode="batch", batch_size=3), 1, 120,
+          {"observation": "flat", "agents": ["rpi3_0", "rpi3_2", "rpi3_4"], "policy": "greedy_backlog"}),
+         (load_scenario("aot1_urgent").replace(control_latency=0), 4, 300, {"reward": "marginal"}),
+         (load_scenario("aot2").replace(control_latency=0, mode="batch", batch_size=3), 1, 150,
+          {"observation": "flat"}),
+         (load_scenario("aot2").replace(control_latency=0, decision_interval=3, state_interval=2), 2, 100,
+          {"reward": "team"}),
+         (load_scenario("aot3").replace(control_latency=0), 3, 150,
+          {"agents": ["rpi3_0", "rpi3_2", "rpi3_4"], "policy": "greedy_backlog", "reward": "paper"}),
+         (lossy("aot4", 0.1, max_hops=3, admission="queue_first", control_latency=0, mode="batch", batch_size=2), 6,
+          300, {"reward": "marginal"})]
+CI = 6
 
 
 def case_id(value: Any) -> str | None:
     if isinstance(value, Scenario):  # a changed scenario: what was changed
-        lossy_links = any(lk.loss for lk in value.links)
-        return f"{value.name}{'-loss' if lossy_links else ''}{f'-hops{value.max_hops}' if value.max_hops > 1 else ''}"
+        base = load_scenario(value.name)
+        changed = [("-loss", any(lk.loss for lk in value.links)), (f"-hops{value.max_hops}", value.max_hops > 1),
+                   ("-queue_first", value.admission != base.admission),
+                   ("-colocated", value.control_latency != base.control_latency),
+                   ("-failures", value.failures != base.failures)]
+        return value.name + "".join(tag for tag, yes in changed if yes)
     return value if isinstance(value, str) else None
 
 
@@ -153,17 +175,56 @@ def test_a_lost_message_kept_out_of_the_ledger_is_caught(monkeypatch):
     assert found is not None and "credits" in found
 
 
+def test_a_colocated_controller_reading_its_worker_as_heard_is_caught(monkeypatch):
+    """control_latency 0: the driven controller observes its own worker and links as they are at the end of the
+    tick; reading its own state as broadcast (a tick old), or its links as last reported, is caught."""
+    remember = ArraySim._remember_view
+    sc = load_scenario("aot2").replace(control_latency=0)
+
+    def as_broadcast(self, t):
+        remember(self, t)
+        self.seen_own = self.seen_heard, self.seen_occupancy, self.seen_drain
+
+    def as_reported(self, t):
+        remember(self, t)
+        self.seen_busy = self.told_busy.copy()
+
+    for broken in (as_broadcast, as_reported):
+        with monkeypatch.context() as m:
+            m.setattr(ArraySim, "_remember_view", broken)
+            assert "observations" in (first_difference(sc, 7, 100) or "")
+
+
+def test_queue_first_shown_as_undecided_or_reported_on_decisions_is_caught(monkeypatch):
+    """queue_first: the tasks a driven controller may place are its worker's divertible ones as last reported, and
+    the worker reports when that list changes, not on every decision: counting its undecided tasks instead, or a
+    report (with the links' backlogs) on every decision, is caught."""
+    remember, decisions = ArraySim._remember_view, ArraySim._decisions
+
+    def undecided(self, t):
+        remember(self, t)
+        self.seen_undecided = self.undecided.copy()
+
+    def reported(self, t):
+        c, i = self.decided.get(t, (NONE, NONE))
+        self.bumped[c, self.dec_node[c, i]] = True
+        decisions(self, t)
+
+    sc = lossy("aot4", 0.1, max_hops=3, admission="queue_first")
+    for name, broken in (("_remember_view", undecided), ("_decisions", reported)):
+        with monkeypatch.context() as m:
+            m.setattr(ArraySim, name, broken)
+            assert "observations" in (first_difference(sc, 3, 80, reward="marginal") or "")
+
+
 def test_pettingzoo_parallel_api():
     env = ZenohEdgeEnv("aot2", backend="array", max_steps=30)
     parallel_api_test(env, num_cycles=20)
     env.close()
 
 
-@pytest.mark.parametrize(("scenario", "feature"), [
-    ("aot2_reference", "admission 'queue_first' while agents drive"),
-    ("examples/failures", "failures while agents drive"),
-    (load_scenario("aot2").replace(control_latency=0), "control_latency 0 while agents drive")],
-    ids=["queue_first", "failures", "control_latency_0"])
+@pytest.mark.parametrize(("scenario", "feature"), [("examples/failures", "failures while agents drive")],
+                         ids=["failures"])
 def test_what_it_does_not_model_with_agents_is_refused_in_one_line(scenario, feature):
     """The node-side backend runs these; with agents driving, the environment refuses them in one line."""
     sc = load_scenario(scenario) if isinstance(scenario, str) else scenario
@@ -224,9 +285,10 @@ def test_the_array_vector_env_steps_as_k_inprocess_envs():
 
 
 # (scenario, copies, steps, episode length, arguments) of the batched path against K in-process environments,
-# every reward it computes and the settings it covers; CI runs the first two
+# every reward it computes and the settings it covers; CI runs the first three
 VECTOR = [("aot1", 2, 30, 12, {"any_action": True}),
           ("aot2", 2, 25, 10, {"reward": "marginal", "any_action": True}),
+          ("aot2_reference", 2, 25, 10, {"reward": "paper", "any_action": True}),
           ("aot3", 3, 25, 10, {"reward": "sparse"}), ("aot4", 2, 20, 8, {"reward": "team_score"}),
           ("aot1_urgent", 2, 40, 15, {"reward": "score", "any_action": True}),
           ("aot2", 2, 20, 8, {"overrides": ScenarioOverrides(mode="batch", batch_size=3), "any_action": True}),
@@ -234,8 +296,11 @@ VECTOR = [("aot1", 2, 30, 12, {"any_action": True}),
           ("aot3", 2, 20, 8, {"agents": ["rpi3_0", "rpi3_2", "rpi3_4"], "reward": "score"}),
           ("aot2", 2, 20, 8, {"overrides": ScenarioOverrides(mode="batch", batch_size=2, decision_interval=2),
                               "reward": "marginal", "neighbour_slots": 20, "any_action": True}),
-          ("aot4", 2, 20, 8, {"reward": "paper", "info_numbers": False, "any_action": True})]
-VECTOR_CI = 2
+          ("aot4", 2, 20, 8, {"reward": "paper", "info_numbers": False, "any_action": True}),
+          (load_scenario("aot4").replace(admission="queue_first"), 2, 20, 8, {"reward": "team_score"}),
+          (load_scenario("aot2").replace(control_latency=0, mode="batch", batch_size=2), 2, 20, 8,
+           {"reward": "paper", "any_action": True})]
+VECTOR_CI = 3
 
 
 @pytest.mark.parametrize(("name", "k", "steps", "max_steps", "kwargs"), VECTOR,
@@ -257,8 +322,9 @@ def test_the_batched_vector_env_on_every_bundled_scenario_it_takes(name, request
 
 
 def test_a_broken_rule_of_the_batched_path_is_caught(monkeypatch):
-    """The comparison can fail: a task's time left one tick shorter than it is, or marginal's delta taken over
-    the network rather than the agent's node, make the batched env differ."""
+    """The comparison can fail: a task's time left one tick shorter than it is, marginal's delta taken over the
+    network rather than the agent's node, or a co-located controller's own node read as broadcast, make the
+    batched env differ."""
     pytest.importorskip("torchrl")
     from env import batched
 
@@ -274,6 +340,15 @@ def test_a_broken_rule_of_the_batched_path_is_caught(monkeypatch):
     with monkeypatch.context() as m:
         m.setattr(batched, "REWARDS", {**batched.REWARDS, batched.marginal_reward: "network"})
         assert "reward" in (vector_difference("aot2", 2, 10, 8, reward="marginal") or "")
+    remember = ArraySim._remember_view
+
+    def own_as_broadcast(self, t):  # control_latency 0: its own node as heard, not as it is
+        remember(self, t)
+        self.seen_own = self.seen_heard, self.seen_occupancy, self.seen_drain
+
+    with monkeypatch.context() as m:
+        m.setattr(ArraySim, "_remember_view", own_as_broadcast)
+        assert "observation" in (vector_difference("aot2_reference", 2, 10, 8) or "")
 
 
 def test_what_the_batched_path_does_not_cover_takes_the_per_copy_path_or_is_refused():
