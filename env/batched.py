@@ -135,6 +135,7 @@ class BatchedSteps:
                 self.allowed[a, 1 + k] = sim.valid[node, 1 + k]
             template[a, s["agent_id"].start + a] = 1.0
         self.template = template
+        self.id0 = s["agent_id"].start  # before it, what an agent whose node is down sees as zeros
         self.real_a, self.real_s = np.nonzero(self.neighbour >= 0)
         self.real_j = self.neighbour[self.real_a, self.real_s]
         self.real_col = self.nb0 + self.real_s * len(NeighbourField)
@@ -277,6 +278,9 @@ class BatchedSteps:
         out[c, ag, base + TaskField.CPI] = size[:, 3]
         out[c, ag, base + TaskField.TIME_LEFT_S] = size[:, 4] - (t - sim.created[c, i]) * dt
         out[c, ag, base + TaskField.WAITED_TICKS] = t - sim.arrived[c, i]
+        down = sim.down[t, nodes]  # its controller observed nothing: the empty observation (``layout.empty``)
+        if down.any():
+            out[:, down, :self.id0] = 0.0
         mask = np.where(present[..., None], self.allowed[None, :, None, :], False)
         mask[..., 0] = True
         self.present, self.shown = present, slots  # shown: the task index in each slot (-1: none)

@@ -16,10 +16,9 @@ built-in task source, FIFO links with loss (each worker's radio stream), failure
 payloads, clients without a worker, and user-defined roles, policies or task sources.
 
 Controllers an agent drives (``drive``) observe every decision epoch (``observation``: the ``Observation`` a
-``Controller`` builds) and place what ``act`` gives them; every tick then keeps the roles' per-task ledger in
-their own order, from which the environment's credits and metrics come (docs/array.md, "The environments on it").
-With agents driving (``refusal(..., agents=True)``) failures are refused: the driven controller's side of them is
-not proven against the in-process environment yet.
+``Controller`` builds; none while their node is down) and place what ``act`` gives them; every tick then keeps the
+roles' per-task ledger in their own order, from which the environment's credits and metrics come (docs/array.md,
+"The environments on it"). It takes the same scenarios with agents as without.
 
 One tick runs the roles in an order that their one-tick message delay makes equivalent to the emulator's:
 controllers (they read the worker's state at the end of the previous tick), clients (results in, new
@@ -109,9 +108,9 @@ class Unsupported(ValueError):
     """A scenario needs what the array backend does not model (yet)."""
 
 
-def refusal(sc: Scenario, policy: str | None = None, agents: bool = False) -> str | None:
-    """Why the array backend cannot run ``sc`` (one line naming the feature and the backend to use), or None;
-    ``agents``: with controllers driven by agents (``ArraySim.drive``, the environment)."""
+def refusal(sc: Scenario, policy: str | None = None) -> str | None:
+    """Why the array backend cannot run ``sc`` (one line naming the feature and the backend to use), or None; the
+    same whether agents drive controllers (``ArraySim.drive``, the environment) or not."""
     def why() -> str | None:
         kinds = dict(sc.kinds)
         for name, path in kinds.items():
@@ -135,8 +134,6 @@ def refusal(sc: Scenario, policy: str | None = None, agents: bool = False) -> st
             return "payloads"
         if sc.moving:
             return f"moving nodes ({', '.join(sorted(sc.moving, key=sc.index.__getitem__))})"
-        if agents and sc.failures:  # what the driven controllers' observations are not proven exact for yet
-            return "failures while agents drive controllers"
         for n in sc.nodes:  # an offloaded task's result comes back over the link it went by, reversed
             for j in sc.neighbours[n.id] if n.has("controller") and sc.max_hops else ():
                 if sc.node[j].has("worker") and (j, n.id) not in sc.link:
@@ -248,7 +245,7 @@ class ArraySim:
 
     def use_policy(self, policy: str | None) -> None:
         """The node-side policy of the controllers no agent drives: ``policy`` for all, or each node's own."""
-        reason = refusal(self.sc, policy, agents=self.recording)
+        reason = refusal(self.sc, policy)
         if reason is not None:
             raise Unsupported(reason)
         self.policy = policy
@@ -260,9 +257,6 @@ class ArraySim:
         """From the next ``reset`` on, the controllers of ``nodes`` observe every decision epoch and place what
         ``act`` gives them, as an externally driven ``Controller`` does, and every tick keeps the roles' ledger
         (``ledger``, ``completions``): what the environment reads (orchestrator/array_session.py)."""
-        reason = refusal(self.sc, self.policy, agents=True)
-        if reason is not None:
-            raise Unsupported(reason)
         self.driven = np.isin(np.arange(self.n), [self.sc.index[n] for n in nodes])
         self.recording = True
         self.use_policy(self.policy)
@@ -356,6 +350,7 @@ class ArraySim:
             for a, b in windows:
                 self.down[a:b, sc.index[node]] = True
         self.ghosts: dict[int, tuple[np.ndarray, np.ndarray]] = {}  # node -> (copies, tasks)
+        self.ghost_count = np.zeros((k, self.n), dtype=np.int64)  # and how many tasks that report held
         self.heard_late = np.zeros((k, self.n), dtype=np.int64)  # co-located: the states heard a tick before
         self.heard_occupancy_late = np.zeros((k, self.n), dtype=np.int64)
         self.heard_drain_late = np.zeros((k, self.n))
@@ -456,8 +451,12 @@ class ArraySim:
             busy = self.told_busy
         self.seen_heard, self.seen_occupancy, self.seen_drain = (a.copy() for a in heard)
         self.seen_own = tuple(a.copy() for a in own)  # (queue, occupancy, drain tick) of each controller's own node
-        # the tasks it may place that its worker last reported (queue_first: its divertible ones, as listed)
+        # the tasks it may place that its worker last reported (queue_first: its divertible ones, as listed); back
+        # from a failure, its report from before it
         self.seen_undecided = (self.listed if self.queue_first else self.undecided).copy()
+        if t and self.sc.failures and not self.sc.colocated_control:
+            back = ~self.down[t] & self.down[t - 1]
+            self.seen_undecided[:, back] = self.ghost_count[:, back]
         self.seen_busy = busy.copy()
         self.slots[:] = -1
 
@@ -839,6 +838,7 @@ class ArraySim:
             for node in np.flatnonzero(went):
                 mine = offered & (self.node[c, i] == node)
                 self.ghosts[int(node)] = (c[mine], i[mine])
+            self.ghost_count[:, went] = (self.listed if self.queue_first else self.undecided)[:, went]
         self.queued[:, went] = 0
         self.undecided[:, went] = 0
         self._enter(FAILURE)  # ``Worker.drop_all``: the queue in queue order, then the undecided in arrival order
@@ -1149,6 +1149,8 @@ class ArraySim:
         cnt[:, :, F["in_flight"]] = self.flying
         if self.recording and self.queue_first:
             self._list_divertible(t)
+        if self.recording and t and self.sc.failures:  # a worker back from a failure reports (what it dropped)
+            self.bumped[:, ~self.down[t] & self.down[t - 1]] = True
         if self.recording:  # a worker's report tells its controller how long its links stay busy
             c, nd = np.nonzero(self.bumped & (self.controller >= 0))
             if len(c):
