@@ -135,6 +135,7 @@ class BatchedSteps:
                 self.allowed[a, 1 + k] = sim.valid[node, 1 + k]
             template[a, s["agent_id"].start + a] = 1.0
         self.template = template
+        self.id0 = s["agent_id"].start  # before it, what an agent whose node is down sees as zeros
         self.real_a, self.real_s = np.nonzero(self.neighbour >= 0)
         self.real_j = self.neighbour[self.real_a, self.real_s]
         self.real_col = self.nb0 + self.real_s * len(NeighbourField)
@@ -249,11 +250,13 @@ class BatchedSteps:
         k = sim.k
         out = np.repeat(self.template[None], k, axis=0)
         own = self.own0
-        out[:, :, own + OwnField.QUEUE] = sim.seen_heard[:, nodes]
-        out[:, :, own + OwnField.OCCUPANCY] = sim.seen_occupancy[:, nodes]
+        own_queue, own_occupancy, own_drain = sim.seen_own  # its own node (co-located: as it is)
+        out[:, :, own + OwnField.QUEUE] = own_queue[:, nodes]
+        out[:, :, own + OwnField.OCCUPANCY] = own_occupancy[:, nodes]
         end = t + 1
         work = np.where(sim.seen_drain > end, (sim.seen_drain - end) * dt, 0.0)  # ``NodeView.work_s``
-        out[:, :, own + OwnField.WORK_S] = work[:, nodes]
+        own_work = np.where(own_drain > end, (own_drain - end) * dt, 0.0)
+        out[:, :, own + OwnField.WORK_S] = own_work[:, nodes]
         out[:, :, own + OwnField.UNDECIDED] = sim.seen_undecided[:, nodes]
         a, j, col = self.real_a, self.real_j, self.real_col
         out[:, a, col + NeighbourField.QUEUE] = sim.seen_heard[:, j]
@@ -275,6 +278,9 @@ class BatchedSteps:
         out[c, ag, base + TaskField.CPI] = size[:, 3]
         out[c, ag, base + TaskField.TIME_LEFT_S] = size[:, 4] - (t - sim.created[c, i]) * dt
         out[c, ag, base + TaskField.WAITED_TICKS] = t - sim.arrived[c, i]
+        down = sim.down[t, nodes]  # its controller observed nothing: the empty observation (``layout.empty``)
+        if down.any():
+            out[:, down, :self.id0] = 0.0
         mask = np.where(present[..., None], self.allowed[None, :, None, :], False)
         mask[..., 0] = True
         self.present, self.shown = present, slots  # shown: the task index in each slot (-1: none)
@@ -310,12 +316,13 @@ class BatchedSteps:
             cycles = sim.cycles[c, i]
             capacity, own_capacity = sim.capacity[target], sim.capacity[nd]
             size = self.size[c, i]
-            t_wait = sim.seen_heard[c, target] * cycles / capacity
+            queue = np.where(local, sim.seen_own[0][c, nd], sim.seen_heard[c, target])  # the target's view
+            t_wait = queue * cycles / capacity
             with np.errstate(divide="ignore"):
                 t_comm = np.where(local, 0.0, 8.0 * (size[:, 1] + size[:, 2]) / sim.rate[sim.links[nd, a]])
             t_exc = cycles / capacity - cycles / own_capacity
             delay = w.wait * t_wait + w.comm * t_comm + w.exc * t_exc
-            occupancy = sim.seen_occupancy[c, target] - local
+            occupancy = np.where(local, sim.seen_own[1][c, nd], sim.seen_occupancy[c, target]) - local
             finish_per_tick = capacity * sim.dt / cycles
             buffer = sim.buffer[target].astype(float)
             q_next = np.minimum(np.maximum(0.0, occupancy - finish_per_tick) + 1.0, buffer)

@@ -147,8 +147,8 @@ class Connection:
         return overrides.apply(sc) if overrides is not None else sc
 
     def check(self, sc: Scenario) -> None:
-        """Refuse, in one line (``Unsupported``), a scenario that the array backend does not model with agents."""
-        if self.backend == "array" and (reason := refusal(sc, agents=True)) is not None:
+        """Refuse, in one line (``Unsupported``), a scenario that the array backend does not model."""
+        if self.backend == "array" and (reason := refusal(sc)) is not None:
             raise Unsupported(reason)
 
     def open(self, sc: Scenario, ticks: int) -> Simulation | ArrayCopy:

@@ -76,11 +76,14 @@ class ArrayBatch:
         return [m.add_counters(t, counters[c], sim.completions[c], sim.ledger[c]) for c, m in enumerate(self.metrics)]
 
     def observations(self, copy: int) -> dict[str, Observation]:
-        """What copy ``copy``'s driven controllers observe at the current tick, by role (none between epochs)."""
+        """What copy ``copy``'s driven controllers observe at the current tick, by role (none between epochs, and none
+        of a controller whose node is down: the environment reads it as an empty observation)."""
         sim = self.sim
         if sim.seen != sim.t - 1:
             return {}
-        return {role: sim.observation(copy, node) for role, node in zip(self.external, self._nodes, strict=True)}
+        down = sim.down[sim.seen]
+        return {role: sim.observation(copy, node) for role, node in zip(self.external, self._nodes, strict=True)
+                if not down[node]}
 
 
 class ArrayCopy:

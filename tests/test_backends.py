@@ -66,15 +66,15 @@ def test_auto_trains_on_the_array_backend_where_it_models_the_scenario(tmp_path,
 
 
 def test_auto_falls_back_to_the_emulator_for_a_refused_scenario_in_one_line(tmp_path, capsys):
-    args = ["ppo", "--scenario", "aot1_reference", "--max-steps", "5", "--hidden", "16", "--no-progress",
+    args = ["ppo", "--scenario", "examples/zigzag_workload", "--max-steps", "5", "--hidden", "16", "--no-progress",
             "--episodes", "1", "--out", str(tmp_path)]
     train.main(args)
     err = capsys.readouterr().err.strip().splitlines()
-    assert err == ["python -m experiments.train: --backend auto: the emulator (scenario aot1_reference: the array "
-                   "backend does not support admission 'queue_first' while agents drive controllers)"]
+    assert err == ["python -m experiments.train: --backend auto: the emulator (scenario zigzag_workload: the array "
+                   "backend does not support client sensor has no worker of its own (its tasks would cross the radio))"]
     assert json.loads((tmp_path / "config.json").read_text())["backend"] == "emulator"
     with pytest.raises(SystemExit) as e:  # asked for by name, the array backend's refusal is the user's error
         train.main([*args, "--backend", "array"])
     assert e.value.code == 2
     err = capsys.readouterr().err.strip().splitlines()
-    assert len(err) == 1 and "does not support admission 'queue_first'" in err[0]
+    assert len(err) == 1 and "does not support client sensor has no worker of its own" in err[0]

@@ -16,17 +16,16 @@ built-in task source, FIFO links with loss (each worker's radio stream), failure
 payloads, clients without a worker, and user-defined roles, policies or task sources.
 
 Controllers an agent drives (``drive``) observe every decision epoch (``observation``: the ``Observation`` a
-``Controller`` builds) and place what ``act`` gives them; every tick then keeps the roles' per-task ledger in
-their own order, from which the environment's credits and metrics come (docs/array.md, "The environments on it").
-With agents driving (``refusal(..., agents=True)``) failures, ``queue_first`` and control latency 0 are refused:
-the driven controller's side of them is not proven against the in-process environment yet.
+``Controller`` builds; none while their node is down) and place what ``act`` gives them; every tick then keeps the
+roles' per-task ledger in their own order, from which the environment's credits and metrics come (docs/array.md,
+"The environments on it"). It takes the same scenarios with agents as without.
 
 One tick runs the roles in an order that their one-tick message delay makes equivalent to the emulator's:
 controllers (they read the worker's state at the end of the previous tick), clients (results in, new
 tasks out), then workers (failure, overload, results relayed, expiry, decisions, admission, CPU, results
-back). A co-located controller (control latency 0) observes its worker at the end of the previous tick in
-the same slot and hands its answer over at once, which the worker applies in this tick, as the emulator's
-host does.
+back). A co-located controller (control latency 0) observes its worker at the end of each tick, after the
+workers, and its answer is handed over at the start of the next, which the worker applies in that tick, as the
+emulator's host does.
 """
 
 from __future__ import annotations
@@ -109,9 +108,9 @@ class Unsupported(ValueError):
     """A scenario needs what the array backend does not model (yet)."""
 
 
-def refusal(sc: Scenario, policy: str | None = None, agents: bool = False) -> str | None:
-    """Why the array backend cannot run ``sc`` (one line naming the feature and the backend to use), or None;
-    ``agents``: with controllers driven by agents (``ArraySim.drive``, the environment)."""
+def refusal(sc: Scenario, policy: str | None = None) -> str | None:
+    """Why the array backend cannot run ``sc`` (one line naming the feature and the backend to use), or None; the
+    same whether agents drive controllers (``ArraySim.drive``, the environment) or not."""
     def why() -> str | None:
         kinds = dict(sc.kinds)
         for name, path in kinds.items():
@@ -135,13 +134,6 @@ def refusal(sc: Scenario, policy: str | None = None, agents: bool = False) -> st
             return "payloads"
         if sc.moving:
             return f"moving nodes ({', '.join(sorted(sc.moving, key=sc.index.__getitem__))})"
-        if agents:  # what the driven controllers' observations and the ledger are not proven exact for yet
-            if sc.failures:
-                return "failures while agents drive controllers"
-            if sc.admission != "decide_first":
-                return f"admission {sc.admission!r} while agents drive controllers"
-            if sc.control_latency != 2:
-                return f"control_latency {sc.control_latency} while agents drive controllers"
         for n in sc.nodes:  # an offloaded task's result comes back over the link it went by, reversed
             for j in sc.neighbours[n.id] if n.has("controller") and sc.max_hops else ():
                 if sc.node[j].has("worker") and (j, n.id) not in sc.link:
@@ -253,7 +245,7 @@ class ArraySim:
 
     def use_policy(self, policy: str | None) -> None:
         """The node-side policy of the controllers no agent drives: ``policy`` for all, or each node's own."""
-        reason = refusal(self.sc, policy, agents=self.recording)
+        reason = refusal(self.sc, policy)
         if reason is not None:
             raise Unsupported(reason)
         self.policy = policy
@@ -265,9 +257,6 @@ class ArraySim:
         """From the next ``reset`` on, the controllers of ``nodes`` observe every decision epoch and place what
         ``act`` gives them, as an externally driven ``Controller`` does, and every tick keeps the roles' ledger
         (``ledger``, ``completions``): what the environment reads (orchestrator/array_session.py)."""
-        reason = refusal(self.sc, self.policy, agents=True)
-        if reason is not None:
-            raise Unsupported(reason)
         self.driven = np.isin(np.arange(self.n), [self.sc.index[n] for n in nodes])
         self.recording = True
         self.use_policy(self.policy)
@@ -361,8 +350,10 @@ class ArraySim:
             for a, b in windows:
                 self.down[a:b, sc.index[node]] = True
         self.ghosts: dict[int, tuple[np.ndarray, np.ndarray]] = {}  # node -> (copies, tasks)
+        self.ghost_count = np.zeros((k, self.n), dtype=np.int64)  # and how many tasks that report held
         self.heard_late = np.zeros((k, self.n), dtype=np.int64)  # co-located: the states heard a tick before
         self.heard_occupancy_late = np.zeros((k, self.n), dtype=np.int64)
+        self.heard_drain_late = np.zeros((k, self.n))
         self.queued = np.zeros((k, self.n), dtype=np.int64)
         self.undecided = np.zeros((k, self.n), dtype=np.int64)
         self.serving = np.full((k, self.n), -1, dtype=np.int64)
@@ -411,6 +402,8 @@ class ArraySim:
         self._clients(t)
         self._workers(t)
         self._levels(t)
+        if self.sc.colocated_control:  # the co-located controllers observe their workers as the tick leaves them
+            self._observe(t)
         if self.recording:
             self._settle_ledger()
         # tasks before the window are gone in every copy, and off their links: a lost offload occupies its link
@@ -431,6 +424,10 @@ class ArraySim:
         # each worker's links' busy-until ticks (by neighbour, as the actions: action a is link a - 1), as its
         # controller was last told
         self.told_busy = np.zeros((k, n, self.target.shape[1] - 1))
+        # queue_first: the node at which each task was divertible when its worker last published (-1: none), and
+        # how many each worker's list held then (``Worker._divertible``, what its reports carry)
+        self.listed_at = np.full(self.created.shape, -1)
+        self.listed = np.zeros((k, n), dtype=np.int64)
         self.seen = -1  # the last decision epoch, and what the driven controllers knew at it
         self._known = None
         self.slots = np.full((k, n, self.per_epoch), -1)  # the tasks each was shown, by task slot
@@ -439,12 +436,28 @@ class ArraySim:
         self.ledger_rows = LedgerRows.empty()  # the same ledger as arrays, of every copy
 
     def _remember_view(self, t: int) -> None:
-        """What the driven controllers know at epoch ``t``: all of it was heard by the end of tick t - 1."""
+        """What the driven controllers know at epoch ``t``: the states broadcast by the end of tick t - 1, and
+        their worker as its last report told it (its undecided tasks, its links' busy-until ticks). Co-located
+        (control_latency 0, observing at the end of tick t), their worker as it is: its queue, occupancy, drain
+        tick, undecided tasks and links (``Controller.own_view``, ``Radio.busy_until``)."""
         self.seen = t
         self._known = None
-        self.seen_heard, self.seen_occupancy = self.heard.copy(), self.heard_occupancy.copy()
-        self.seen_drain = self.heard_drain.copy()
-        self.seen_undecided, self.seen_busy = self.undecided.copy(), self.told_busy.copy()
+        if self.sc.colocated_control:
+            heard = self.heard_late, self.heard_occupancy_late, self.heard_drain_late
+            own = self.queued, self.queued + self.undecided, self.drain
+            busy = self.busy[:, self.links[:, 1:]]
+        else:
+            heard = own = self.heard, self.heard_occupancy, self.heard_drain
+            busy = self.told_busy
+        self.seen_heard, self.seen_occupancy, self.seen_drain = (a.copy() for a in heard)
+        self.seen_own = tuple(a.copy() for a in own)  # (queue, occupancy, drain tick) of each controller's own node
+        # the tasks it may place that its worker last reported (queue_first: its divertible ones, as listed); back
+        # from a failure, its report from before it
+        self.seen_undecided = (self.listed if self.queue_first else self.undecided).copy()
+        if t and self.sc.failures and not self.sc.colocated_control:
+            back = ~self.down[t] & self.down[t - 1]
+            self.seen_undecided[:, back] = self.ghost_count[:, back]
+        self.seen_busy = busy.copy()
         self.slots[:] = -1
 
     def observation(self, copy: int, node: int) -> Observation:
@@ -455,12 +468,16 @@ class ArraySim:
             self._known = (self.seen_heard.tolist(), self.seen_occupancy.tolist(), self.seen_drain.tolist(),
                            self.seen_undecided.tolist(),
                            [[1 if fresh else t - heard_at(sc, sc.nodes[j].id, t) for j in range(self.n)]
-                            for fresh in (False, True)])
-        heard, occupancy, drains, undecided, ages = self._known
+                            for fresh in (False, True)], [a.tolist() for a in self.seen_own])
+        heard, occupancy, drains, undecided, ages, own = self._known
         queue, occupied, drain, age = heard[copy], occupancy[copy], drains[copy], ages[self._fresh[node]]
 
         def view(j: int, rate: float, queued: float) -> NodeView:
             nid, buffer, capacity, tier, worker = self._static[j]
+            if j == node:  # its own node: co-located, as it is (information 0 ticks old)
+                age0 = 0 if sc.colocated_control else age[j]
+                return NodeView(nid, own[0][copy][j], own[1][copy][j], buffer, capacity, tier, rate, age0, worker,
+                                queued, own[2][copy][j])
             return NodeView(nid, queue[j], occupied[j], buffer, capacity, tier, rate, age[j], worker, queued, drain[j])
 
         to, rates = self._links[node]
@@ -569,14 +586,20 @@ class ArraySim:
     # ----- controllers -----
 
     def _controllers(self, t: int) -> None:
-        k = self.k
-        colocated = self.sc.colocated_control
-        if not colocated:  # the answer to the last observation is placed: it reaches the worker next tick
+        """The controllers' slot at the start of tick t. control_latency 2: the answer to the last observation is
+        placed (it reaches the worker next tick), then the observation of tick t, on its worker's state at the end
+        of the last tick as reported. 0: the answer to the observation made at the end of the last tick is handed
+        to the worker at once (``_observe`` runs at the end of each tick instead)."""
+        if self.sc.colocated_control:
+            self._place(t, t)
+        else:
             self._place(t, t + 1)
-        # control_latency 2: the observation of tick t, on its worker's state at the end of the last tick as
-        # reported; 0: the observation of the last tick, on its worker's state at its end, answered at once
-        seen = t - colocated
-        if seen < 0 or seen % self.sc.decision_interval:
+            self._observe(t)
+
+    def _observe(self, seen: int) -> None:
+        """The controllers' observations of epoch ``seen`` and the node-side policies' answers to them."""
+        k = self.k
+        if seen % self.sc.decision_interval:
             return
         if self.driven.any():
             self._remember_view(seen)
@@ -633,8 +656,6 @@ class ArraySim:
             extra[cb, nb, action] += 1
             self.ask_action[cb, ib] = action
             self.ask_rank[cb, ib] = b
-        if colocated:  # the host hands the answer to the worker at the start of this tick
-            self._place(t, t)
 
     def _place(self, t: int, arrive: int) -> None:
         """The answer to the last observation, placed at tick ``t``: decisions that reach the worker at ``arrive``."""
@@ -817,6 +838,7 @@ class ArraySim:
             for node in np.flatnonzero(went):
                 mine = offered & (self.node[c, i] == node)
                 self.ghosts[int(node)] = (c[mine], i[mine])
+            self.ghost_count[:, went] = (self.listed if self.queue_first else self.undecided)[:, went]
         self.queued[:, went] = 0
         self.undecided[:, went] = 0
         self._enter(FAILURE)  # ``Worker.drop_all``: the queue in queue order, then the undecided in arrival order
@@ -835,7 +857,8 @@ class ArraySim:
         nd = self.dec_node[c, i]
         up = ~self.down[t, nd]  # a node that is down ignores them
         c, i, nd = c[up], i[up], nd[up]
-        if self.recording:
+        if self.recording and not self.queue_first:  # decisions change the undecided set (queue_first: the list of
+            # divertible tasks, if they divert or keep one, which ``_list_divertible`` finds)
             self.bumped[c, nd] = True
         if self.queue_first:  # it must still be divertible: queued, not started, not kept
             stale = ((self.state[c, i] != QUEUED) | self.kept[c, i] | (self.rem[c, i] != self.cycles[c, i])
@@ -874,8 +897,9 @@ class ArraySim:
                   kind: int) -> None:
         """Queue messages on links src -> dst (one per link and call), as ``Radio.send`` and ``Role.transmit`` do."""
         roles = self.worker[src]
-        if self.recording:  # a worker tells its controller of a link's change while it has tasks to place
-            self.bumped[c, src] |= self.undecided[c, src] > 0
+        if self.recording:  # a worker tells its controller of a link's change while it has tasks to place (queue_first:
+            # while its list of divertible tasks, as last published, is not empty)
+            self.bumped[c, src] |= (self.listed if self.queue_first else self.undecided)[c, src] > 0
         link = src * self.n + dst
         number = self._link(link)  # (a transmission's link exists)
         start = np.maximum(float(t), self.busy[c, number])
@@ -1101,6 +1125,21 @@ class ArraySim:
         self.drain_key[c, nd] = key[c, nd]
         self.drain[c, nd] = (t + 1) + work.reshape(self.k, self.n)[c, nd] / self.budget[nd]
 
+    def _list_divertible(self, t: int) -> None:
+        """queue_first: each worker up in tick t lists its divertible tasks as the tick leaves them
+        (``Worker.publish``); a list that changed is a report to its controller. One down keeps its last list."""
+        w = self.win
+        nd = self.node[:, w]
+        was = self.listed_at[:, w]
+        now = np.where(self._divertible(w) & ~self.down[t, nd], nd, -1)
+        now = np.where((was >= 0) & self.down[t, was], was, now)
+        c, i = np.nonzero(now != was)
+        self.bumped[c[was[c, i] >= 0], was[c, i][was[c, i] >= 0]] = True
+        self.bumped[c[now[c, i] >= 0], now[c, i][now[c, i] >= 0]] = True
+        self.listed_at[:, w] = now
+        c, i = np.nonzero(now >= 0)
+        self.listed = np.bincount(c * self.n + now[c, i], minlength=self.k * self.n).reshape(self.k, self.n)
+
     def _levels(self, t: int) -> None:
         w = self.has_worker
         self._drains(t)
@@ -1108,12 +1147,17 @@ class ArraySim:
         cnt[:, :, F["queue"]][:, self.worker[w]] = self.queued[:, w]
         cnt[:, :, F["undecided"]][:, self.worker[w]] = self.undecided[:, w]
         cnt[:, :, F["in_flight"]] = self.flying
+        if self.recording and self.queue_first:
+            self._list_divertible(t)
+        if self.recording and t and self.sc.failures:  # a worker back from a failure reports (what it dropped)
+            self.bumped[:, ~self.down[t] & self.down[t - 1]] = True
         if self.recording:  # a worker's report tells its controller how long its links stay busy
             c, nd = np.nonzero(self.bumped & (self.controller >= 0))
             if len(c):
                 self.told_busy[c, nd] = self.busy[c[:, None], self.links[nd, 1:]]
-        if self.sc.colocated_control:  # what a co-located controller has heard at the end of the next tick
+        if self.sc.colocated_control:  # what a co-located controller has heard at the end of this tick
             self.heard_late[:], self.heard_occupancy_late[:] = self.heard, self.heard_occupancy
+            self.heard_drain_late[:] = self.heard_drain
         if t % self.sc.state_interval == 0 and self.sc.failures:  # a node that is down is silent
             up = ~self.down[t]
             self.heard[:, up] = self.queued[:, up]
