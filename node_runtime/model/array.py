@@ -333,8 +333,9 @@ class ArraySim:
         self.heard = np.zeros((k, self.n), dtype=np.int64)  # queue lengths as last broadcast ...
         self.heard_occupancy = np.zeros((k, self.n), dtype=np.int64)  # ... occupancies ...
         self.heard_drain = np.zeros((k, self.n))  # ... and drain ticks (``Worker.drains_at``)
-        # each worker's drain tick, and the queue (length, head, tail) it was computed for: at first, empty
-        self.drain, self.drain_key = np.zeros((k, self.n)), np.tile(np.array([0, -1, -1]), (k, self.n, 1))
+        # each worker's drain tick, and the queue (length; head, tail: -1 if none) it was computed for: at first, empty
+        self.drain, self.drain_key = np.zeros((k, self.n)), np.full((3, k, self.n), -1)
+        self.drain_key[0] = 0
         self.rr = np.zeros((k, self.n), dtype=np.int64)  # round robin's next
         self.joined = [(NONE, NONE)]  # the tasks queued since the CPU last ran (its queue then first), in order
         self.kept = np.zeros(shape, dtype=bool)  # queue_first: kept by a decision (not offered again)
@@ -1110,20 +1111,23 @@ class ArraySim:
         queued = self.state[qc, qi] == QUEUED
         qc, qi = qc[queued], qi[queued]
         group = qc * self.n + self.node[qc, qi]
-        by = np.argsort((group << 32) + self.order[qc, qi], kind="stable")  # by copy, node, order
-        qc, qi, group = qc[by], qi[by], group[by]
-        key = np.tile(np.array([0, -1, -1]), (self.k * self.n, 1))
-        key[:, 0] = np.bincount(group, minlength=self.k * self.n)
+        if len(self.joined) > 1:  # after the CPU ran, its one list is in queue order already (``_serve``)
+            by = np.argsort((group << 32) + self.order[qc, qi], kind="stable")  # by copy, node, order
+            qc, qi, group = qc[by], qi[by], group[by]
+        size = self.k * self.n
+        key = np.full((3, size), -1)
+        key[0] = np.bincount(group, minlength=size)
         if len(group):
             edge = group[1:] != group[:-1]
             first, last = np.r_[True, edge], np.r_[edge, True]
-            key[group[first], 1], key[group[last], 2] = qi[first], qi[last]
-        work = np.bincount(group, self.rem[qc, qi], minlength=self.k * self.n)
-        key = key.reshape(self.k, self.n, 3)
-        changed = (key != self.drain_key).any(axis=2) & self.has_worker & ~self.down[t]
+            key[1, group[first]], key[2, group[last]] = qi[first], qi[last]
+        key = key.reshape(3, self.k, self.n)
+        changed = (key != self.drain_key).any(axis=0) & self.has_worker & ~self.down[t]
         c, nd = np.nonzero(changed)
-        self.drain_key[c, nd] = key[c, nd]
-        self.drain[c, nd] = (t + 1) + work.reshape(self.k, self.n)[c, nd] / self.budget[nd]
+        if len(c):
+            work = np.bincount(group, self.rem[qc, qi], minlength=size).reshape(self.k, self.n)
+            self.drain_key[:, c, nd] = key[:, c, nd]
+            self.drain[c, nd] = (t + 1) + work[c, nd] / self.budget[nd]
 
     def _list_divertible(self, t: int) -> None:
         """queue_first: each worker up in tick t lists its divertible tasks as the tick leaves them
