@@ -58,7 +58,7 @@ BoundKind = Literal["exact", "milp_dual", "lp", "options"]
 
 
 class BoundError(ValueError):
-    """A scenario outside what the bound models (a client without a worker, tasks that travel two hops)."""
+    """A scenario outside what the bound models (a client without a worker, tasks that travel two hops, payloads)."""
 
 
 @dataclass(frozen=True)
@@ -119,6 +119,10 @@ def jobs(sc: Scenario, trace: Sequence[TraceTask], last_tick: int) -> tuple[Vari
         raise BoundError(f"{sc.name}: max_hops {sc.max_hops}; the bound models one hop (max_hops 0 or 1)")
     if sc.moving:
         raise BoundError(f"{sc.name}: moving nodes; the bound models links of fixed rates")
+    real = [t.name for t in sc.workload.task_types if t.payload is not None]
+    if real:
+        raise BoundError(f"{sc.name}: task types with payloads ({', '.join(real)}); the bound serves each task its "
+                         "nominal cycles, and a payload's are only known once it runs")
     dt = sc.dt
     variables: Variables = []
     resources: dict[Any, list[Job]] = {}
@@ -352,7 +356,10 @@ def main(argv: Sequence[str] | None = None) -> None:
     progress = progress_bar() if args.progress else None
     with progress or nullcontext():
         for regime in suite:
-            rows += measure(regime.path, seeds, args.max_steps, policies, args.time_limit, progress)
+            try:
+                rows += measure(regime.path, seeds, args.max_steps, policies, args.time_limit, progress)
+            except BoundError as e:  # a regime outside the bound's model: one line, before its episodes run
+                p.error(str(e))
     out = args.out or args.suite / "bound.csv"
     write_csv(out, rows)
     print(f"wrote {len(rows)} rows to {out} ({split} episodes {seeds[0]}..{seeds[-1]})")

@@ -182,6 +182,8 @@ def test_scenarios_outside_the_model_are_refused():
     sc = tiny().replace(max_hops=2)
     with pytest.raises(bound.BoundError, match="max_hops 2"):
         bound.solve(sc, [bound.TraceTask("a", 0, TaskSize(1e6, 1e5, 1e5, 1.0, 10.0))], 20)
+    with pytest.raises(bound.BoundError, match=r"payloads \(classify\)"):  # real work: its cycles are measured
+        bound.solve(load_scenario("examples/payload_classifier"), [], 20)
 
 
 def test_the_command_without_a_suite_is_one_line(tmp_path, capsys):
@@ -190,3 +192,14 @@ def test_the_command_without_a_suite_is_one_line(tmp_path, capsys):
     assert e.value.code == 2
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and "manifest.csv: not found" in err
+
+
+def test_a_regime_outside_the_model_stops_the_command_in_one_line(tmp_path, capsys):
+    suite.write(suite.suite("test", 1, steps=20), tmp_path / "test")
+    (path,) = (tmp_path / "test").glob("test-*.yaml")
+    path.write_text(path.read_text().replace("max_hops: 1", "max_hops: 2"))
+    with pytest.raises(SystemExit) as e:
+        bound.main(["--suite", str(tmp_path / "test"), "--episodes", "1", "--no-progress"])
+    err = capsys.readouterr().err
+    assert e.value.code == 2 and err.count("\n") == 1 and "max_hops 2; the bound models one hop" in err, err
+    assert not (tmp_path / "test" / "bound.csv").exists()
