@@ -63,6 +63,13 @@ def uncovered(env: ZenohEdgeEnv) -> str | None:
     return None
 
 
+def seconds_left(busy: np.ndarray, t: int, dt: float) -> np.ndarray:
+    """``node_runtime.model.view.backlog`` of every entry, in its float operations: the seconds of work left at the
+    end of tick ``t`` on links busy, or CPUs draining, until the ticks ``busy``."""
+    end = t + 1
+    return np.where(busy > end, (busy - end) * dt, 0.0)
+
+
 def _name(fn) -> str:
     return fn.__name__.removesuffix("_reward")
 
@@ -253,10 +260,8 @@ class BatchedSteps:
         own_queue, own_occupancy, own_drain = sim.seen_own  # its own node (co-located: as it is)
         out[:, :, own + OwnField.QUEUE] = own_queue[:, nodes]
         out[:, :, own + OwnField.OCCUPANCY] = own_occupancy[:, nodes]
-        end = t + 1
-        work = np.where(sim.seen_drain > end, (sim.seen_drain - end) * dt, 0.0)  # ``NodeView.work_s``
-        own_work = np.where(own_drain > end, (own_drain - end) * dt, 0.0)
-        out[:, :, own + OwnField.WORK_S] = own_work[:, nodes]
+        work = seconds_left(sim.seen_drain, t, dt)  # ``NodeView.work_s``
+        out[:, :, own + OwnField.WORK_S] = seconds_left(own_drain, t, dt)[:, nodes]
         out[:, :, own + OwnField.UNDECIDED] = sim.seen_undecided[:, nodes]
         a, j, col = self.real_a, self.real_j, self.real_col
         out[:, a, col + NeighbourField.QUEUE] = sim.seen_heard[:, j]
@@ -264,7 +269,7 @@ class BatchedSteps:
         out[:, a, col + NeighbourField.WORK_S] = work[:, j]
         out[:, a, col + NeighbourField.AGE_TICKS] = self._ages(t)
         busy = sim.seen_busy[:, nodes[a], self.real_s]
-        out[:, a, col + NeighbourField.BACKLOG_S] = np.where(busy > end, (busy - end) * dt, 0.0)
+        out[:, a, col + NeighbourField.BACKLOG_S] = seconds_left(busy, t, dt)
         slots = sim.slots[:, nodes, :self.per_epoch]  # (K, N, B) task indices, -1: none
         present = slots >= 0
         c, ag, b = np.nonzero(present)

@@ -1104,9 +1104,9 @@ class ArraySim:
     # ----- end of the tick -----
 
     def _drains(self, t: int) -> None:
-        """``Worker.drains_at`` of every worker up in tick t: (t + 1) + its queue's cycles left / its budget, recomputed
-        where the queue's (length, head, tail) changed, with the cycles added in queue order (bincount adds in input
-        order, as ``sum`` does)."""
+        """``Worker.drains_at`` of every worker up in tick t, while agents drive controllers: (t + 1) + its queue's
+        cycles left / its budget, recomputed where the queue's (length, head, tail) changed, with the cycles added in
+        queue order (bincount adds in input order, as ``sum`` does)."""
         qc, qi = (np.concatenate(a) for a in zip(*self.joined, strict=True))
         queued = self.state[qc, qi] == QUEUED
         qc, qi = qc[queued], qi[queued]
@@ -1138,15 +1138,16 @@ class ArraySim:
         now = np.where(self._divertible(w) & ~self.down[t, nd], nd, -1)
         now = np.where((was >= 0) & self.down[t, was], was, now)
         c, i = np.nonzero(now != was)
-        self.bumped[c[was[c, i] >= 0], was[c, i][was[c, i] >= 0]] = True
-        self.bumped[c[now[c, i] >= 0], now[c, i][now[c, i] >= 0]] = True
+        for at in (was[c, i], now[c, i]):  # the worker it left and the one it joined report
+            self.bumped[c[at >= 0], at[at >= 0]] = True
         self.listed_at[:, w] = now
         c, i = np.nonzero(now >= 0)
         self.listed = np.bincount(c * self.n + now[c, i], minlength=self.k * self.n).reshape(self.k, self.n)
 
     def _levels(self, t: int) -> None:
         w = self.has_worker
-        self._drains(t)
+        if self.recording:  # only the driven controllers' observations read the drain ticks (the policies do not)
+            self._drains(t)
         cnt = self.counters
         cnt[:, :, F["queue"]][:, self.worker[w]] = self.queued[:, w]
         cnt[:, :, F["undecided"]][:, self.worker[w]] = self.undecided[:, w]

@@ -78,8 +78,8 @@ class Worker(Role):
         self.failed = False
         self.radio.reset(stream(seed, self.index, WORKER.stream))
         self._last_state: tuple[int, int, float] | None = None
-        self._drain_key: tuple[int, int, int] | None = None  # the queue ``drains_at`` was computed for ...
-        self._drain = 0.0  # ... and what it gave
+        self._drain_key = (0, -1, -1)  # the queue (length, head id, tail id) ``drains_at`` was computed for: empty ...
+        self._drain = 0.0  # ... and what it gave (an empty queue's work is done, whatever tick it names)
         # bumped whenever what the controller is told changes: the undecided set (queue_first: the divertible
         # tasks), or the links while tasks wait for a decision
         self.tasks_version = 0
